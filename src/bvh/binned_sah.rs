@@ -1,0 +1,157 @@
+//! Top-down binned SAH builder: the classic reference that LBVH (and later PRBVH) is compared
+//! against (Wald, "On fast construction of SAH-based bounding volume hierarchies", 2007).
+//!
+//! Each node bins its primitives' centroids into `bins` equal slots along each axis, sweeps the
+//! bins to find the split with the lowest `A_left * N_left + A_right * N_right`, and partitions in
+//! place. Subtrees above a size threshold are built in parallel (rayon `join`); node pairs are
+//! allocated from an atomic counter, so the layout is siblings-adjacent like every [`Bvh`].
+//! When the centroids cannot be separated (all in one bin, or all equal) the range is halved by
+//! index, so a leaf never exceeds `max_leaf_size`.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use glam::Vec3;
+
+use super::parallel::SharedSlice;
+use super::{Bvh, BvhNode, INVALID_INDEX};
+use crate::geometry::Aabb;
+
+/// Options of [`build`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BinnedSahConfig {
+    /// Bins per axis. Default 32.
+    pub bins: usize,
+    /// Ranges of at most this many primitives become leaves. Default 1, the same as LBVH, so
+    /// both go through the same leaf collapse afterwards.
+    pub max_leaf_size: u32,
+    /// Ranges larger than this are split into parallel tasks. Default 4096.
+    pub parallel_threshold: usize,
+}
+
+impl Default for BinnedSahConfig {
+    fn default() -> Self {
+        Self { bins: 32, max_leaf_size: 1, parallel_threshold: 4096 }
+    }
+}
+
+struct Context<'a> {
+    prim_aabbs: &'a [Aabb],
+    centroids: Vec<Vec3>,
+    config: BinnedSahConfig,
+    nodes: SharedSlice<'a, BvhNode>,
+    parents: SharedSlice<'a, u32>,
+    next: AtomicU32,
+}
+
+/// Builds a tree over primitives given by their boxes.
+pub fn build(prim_aabbs: &[Aabb], config: &BinnedSahConfig) -> Bvh {
+    assert!(config.bins >= 2 && config.max_leaf_size >= 1, "binned SAH needs 2+ bins and leaves of 1+");
+    let n = prim_aabbs.len();
+    if n <= 1 {
+        return Bvh::single_leaf(prim_aabbs);
+    }
+    let mut nodes = vec![BvhNode::leaf(Aabb::EMPTY, 0, 1); 2 * n - 1];
+    let mut parents = vec![INVALID_INDEX; 2 * n - 1];
+    let mut prim_ids: Vec<u32> = (0..n as u32).collect();
+    let used = {
+        let ctx = Context {
+            prim_aabbs,
+            centroids: prim_aabbs.iter().map(Aabb::center).collect(),
+            config: *config,
+            nodes: SharedSlice::new(&mut nodes),
+            parents: SharedSlice::new(&mut parents),
+            next: AtomicU32::new(1),
+        };
+        build_node(&ctx, 0, &mut prim_ids, 0);
+        ctx.next.load(Ordering::Relaxed) as usize
+    };
+    nodes.truncate(used);
+    parents.truncate(used);
+    Bvh { nodes, parents, prim_ids }
+}
+
+/// Builds the subtree of `ids` (which start at `offset` in `prim_ids`) into node `slot`.
+fn build_node(ctx: &Context, slot: u32, ids: &mut [u32], offset: u32) {
+    let bounds = ids.iter().fold(Aabb::EMPTY, |b, &p| b.union(ctx.prim_aabbs[p as usize]));
+    if ids.len() <= ctx.config.max_leaf_size as usize {
+        // SAFETY: every slot is handed to exactly one call of build_node.
+        unsafe { ctx.nodes.set(slot as usize, BvhNode::leaf(bounds, offset, ids.len() as u32)) };
+        return;
+    }
+    let mid = partition(ctx, ids);
+    let left = ctx.next.fetch_add(2, Ordering::Relaxed);
+    // SAFETY: `slot` belongs to this call; `left` and `left + 1` were just allocated to it.
+    unsafe {
+        ctx.nodes.set(slot as usize, BvhNode::internal(bounds, left));
+        ctx.parents.set(left as usize, slot);
+        ctx.parents.set(left as usize + 1, slot);
+    }
+    let (l, r) = ids.split_at_mut(mid);
+    let right_offset = offset + mid as u32;
+    if l.len() + r.len() > ctx.config.parallel_threshold {
+        rayon::join(|| build_node(ctx, left, l, offset), || build_node(ctx, left + 1, r, right_offset));
+    } else {
+        build_node(ctx, left, l, offset);
+        build_node(ctx, left + 1, r, right_offset);
+    }
+}
+
+/// Reorders `ids` so that the best binned split separates `ids[..mid]` from `ids[mid..]`, and
+/// returns `mid` (in `1..ids.len()`).
+fn partition(ctx: &Context, ids: &mut [u32]) -> usize {
+    let cb = ids.iter().fold(Aabb::EMPTY, |b, &p| b.grow(ctx.centroids[p as usize]));
+    let extent = cb.extent();
+    let bins = ctx.config.bins;
+    let bin_of = |axis: usize, p: u32| -> usize {
+        let scale = bins as f32 / extent[axis];
+        (((ctx.centroids[p as usize][axis] - cb.min[axis]) * scale) as usize).min(bins - 1)
+    };
+    // (cost, axis, first bin of the right side)
+    let mut best: Option<(f32, usize, usize)> = None;
+    for axis in 0..3 {
+        if !(extent[axis] > 0.0) {
+            continue;
+        }
+        let mut count = vec![0u32; bins];
+        let mut boxes = vec![Aabb::EMPTY; bins];
+        for &p in ids.iter() {
+            let b = bin_of(axis, p);
+            count[b] += 1;
+            boxes[b] = boxes[b].union(ctx.prim_aabbs[p as usize]);
+        }
+        // Right-to-left sweep stores the right side's cost for each split.
+        let mut right_cost = vec![0.0f32; bins];
+        let (mut acc_box, mut acc_n) = (Aabb::EMPTY, 0u32);
+        for b in (1..bins).rev() {
+            acc_box = acc_box.union(boxes[b]);
+            acc_n += count[b];
+            right_cost[b] = acc_box.half_area() * acc_n as f32;
+        }
+        let (mut acc_box, mut acc_n) = (Aabb::EMPTY, 0u32);
+        for b in 1..bins {
+            acc_box = acc_box.union(boxes[b - 1]);
+            acc_n += count[b - 1];
+            if acc_n == 0 || acc_n as usize == ids.len() {
+                continue;
+            }
+            let cost = acc_box.half_area() * acc_n as f32 + right_cost[b];
+            if best.is_none_or(|(c, _, _)| cost < c) {
+                best = Some((cost, axis, b));
+            }
+        }
+    }
+    let Some((_, axis, split)) = best else {
+        return ids.len() / 2;
+    };
+    // Two-pointer partition: left side keeps bins below `split`.
+    let (mut i, mut j) = (0, ids.len());
+    while i < j {
+        if bin_of(axis, ids[i]) < split {
+            i += 1;
+        } else {
+            j -= 1;
+            ids.swap(i, j);
+        }
+    }
+    i
+}

@@ -1,0 +1,217 @@
+//! SAH cost of a tree, and the leaf-collapse pass that picks leaf sizes by SAH.
+//!
+//! Cost: Meister & Bittner 2018, section 3, equation 2 (the unrolled recurrence):
+//!
+//! ```text
+//!   c(root) = 1 / SA(root) * [ cT * Σ_interior SA(Ni) + cI * Σ_leaves SA(Nl) * |Nl| ]
+//! ```
+//!
+//! with cT = 3 and cI = 2 as in the paper's section 6.
+//!
+//! Leaf collapse: the paper (section 6) applies "an adaptive leaf size" after optimisation, using
+//! PLOC's implementation. We evaluate, bottom-up, the cheaper of keeping a subtree or replacing it
+//! by one leaf holding all its primitives (allowed up to `max_leaf_size` primitives), exactly the
+//! recurrence of equation 1 with a choice at each node; then rebuild the arrays in depth-first
+//! order so the kept nodes are compact.
+
+use rayon::prelude::*;
+
+use super::parallel::bottom_up;
+use super::{Bvh, BvhNode, INVALID_INDEX};
+
+/// The SAH's constants.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SahCosts {
+    /// Cost of a traversal step, cT. Default 3 (Meister & Bittner 2018, section 6).
+    pub traversal: f32,
+    /// Cost of one primitive intersection, cI. Default 2.
+    pub intersection: f32,
+}
+
+impl Default for SahCosts {
+    fn default() -> Self {
+        Self { traversal: 3.0, intersection: 2.0 }
+    }
+}
+
+/// SAH cost with the default constants (cT = 3, cI = 2).
+pub fn sah_cost(bvh: &Bvh) -> f64 {
+    sah_cost_with(bvh, &SahCosts::default())
+}
+
+/// SAH cost by equation 2, summed in f64 by a parallel reduction. An empty tree costs 0.
+///
+/// When the root's surface area is zero (all primitives at one point) the ratios are 0/0; we
+/// take every node as hit with probability 1, so the cost is `cT * interior + cI * primitives`.
+pub fn sah_cost_with(bvh: &Bvh, costs: &SahCosts) -> f64 {
+    if bvh.is_empty() {
+        return 0.0;
+    }
+    let weight = |n: &BvhNode| -> f64 {
+        if n.is_leaf() { costs.intersection as f64 * n.prim_count as f64 } else { costs.traversal as f64 }
+    };
+    let root_area = bvh.nodes[0].aabb().half_area() as f64;
+    if root_area == 0.0 {
+        return bvh.nodes.par_iter().map(weight).sum();
+    }
+    let sum: f64 = bvh.nodes.par_iter().with_min_len(4096).map(|n| weight(n) * n.aabb().half_area() as f64).sum();
+    sum / root_area
+}
+
+/// Options of [`collapse_leaves`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CollapseConfig {
+    /// Largest leaf the pass may form. Default 8: beyond that, intersecting a leaf's triangles
+    /// one after another costs more than the boxes that would sort them.
+    pub max_leaf_size: u32,
+    /// SAH constants deciding each collapse. Default cT = 3, cI = 2.
+    pub costs: SahCosts,
+}
+
+impl Default for CollapseConfig {
+    fn default() -> Self {
+        Self { max_leaf_size: 8, costs: SahCosts::default() }
+    }
+}
+
+/// A new tree in which each subtree that SAH says is cheaper as one leaf (with at most
+/// `max_leaf_size` primitives) is one leaf. Node order is depth-first, siblings adjacent. The
+/// cost never increases; leaves already larger than the cap are kept as they are.
+pub fn collapse_leaves(bvh: &Bvh, config: &CollapseConfig) -> Bvh {
+    if bvh.nodes.len() <= 1 {
+        return bvh.clone();
+    }
+    let collapse = collapse_decisions(bvh, config);
+    let mut out = Bvh {
+        nodes: Vec::with_capacity(bvh.nodes.len()),
+        parents: Vec::with_capacity(bvh.nodes.len()),
+        prim_ids: Vec::with_capacity(bvh.prim_ids.len()),
+    };
+    out.nodes.push(bvh.nodes[0]);
+    out.parents.push(INVALID_INDEX);
+    // (old node, its slot in the new tree)
+    let mut stack = vec![(0u32, 0u32)];
+    let mut leaf_stack = Vec::new();
+    while let Some((old, new)) = stack.pop() {
+        let node = bvh.nodes[old as usize];
+        if node.is_leaf() || collapse[old as usize] {
+            let first = out.prim_ids.len() as u32;
+            gather_prims(bvh, old, &mut out.prim_ids, &mut leaf_stack);
+            let count = out.prim_ids.len() as u32 - first;
+            out.nodes[new as usize] = BvhNode::leaf(node.aabb(), first, count);
+        } else {
+            let left = out.nodes.len() as u32;
+            out.nodes[new as usize].first = left;
+            for k in 0..2 {
+                out.nodes.push(bvh.nodes[(node.first + k) as usize]);
+                out.parents.push(new);
+            }
+            // Right pushed first so the left subtree is laid out first.
+            stack.push((node.first + 1, left + 1));
+            stack.push((node.first, left));
+        }
+    }
+    out
+}
+
+/// For every node: true where replacing its subtree by one leaf is no more expensive.
+fn collapse_decisions(bvh: &Bvh, config: &CollapseConfig) -> Vec<bool> {
+    let (ct, ci) = (config.costs.traversal as f64, config.costs.intersection as f64);
+    // (cost in half-area units, primitive count, collapse?)
+    let mut values = vec![(0.0f64, 0u32, false); bvh.nodes.len()];
+    let nodes = &bvh.nodes;
+    bottom_up(
+        &bvh.parents,
+        |i| (!nodes[i].is_leaf()).then_some(nodes[i].first as usize),
+        &mut values,
+        |i| {
+            let n = &nodes[i];
+            (ci * n.prim_count as f64 * n.aabb().half_area() as f64, n.prim_count, false)
+        },
+        |i, l, r| {
+            let area = nodes[i].aabb().half_area() as f64;
+            let count = l.1 + r.1;
+            let keep = ct * area + l.0 + r.0;
+            let as_leaf = ci * count as f64 * area;
+            if count <= config.max_leaf_size && as_leaf <= keep { (as_leaf, count, true) } else { (keep, count, false) }
+        },
+    );
+    values.into_iter().map(|v| v.2).collect()
+}
+
+/// Appends the primitives of every leaf under `node` to `out`, left to right.
+fn gather_prims(bvh: &Bvh, node: u32, out: &mut Vec<u32>, stack: &mut Vec<u32>) {
+    stack.clear();
+    stack.push(node);
+    while let Some(i) = stack.pop() {
+        let n = &bvh.nodes[i as usize];
+        if n.is_leaf() {
+            out.extend_from_slice(&bvh.prim_ids[n.prim_range()]);
+        } else {
+            stack.push(n.first + 1);
+            stack.push(n.first);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+    use crate::geometry::Aabb;
+
+    fn unit(x: f32) -> Aabb {
+        Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0))
+    }
+
+    /// root(0..3) -> [leaf a (0..1), leaf b (2..3)]: half areas 3 (unit cubes) and 7 (3x1x1).
+    fn two_leaves() -> Bvh {
+        Bvh {
+            nodes: vec![
+                BvhNode::internal(unit(0.0).union(unit(2.0)), 1),
+                BvhNode::leaf(unit(0.0), 0, 1),
+                BvhNode::leaf(unit(2.0), 1, 1),
+            ],
+            parents: vec![INVALID_INDEX, 0, 0],
+            prim_ids: vec![0, 1],
+        }
+    }
+
+    #[test]
+    fn cost_of_a_known_tree() {
+        // (3 * 7 + 2 * 3 + 2 * 3) / 7
+        let c = sah_cost(&two_leaves());
+        assert!((c - 33.0 / 7.0).abs() < 1e-12, "{c}");
+        assert_eq!(sah_cost(&Bvh::default()), 0.0);
+    }
+
+    #[test]
+    fn collapse_when_children_overlap_fully() {
+        // Two primitives with the same box: one leaf of 2 costs 2*2 = 4 < 3 + 2 + 2.
+        let b = unit(0.0);
+        let bvh = Bvh {
+            nodes: vec![BvhNode::internal(b, 1), BvhNode::leaf(b, 0, 1), BvhNode::leaf(b, 1, 1)],
+            parents: vec![INVALID_INDEX, 0, 0],
+            prim_ids: vec![0, 1],
+        };
+        let c = collapse_leaves(&bvh, &CollapseConfig::default());
+        assert_eq!(c.nodes.len(), 1);
+        assert_eq!(c.nodes[0].prim_count, 2);
+        assert_eq!(sah_cost(&c), 4.0);
+    }
+
+    #[test]
+    fn keep_when_split_pays_and_respect_the_cap() {
+        // In half-area units the split costs 3*7 + 2*3 + 2*3 = 33, one leaf 2*2*7 = 28...
+        let c = collapse_leaves(&two_leaves(), &CollapseConfig::default());
+        assert_eq!(c.nodes.len(), 1);
+        // ...unless the cap forbids it.
+        let capped = collapse_leaves(&two_leaves(), &CollapseConfig { max_leaf_size: 1, ..Default::default() });
+        assert_eq!(capped, two_leaves());
+        // A high intersection cost makes the split worth keeping.
+        let costs = SahCosts { traversal: 1.0, intersection: 10.0 };
+        let kept = collapse_leaves(&two_leaves(), &CollapseConfig { costs, ..Default::default() });
+        assert_eq!(kept.nodes.len(), 3);
+    }
+}

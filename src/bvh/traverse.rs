@@ -1,0 +1,203 @@
+//! Ray traversal: closest hit and any hit, plus brute-force references.
+//!
+//! Stack-based, near child first: at an internal node both children's boxes are tested (they are
+//! adjacent in memory), the nearer is visited next and the farther pushed with its entry
+//! distance, so it can be skipped on pop once a closer hit is known.
+//!
+//! Exactness against brute force: among hits at equal `t` the lowest primitive id wins, in both
+//! traversal and brute force, so duplicate triangles give one answer. A box is skipped only when
+//! its entry distance exceeds the best `t` by more than [`CULL_SCALE`]: the box entry and the
+//! triangle's `t` are computed by different formulas, and for a triangle lying in a box face
+//! (axis-aligned geometry) they agree only to a few ULPs.
+
+use glam::Vec3;
+
+use super::{Bvh, BvhNode};
+use crate::geometry::{Ray, RayInv, Triangle, WatertightRay};
+
+/// Relative slack on the best hit distance when culling boxes: covers the few ULPs by which a
+/// triangle's computed `t` may undershoot its box's computed entry distance.
+pub const CULL_SCALE: f32 = 1.0 + 1.0 / 65536.0;
+
+/// Entries the stack holds before spilling to the heap: LBVH trees are at most 60 + 32 deep, but
+/// the optimiser can deepen a tree without bound, so depth is not capped here.
+const STACK_SIZE: usize = 64;
+
+/// The closest hit on a triangle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    pub prim_id: u32,
+    /// Barycentric coordinates of `v1` and `v2`.
+    pub u: f32,
+    pub v: f32,
+}
+
+struct Stack {
+    fixed: [(u32, f32); STACK_SIZE],
+    len: usize,
+    spill: Vec<(u32, f32)>,
+}
+
+impl Stack {
+    #[inline]
+    fn new() -> Self {
+        Self { fixed: [(0, 0.0); STACK_SIZE], len: 0, spill: Vec::new() }
+    }
+
+    #[inline]
+    fn push(&mut self, entry: (u32, f32)) {
+        if self.len < STACK_SIZE {
+            self.fixed[self.len] = entry;
+            self.len += 1;
+        } else {
+            self.spill.push(entry);
+        }
+    }
+
+    #[inline]
+    fn pop(&mut self) -> Option<(u32, f32)> {
+        if let Some(e) = self.spill.pop() {
+            return Some(e);
+        }
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        Some(self.fixed[self.len])
+    }
+}
+
+impl Bvh {
+    /// Closest primitive hit by `ray` with `0 < t <= t_max`, ties going to the lowest id.
+    ///
+    /// `intersect(prim_id, t_limit)` returns the hit distance on that primitive (and any payload)
+    /// if it is hit with `0 < t <= t_limit`; it must compute `t` independently of `t_limit`.
+    /// Returns `(prim_id, t, payload)`.
+    pub fn closest_hit<H>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        mut intersect: impl FnMut(u32, f32) -> Option<(f32, H)>,
+    ) -> Option<(u32, f32, H)> {
+        let inv = ray.inv();
+        let mut best: Option<(u32, f32, H)> = None;
+        let mut limit = t_max;
+        self.traverse(&inv, &mut limit, |n, bvh, limit| {
+            for &prim in &bvh.prim_ids[n.prim_range()] {
+                let t_limit = best.as_ref().map_or(t_max, |b| b.1);
+                let Some((t, payload)) = intersect(prim, t_limit) else { continue };
+                let better = best.as_ref().is_none_or(|&(bp, bt, _)| t < bt || (t == bt && prim < bp));
+                if better {
+                    best = Some((prim, t, payload));
+                    *limit = t * CULL_SCALE;
+                }
+            }
+            false
+        });
+        best
+    }
+
+    /// Whether any primitive is hit with `0 < t <= t_max`; stops at the first one found.
+    pub fn any_hit(&self, ray: &Ray, t_max: f32, mut intersect: impl FnMut(u32, f32) -> bool) -> bool {
+        let inv = ray.inv();
+        let mut limit = t_max;
+        let mut found = false;
+        self.traverse(&inv, &mut limit, |n, bvh, _| {
+            found = bvh.prim_ids[n.prim_range()].iter().any(|&p| intersect(p, t_max));
+            found
+        });
+        found
+    }
+
+    /// The shared loop: calls `leaf(node, self, &mut limit)` for every leaf whose box the ray
+    /// enters before `limit`, nearer boxes first; stops when `leaf` returns true.
+    #[inline(always)]
+    fn traverse(&self, ray: &RayInv, limit: &mut f32, mut leaf: impl FnMut(&BvhNode, &Bvh, &mut f32) -> bool) {
+        let Some(root) = self.nodes.first() else { return };
+        if root.aabb().intersect_ray(ray, *limit).is_none() {
+            return;
+        }
+        let mut stack = Stack::new();
+        let mut node = root;
+        loop {
+            if node.is_leaf() {
+                if leaf(node, self, limit) {
+                    return;
+                }
+            } else {
+                let (l, r) = (node.first as usize, node.first as usize + 1);
+                let (nl, nr) = (&self.nodes[l], &self.nodes[r]);
+                let tl = nl.aabb().intersect_ray(ray, *limit);
+                let tr = nr.aabb().intersect_ray(ray, *limit);
+                match (tl, tr) {
+                    (Some(tl), Some(tr)) => {
+                        let (near, far, t_far) = if tl <= tr { (nl, r, tr) } else { (nr, l, tl) };
+                        stack.push((far as u32, t_far));
+                        node = near;
+                        continue;
+                    }
+                    (Some(_), None) => {
+                        node = nl;
+                        continue;
+                    }
+                    (None, Some(_)) => {
+                        node = nr;
+                        continue;
+                    }
+                    (None, None) => {}
+                }
+            }
+            // Pop the next node still in range.
+            loop {
+                let Some((i, t_enter)) = stack.pop() else { return };
+                if t_enter <= *limit {
+                    node = &self.nodes[i as usize];
+                    break;
+                }
+            }
+        }
+    }
+
+    /// Closest triangle hit: [`Bvh::closest_hit`] with the watertight triangle test, over the
+    /// triangles the tree was built on (indexed by primitive id).
+    pub fn closest_hit_triangles(&self, triangles: &[Triangle], ray: &Ray, t_max: f32) -> Option<Hit> {
+        let wr = WatertightRay::new(ray);
+        self.closest_hit(ray, t_max, |prim, t_limit| {
+            triangles[prim as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
+        })
+        .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
+    }
+
+    /// Whether any triangle is hit with `0 < t <= t_max` (shadow rays).
+    pub fn any_hit_triangles(&self, triangles: &[Triangle], ray: &Ray, t_max: f32) -> bool {
+        let wr = WatertightRay::new(ray);
+        self.any_hit(ray, t_max, |prim, t_limit| triangles[prim as usize].intersect(&wr, t_limit).is_some())
+    }
+}
+
+/// Closest hit by testing every triangle: the reference traversal is checked against.
+pub fn brute_force_closest(triangles: &[Triangle], ray: &Ray, t_max: f32) -> Option<Hit> {
+    let wr = WatertightRay::new(ray);
+    let mut best: Option<Hit> = None;
+    for (i, tri) in triangles.iter().enumerate() {
+        if let Some(h) = tri.intersect(&wr, t_max) {
+            if best.is_none_or(|b| h.t < b.t) {
+                best = Some(Hit { t: h.t, prim_id: i as u32, u: h.u, v: h.v });
+            }
+        }
+    }
+    best
+}
+
+/// Whether any triangle is hit, by testing every one.
+pub fn brute_force_any(triangles: &[Triangle], ray: &Ray, t_max: f32) -> bool {
+    let wr = WatertightRay::new(ray);
+    triangles.iter().any(|t| t.intersect(&wr, t_max).is_some())
+}
+
+/// A hit's position, from barycentrics (more accurate than `ray.at(t)`), and geometric normal.
+pub fn hit_point_and_normal(triangles: &[Triangle], hit: &Hit) -> (Vec3, Vec3) {
+    let tri = &triangles[hit.prim_id as usize];
+    (tri.point(hit.u, hit.v), tri.normal().normalize_or_zero())
+}

@@ -1,0 +1,12 @@
+//! Geometry: boxes, rays, triangles, Morton codes and meshes.
+
+mod aabb;
+pub mod mesh;
+pub mod morton;
+mod ray;
+mod triangle;
+
+pub use aabb::{Aabb, ROBUST_SLAB_SCALE, RayInv};
+pub use mesh::{MeshError, TriangleMesh};
+pub use ray::{Ray, offset_ray_origin, spawn_ray};
+pub use triangle::{Triangle, TriangleHit, WatertightRay};
