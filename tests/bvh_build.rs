@@ -1,0 +1,189 @@
+//! Every builder's output passes validate() on edge cases, on large random input and on the
+//! shared meshes; validate() itself rejects broken trees.
+
+mod common;
+
+use arbor::bvh::{
+    self, Bvh, BvhNode, CollapseConfig, INVALID_INDEX, ValidationError, binned_sah, collapse_leaves, lbvh,
+    refit_sequential, sah_cost, validate,
+};
+use arbor::geometry::{Aabb, Triangle};
+use common::*;
+use glam::Vec3;
+
+/// Builds with every builder, with and without leaf collapse, validates each, and returns the
+/// LBVH.
+fn build_all_and_validate(prims: &[Aabb]) -> Bvh {
+    let lbvh = lbvh::build(prims);
+    let binned = binned_sah::build(prims, &Default::default());
+    for (name, tree) in [("lbvh", &lbvh), ("binned-sah", &binned)] {
+        let stats = validate(tree, prims).unwrap_or_else(|e| panic!("{name}: {e}"));
+        if !prims.is_empty() {
+            assert_eq!(stats.leaf_count, prims.len(), "{name}: one primitive per leaf");
+            assert_eq!(stats.node_count, 2 * prims.len() - 1, "{name}");
+        }
+        let collapsed = collapse_leaves(tree, &CollapseConfig::default());
+        let cstats = validate(&collapsed, prims).unwrap_or_else(|e| panic!("{name} collapsed: {e}"));
+        assert!(cstats.max_leaf_size <= CollapseConfig::default().max_leaf_size.max(1));
+        let (before, after) = (sah_cost(tree), sah_cost(&collapsed));
+        assert!(after <= before * (1.0 + 1e-9), "{name}: collapse raised SAH {before} -> {after}");
+    }
+    lbvh
+}
+
+#[test]
+fn empty_input_gives_an_empty_tree() {
+    let bvh = build_all_and_validate(&[]);
+    assert!(bvh.is_empty() && bvh.prim_ids.is_empty());
+    assert_eq!(validate(&bvh, &[]).unwrap().depth, 0);
+    assert_eq!(sah_cost(&bvh), 0.0);
+}
+
+#[test]
+fn one_and_two_primitives() {
+    let tris = random_triangles(2, 0.1, &mut rng(1));
+    let one = build_all_and_validate(&aabbs(&tris[..1]));
+    assert_eq!(validate(&one, &aabbs(&tris[..1])).unwrap().depth, 1);
+    let two = build_all_and_validate(&aabbs(&tris));
+    assert_eq!(validate(&two, &aabbs(&tris)).unwrap().depth, 2);
+}
+
+#[test]
+fn identical_centroids() {
+    // Boxes of different sizes around one point: every Morton code ties. Extents are multiples
+    // of 1/64 so that every box centre is exactly `c`.
+    let mut r = rng(2);
+    let c = Vec3::new(0.5, -2.0, 7.0);
+    let prims: Vec<Aabb> = (0..1000)
+        .map(|_| {
+            let e = (unit_vec3(&mut r) * 64.0).floor() / 64.0;
+            Aabb::new(c - e, c + e)
+        })
+        .collect();
+    assert!(prims.iter().all(|b| b.center() == c));
+    let bvh = build_all_and_validate(&prims);
+    // The index tie-break splits equal keys evenly: depth is log2(1000) rounded up, plus 1.
+    assert_eq!(validate(&bvh, &prims).unwrap().depth, 11);
+}
+
+#[test]
+fn zero_area_triangles() {
+    let mut r = rng(3);
+    let mut tris = Vec::new();
+    for _ in 0..500 {
+        let (a, b) = (unit_vec3(&mut r), unit_vec3(&mut r));
+        tris.push(Triangle::new(a, b, a.lerp(b, 0.25))); // collinear
+        tris.push(Triangle::new(a, a, a)); // a point
+        tris.push(Triangle::new(a, a, b)); // repeated vertex
+    }
+    build_all_and_validate(&aabbs(&tris));
+}
+
+#[test]
+fn duplicate_triangles() {
+    let base = random_triangles(300, 0.05, &mut rng(4));
+    let tris: Vec<Triangle> = base.iter().cycle().take(base.len() * 4).copied().collect();
+    build_all_and_validate(&aabbs(&tris));
+}
+
+#[test]
+fn a_million_random_triangles() {
+    let tris = random_triangles(1_000_000, 0.01, &mut rng(5));
+    let prims = aabbs(&tris);
+    let bvh = lbvh::build(&prims);
+    let stats = validate(&bvh, &prims).unwrap();
+    assert_eq!(stats.leaf_count, 1_000_000);
+    assert!(stats.depth < 64, "LBVH of uniform points should be shallow, got depth {}", stats.depth);
+    eprintln!("10^6 random triangles: LBVH depth {}, SAH {:.2}", stats.depth, sah_cost(&bvh));
+    let collapsed = collapse_leaves(&bvh, &CollapseConfig::default());
+    validate(&collapsed, &prims).unwrap();
+}
+
+#[test]
+fn every_shared_mesh() {
+    for (name, mesh) in all_shared_models() {
+        let prims = aabbs(&mesh.triangles());
+        let lbvh = build_all_and_validate(&prims);
+        let stats = validate(&lbvh, &prims).unwrap();
+        eprintln!("{name}: {} triangles, LBVH depth {}, SAH {:.2}", prims.len(), stats.depth, sah_cost(&lbvh));
+    }
+}
+
+#[test]
+fn lbvh_does_not_depend_on_thread_count() {
+    let prims = aabbs(&random_triangles(200_000, 0.02, &mut rng(6)));
+    let build_with = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| lbvh::build(&prims))
+    };
+    let one = build_with(1);
+    assert_eq!(one, build_with(2));
+    assert_eq!(one, build_with(5));
+}
+
+#[test]
+fn parallel_refit_equals_sequential_refit() {
+    let prims = aabbs(&random_triangles(100_000, 0.02, &mut rng(7)));
+    let mut a = lbvh::build(&prims);
+    // Move every primitive, then refit both ways.
+    let moved: Vec<Aabb> = prims.iter().map(|b| Aabb::new(b.min * 2.0, b.max * 2.0 + 0.01)).collect();
+    let mut b = a.clone();
+    bvh::refit(&mut a, &moved);
+    refit_sequential(&mut b, &moved);
+    assert_eq!(a, b);
+    validate(&a, &moved).unwrap();
+}
+
+/// A valid three-node tree to break in each of the ways validate() must notice.
+fn small_tree() -> (Bvh, Vec<Aabb>) {
+    let prims = vec![Aabb::new(Vec3::ZERO, Vec3::ONE), Aabb::new(Vec3::splat(2.0), Vec3::splat(3.0))];
+    let bvh = Bvh {
+        nodes: vec![
+            BvhNode::internal(prims[0].union(prims[1]), 1),
+            BvhNode::leaf(prims[0], 0, 1),
+            BvhNode::leaf(prims[1], 1, 1),
+        ],
+        parents: vec![INVALID_INDEX, 0, 0],
+        prim_ids: vec![0, 1],
+    };
+    (bvh, prims)
+}
+
+#[test]
+fn validate_rejects_broken_trees() {
+    let (good, prims) = small_tree();
+    assert!(validate(&good, &prims).is_ok());
+
+    let mut t = good.clone();
+    t.parents[2] = 1;
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::ParentMismatch { child: 2, .. })));
+
+    let mut t = good.clone();
+    t.nodes[0].aabb_max.x += 1.0; // encloses, but not tightly
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::BoxNotTight { node: 0, .. })));
+
+    let mut t = good.clone();
+    t.nodes[1].aabb_min.y += 0.5; // no longer encloses its primitive (nor is the root's union)
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::BoxNotTight { .. })));
+
+    let mut t = good.clone();
+    t.prim_ids = vec![0, 0];
+    t.nodes[2].set_aabb(prims[0]);
+    t.nodes[0].set_aabb(prims[0]);
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::PrimCount { prim: 0, count: 2 })));
+
+    // A cycle: node 2 becomes internal with children 1 and 2 (itself).
+    let mut t = good.clone();
+    t.nodes[2] = BvhNode::internal(t.nodes[2].aabb(), 1);
+    t.parents = vec![INVALID_INDEX, 2, 2];
+    assert!(validate(&t, &prims).is_err());
+
+    let mut t = good.clone();
+    t.parents[0] = 0;
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::RootHasParent(0))));
+
+    let mut t = good.clone();
+    t.nodes.push(BvhNode::leaf(prims[0], 0, 1));
+    t.parents.push(0);
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::Unreachable(1))));
+}

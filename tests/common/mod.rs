@@ -1,0 +1,96 @@
+//! Helpers shared by the integration tests: seeded random geometry and rays, and the shared test
+//! meshes.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
+use glam::Vec3;
+use rand::{RngExt, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+pub type Rng = Pcg64Mcg;
+
+pub fn rng(seed: u64) -> Rng {
+    Pcg64Mcg::seed_from_u64(seed)
+}
+
+pub fn unit_vec3(rng: &mut Rng) -> Vec3 {
+    Vec3::new(rng.random(), rng.random(), rng.random())
+}
+
+/// A uniformly random direction.
+pub fn random_dir(rng: &mut Rng) -> Vec3 {
+    let z: f32 = rng.random_range(-1.0..1.0);
+    let phi: f32 = rng.random_range(0.0..std::f32::consts::TAU);
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// `n` triangles with vertices near random points of the unit cube, edges up to `size` long.
+pub fn random_triangles(n: usize, size: f32, rng: &mut Rng) -> Vec<Triangle> {
+    (0..n)
+        .map(|_| {
+            let c = unit_vec3(rng);
+            let mut v = || c + (unit_vec3(rng) - 0.5) * size;
+            Triangle::new(v(), v(), v())
+        })
+        .collect()
+}
+
+pub fn aabbs(triangles: &[Triangle]) -> Vec<Aabb> {
+    triangles.iter().map(Triangle::aabb).collect()
+}
+
+/// Rays aimed at `bounds`: half from a sphere around it towards random points inside it, a
+/// quarter from inside it in random directions, a quarter aimed exactly at random `targets`.
+pub fn rays_at(bounds: &Aabb, targets: &[Vec3], n: usize, rng: &mut Rng) -> Vec<Ray> {
+    let center = bounds.center();
+    let radius = bounds.extent().length().max(1e-6);
+    let inside = |rng: &mut Rng| bounds.min + unit_vec3(rng) * bounds.extent();
+    (0..n)
+        .map(|i| match i % 4 {
+            0 | 1 => {
+                let o = center + random_dir(rng) * radius * 1.5;
+                Ray::new(o, inside(rng) - o)
+            }
+            2 => Ray::new(inside(rng), random_dir(rng)),
+            _ => {
+                let o = center + random_dir(rng) * radius * 1.5;
+                let t = targets[rng.random_range(0..targets.len())];
+                Ray::new(o, t - o)
+            }
+        })
+        .collect()
+}
+
+pub fn models_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/models")
+}
+
+/// Loads a mesh from `../shared/models`. Where the folder is missing the test is skipped with a
+/// printed reason, except under `CI=true`, where that is a failure.
+pub fn shared_model(name: &str) -> Option<TriangleMesh> {
+    let path = models_dir().join(name);
+    if !path.exists() {
+        let ci = std::env::var("CI").is_ok_and(|v| v == "true");
+        assert!(!ci, "{} is missing; CI must have ../shared/models", path.display());
+        eprintln!("skipping: {} not found (the shared test meshes live beside the repository)", path.display());
+        return None;
+    }
+    Some(TriangleMesh::load_obj(&path).unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// Every `.obj` in `../shared/models`, by file name.
+pub fn all_shared_models() -> Vec<(String, TriangleMesh)> {
+    let Ok(dir) = std::fs::read_dir(models_dir()) else {
+        shared_model("bunny.obj");
+        return vec![];
+    };
+    let mut names: Vec<String> = dir
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n.ends_with(".obj"))
+        .collect();
+    names.sort();
+    names.into_iter().filter_map(|n| shared_model(&n).map(|m| (n, m))).collect()
+}
