@@ -6,18 +6,38 @@
 //!
 //! Exactness against brute force: among hits at equal `t` the lowest primitive id wins, in both
 //! traversal and brute force, so duplicate triangles give one answer. A box is skipped only when
-//! its entry distance exceeds the best `t` by more than [`CULL_SCALE`]: the box entry and the
-//! triangle's `t` are computed by different formulas, and for a triangle lying in a box face
-//! (axis-aligned geometry) they agree only to a few ULPs.
+//! its entry distance exceeds the best `t` by more than a slack ([`cull_limit`]): the box entry
+//! and a triangle's `t` come from different formulas, and the triangle's `t` carries an absolute
+//! error proportional to its vertices' distance from the ray origin (the watertight test
+//! computes `t` as a weighted mean of the vertices' sheared depths). So the slack has a relative
+//! term, and an absolute term of [`CULL_ABS_ULPS`] ULPs of the farthest scene point seen from
+//! the origin. The slack only decides which boxes are opened, never which hits are accepted;
+//! only triangles hit at grazing angles, whose `t` has no useful error bound, may still differ.
 
 use glam::Vec3;
 
 use super::{Bvh, BvhNode};
 use crate::geometry::{Ray, RayInv, Triangle, WatertightRay};
 
-/// Relative slack on the best hit distance when culling boxes: covers the few ULPs by which a
-/// triangle's computed `t` may undershoot its box's computed entry distance.
+/// Relative slack on the best hit distance when culling boxes.
 pub const CULL_SCALE: f32 = 1.0 + 1.0 / 65536.0;
+/// Absolute slack when culling boxes, in ULPs of the distance from the ray origin to the farthest
+/// corner of the tree's bounds.
+pub const CULL_ABS_ULPS: f32 = 64.0;
+
+/// How far past `t` a box may begin and still be opened, for a ray with origin `o`, direction
+/// length `dir_len` and a tree bounded by `bounds`.
+#[inline]
+fn cull_slack(bounds: &crate::geometry::Aabb, ray: &Ray) -> f32 {
+    let far = (bounds.min - ray.origin).abs().max((bounds.max - ray.origin).abs());
+    CULL_ABS_ULPS * f32::EPSILON * far.length() / ray.dir.length()
+}
+
+/// The box-culling limit for a best distance `t` (see the module docs).
+#[inline]
+fn cull_limit(t: f32, slack: f32) -> f32 {
+    t * CULL_SCALE + slack
+}
 
 /// Entries the stack holds before spilling to the heap: LBVH trees are at most 60 + 32 deep, but
 /// the optimiser can deepen a tree without bound, so depth is not capped here.
@@ -82,7 +102,8 @@ impl Bvh {
     ) -> Option<(u32, f32, H)> {
         let inv = ray.inv();
         let mut best: Option<(u32, f32, H)> = None;
-        let mut limit = t_max;
+        let slack = cull_slack(&self.bounds(), ray);
+        let mut limit = cull_limit(t_max, slack);
         self.traverse(&inv, &mut limit, |n, bvh, limit| {
             for &prim in &bvh.prim_ids[n.prim_range()] {
                 let t_limit = best.as_ref().map_or(t_max, |b| b.1);
@@ -90,7 +111,7 @@ impl Bvh {
                 let better = best.as_ref().is_none_or(|&(bp, bt, _)| t < bt || (t == bt && prim < bp));
                 if better {
                     best = Some((prim, t, payload));
-                    *limit = t * CULL_SCALE;
+                    *limit = cull_limit(t, slack);
                 }
             }
             false
@@ -101,7 +122,7 @@ impl Bvh {
     /// Whether any primitive is hit with `0 < t <= t_max`; stops at the first one found.
     pub fn any_hit(&self, ray: &Ray, t_max: f32, mut intersect: impl FnMut(u32, f32) -> bool) -> bool {
         let inv = ray.inv();
-        let mut limit = t_max;
+        let mut limit = cull_limit(t_max, cull_slack(&self.bounds(), ray));
         let mut found = false;
         self.traverse(&inv, &mut limit, |n, bvh, _| {
             found = bvh.prim_ids[n.prim_range()].iter().any(|&p| intersect(p, t_max));

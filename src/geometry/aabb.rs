@@ -92,15 +92,19 @@ impl Aabb {
 
     /// Entry distance of `ray` into this box if the ray's segment `[0, t_max]` touches it.
     ///
-    /// Conservative (Ize 2013): a box the exact ray touches is never reported as missed. NaN
-    /// slab distances (origin on a slab plane with a zero direction component) are ignored by
-    /// `f32::max`/`f32::min`, which treats that slab as not limiting.
+    /// Conservative (Ize 2013): a box the exact ray touches is never reported as missed.
+    ///
+    /// The near and far planes are chosen by the direction's sign, as Ize does, rather than by
+    /// comparing the two slab distances: when the origin lies on a slab plane and the direction
+    /// component is zero, that distance is `0 * inf = NaN`, and `f32::max`/`f32::min` across axes
+    /// then ignore it, so the ray counts as inside that slab. A min/max of the two distances
+    /// would instead turn the NaN into the other plane's infinity and cull the box.
     #[inline(always)]
     pub fn intersect_ray(&self, ray: &RayInv, t_max: f32) -> Option<f32> {
-        let t0 = (self.min - ray.origin) * ray.inv_dir;
-        let t1 = (self.max - ray.origin) * ray.inv_dir;
-        let near = t0.min(t1);
-        let far = t0.max(t1);
+        let near_plane = Vec3::select(ray.negative, self.max, self.min);
+        let far_plane = Vec3::select(ray.negative, self.min, self.max);
+        let near = (near_plane - ray.origin) * ray.inv_dir;
+        let far = (far_plane - ray.origin) * ray.inv_dir;
         let t_enter = near.x.max(near.y).max(near.z).max(0.0);
         let t_exit = far.x.min(far.y).min(far.z).min(t_max) * ROBUST_SLAB_SCALE;
         (t_enter <= t_exit).then_some(t_enter)
@@ -111,17 +115,19 @@ impl Aabb {
 pub const ROBUST_SLAB_SCALE: f32 = 1.0 + 2.0 * GAMMA3;
 const GAMMA3: f32 = (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
-/// A ray prepared for slab tests: origin and per-axis reciprocal direction (±inf where the
-/// direction component is zero, never NaN: `-0.0` maps to `-inf`).
+/// A ray prepared for slab tests: origin, per-axis reciprocal direction (±inf where the
+/// direction component is zero: `-0.0` maps to `-inf`), and which components are negative.
 #[derive(Clone, Copy, Debug)]
 pub struct RayInv {
     pub origin: Vec3,
     pub inv_dir: Vec3,
+    pub negative: glam::BVec3,
 }
 
 impl RayInv {
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
-        Self { origin, inv_dir: dir.recip() }
+        let inv_dir = dir.recip();
+        Self { origin, inv_dir, negative: inv_dir.cmplt(Vec3::ZERO) }
     }
 }
 
@@ -159,6 +165,12 @@ mod tests {
         let b = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
         let r = RayInv::new(Vec3::new(-5.0, 1.0, 0.0), Vec3::X);
         assert!(b.intersect_ray(&r, f32::INFINITY).is_some());
+        for origin in [Vec3::new(-1.0, 0.0, -5.0), Vec3::new(1.0, 0.0, -5.0)] {
+            for dir in [Vec3::new(0.0, 0.1, 1.0), Vec3::new(-0.0, -0.1, 1.0)] {
+                let r = RayInv::new(origin, dir);
+                assert_eq!(b.intersect_ray(&r, f32::INFINITY), Some(4.0), "{origin} {dir}");
+            }
+        }
     }
 
     #[test]

@@ -1,0 +1,152 @@
+//! Closest-hit and any-hit traversal against brute force: the same primitive id, and the same t,
+//! u and v to the bit, for every builder, on random and real meshes.
+
+mod common;
+
+use arbor::bvh::{Bvh, CollapseConfig, Hit, binned_sah, brute_force_any, brute_force_closest, collapse_leaves, lbvh};
+use arbor::geometry::{Ray, Triangle};
+use common::*;
+use rand::RngExt;
+use rayon::prelude::*;
+
+fn trees(tris: &[Triangle]) -> Vec<(&'static str, Bvh)> {
+    let prims = aabbs(tris);
+    let l = lbvh::build(&prims);
+    let b = binned_sah::build(&prims, &Default::default());
+    let cfg = CollapseConfig::default();
+    vec![
+        ("lbvh", l.clone()),
+        ("lbvh+collapse", collapse_leaves(&l, &cfg)),
+        ("binned-sah", b.clone()),
+        ("binned-sah+collapse", collapse_leaves(&b, &cfg)),
+    ]
+}
+
+fn same_hit(a: Option<Hit>, b: Option<Hit>) -> bool {
+    match (a, b) {
+        (None, None) => true,
+        (Some(a), Some(b)) => {
+            a.prim_id == b.prim_id && a.t.to_bits() == b.t.to_bits() && a.u.to_bits() == b.u.to_bits() && a.v.to_bits() == b.v.to_bits()
+        }
+        _ => false,
+    }
+}
+
+/// What brute force says for one ray: the closest hit, and with `t_max` at half its distance
+/// the closest and any hit.
+struct Expected {
+    full: Option<Hit>,
+    half: Option<Hit>,
+    any_half: bool,
+}
+
+/// Checks closest hits (unbounded and bounded) and any hits of every tree against brute force;
+/// returns how many rays hit.
+fn check(name: &str, tris: &[Triangle], rays: &[Ray]) -> usize {
+    let expected: Vec<Expected> = rays
+        .par_iter()
+        .map(|r| {
+            let full = brute_force_closest(tris, r, f32::INFINITY);
+            let half_t = full.map_or(f32::INFINITY, |h| h.t * 0.5);
+            Expected { full, half: brute_force_closest(tris, r, half_t), any_half: brute_force_any(tris, r, half_t) }
+        })
+        .collect();
+    for (tree_name, bvh) in trees(tris) {
+        let bad: Vec<usize> = rays
+            .par_iter()
+            .zip(&expected)
+            .enumerate()
+            .filter(|(_, (r, e))| {
+                let closest = bvh.closest_hit_triangles(tris, r, f32::INFINITY);
+                let Some(full) = e.full else {
+                    return closest.is_some() || bvh.any_hit_triangles(tris, r, f32::INFINITY);
+                };
+                let half_t = full.t * 0.5;
+                !same_hit(closest, e.full)
+                    || !same_hit(bvh.closest_hit_triangles(tris, r, full.t), e.full)
+                    || !bvh.any_hit_triangles(tris, r, full.t)
+                    || !same_hit(bvh.closest_hit_triangles(tris, r, half_t), e.half)
+                    || bvh.any_hit_triangles(tris, r, half_t) != e.any_half
+            })
+            .map(|(i, _)| i)
+            .collect();
+        if let Some(&i) = bad.first() {
+            let r = &rays[i];
+            panic!(
+                "{name}/{tree_name}: {} of {} rays differ from brute force; first: {r:?}: bvh {:?}, brute {:?}",
+                bad.len(),
+                rays.len(),
+                bvh.closest_hit_triangles(tris, r, f32::INFINITY),
+                expected[i].full,
+            );
+        }
+    }
+    expected.iter().filter(|e| e.full.is_some()).count()
+}
+
+#[test]
+fn random_triangles_match_brute_force() {
+    let mut r = rng(10);
+    let tris = random_triangles(20_000, 0.05, &mut r);
+    let targets: Vec<_> = tris.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect();
+    let bounds = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
+    let rays = rays_at(&bounds, &targets, 4000, &mut r);
+    let hits = check("random", &tris, &rays);
+    assert!(hits > 2000, "the rays should mostly hit: {hits}");
+}
+
+#[test]
+fn duplicates_resolve_to_the_lowest_id() {
+    let mut r = rng(11);
+    let base = random_triangles(2000, 0.1, &mut r);
+    // Every triangle four times: ties everywhere.
+    let tris: Vec<Triangle> = base.iter().cycle().take(base.len() * 4).copied().collect();
+    let targets: Vec<_> = base.iter().map(|t| (t.v0 + t.v1 + t.v2) / 3.0).collect();
+    let bounds = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
+    let rays = rays_at(&bounds, &targets, 4000, &mut r);
+    check("duplicates", &tris, &rays);
+    for ray in &rays {
+        if let Some(h) = brute_force_closest(&tris, ray, f32::INFINITY) {
+            assert!((h.prim_id as usize) < base.len(), "a tie went to a later copy");
+        }
+    }
+}
+
+#[test]
+fn shared_meshes_match_brute_force() {
+    for (name, mesh) in all_shared_models() {
+        let tris = mesh.triangles();
+        let mut r = rng(12);
+        // Brute force costs |tris| per ray: keep the product near 4 * 10^8.
+        let n = (400_000_000 / tris.len()).clamp(500, 8000);
+        let rays = rays_at(&mesh.bounds(), &mesh.positions, n, &mut r);
+        let hits = check(&name, &tris, &rays);
+        eprintln!("{name}: {n} rays, {hits} hits, all equal to brute force");
+    }
+}
+
+#[test]
+fn axis_aligned_walls_and_grazing_rays() {
+    // Two boxes' worth of axis-aligned quads, some coplanar: the triangles lie in their leaf
+    // boxes' faces, where box entry and triangle t are computed by different formulas.
+    let mut mesh = arbor::geometry::TriangleMesh::default();
+    for k in 0..20 {
+        let s = 0.25 * k as f32;
+        let quad = |o: glam::Vec3, u: glam::Vec3, v: glam::Vec3| arbor::geometry::TriangleMesh {
+            positions: vec![o, o + u, o + u + v, o + v],
+            indices: vec![[0, 1, 2], [0, 2, 3]],
+        };
+        mesh.append(&quad(glam::Vec3::new(s, 0.0, 0.0), glam::Vec3::Y, glam::Vec3::Z));
+        mesh.append(&quad(glam::Vec3::new(0.0, s * 0.5, 0.0), glam::Vec3::X * 5.0, glam::Vec3::Z));
+        mesh.append(&quad(glam::Vec3::new(0.0, 0.0, 0.0), glam::Vec3::X * 5.0, glam::Vec3::Y * (0.1 * k as f32 + 0.1)));
+    }
+    let tris = mesh.triangles();
+    let mut r = rng(13);
+    let mut rays = rays_at(&mesh.bounds(), &mesh.positions, 4000, &mut r);
+    // Rays parallel to the walls, starting inside their planes.
+    for _ in 0..1000 {
+        let o = glam::Vec3::new(0.25 * r.random_range(0..20) as f32, r.random(), r.random());
+        rays.push(Ray::new(o, glam::Vec3::new(0.0, r.random_range(-1.0..1.0), r.random_range(-1.0..1.0))));
+    }
+    check("axis-aligned", &tris, &rays);
+}
