@@ -187,3 +187,16 @@ fn validate_rejects_broken_trees() {
     t.parents.push(0);
     assert!(matches!(validate(&t, &prims), Err(ValidationError::Unreachable(1))));
 }
+
+#[test]
+fn a_reused_builder_equals_fresh_builds() {
+    // Large, then small, then large again: stale scratch or output state would show.
+    let mut builder = lbvh::LbvhBuilder::default();
+    let mut out = Bvh::default();
+    for (n, seed) in [(50_000, 8), (3, 9), (1, 10), (20_000, 11), (0, 12), (50_000, 13)] {
+        let prims = aabbs(&random_triangles(n, 0.02, &mut rng(seed)));
+        builder.build_into(&prims, &mut out);
+        assert_eq!(out, lbvh::build(&prims), "n = {n}");
+        validate(&out, &prims).unwrap();
+    }
+}

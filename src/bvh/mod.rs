@@ -1,5 +1,6 @@
 //! The bounding volume hierarchy: layout, builders, cost, validation and traversal.
 
+pub mod bench_rays;
 pub mod binned_sah;
 pub mod lbvh;
 mod node;
@@ -13,6 +14,8 @@ pub use sah::{CollapseConfig, SahCosts, collapse_leaves, sah_cost, sah_cost_with
 pub use traverse::{CULL_ABS_ULPS, CULL_SCALE, Hit, brute_force_any, brute_force_closest, hit_point_and_normal};
 pub use validate::{BvhStats, ValidationError, validate};
 
+use std::sync::atomic::AtomicU32;
+
 use rayon::prelude::*;
 
 use crate::geometry::Aabb;
@@ -20,18 +23,45 @@ use crate::geometry::Aabb;
 /// Recomputes every box bottom-up in parallel from the primitives' boxes, keeping the topology
 /// (Karras 2012, section 4; the refit step of Meister & Bittner 2018, section 5).
 pub fn refit(bvh: &mut Bvh, prim_aabbs: &[Aabb]) {
-    let mut boxes = vec![Aabb::EMPTY; bvh.nodes.len()];
-    {
-        let (nodes, prim_ids) = (&bvh.nodes, &bvh.prim_ids);
-        parallel::bottom_up(
-            &bvh.parents,
-            |i| (!nodes[i].is_leaf()).then_some(nodes[i].first as usize),
-            &mut boxes,
-            |i| leaf_bounds(&prim_ids[nodes[i].prim_range()], prim_aabbs),
-            |_, l, r| l.union(r),
-        );
-    }
-    bvh.nodes.par_iter_mut().zip(boxes.par_iter()).with_min_len(4096).for_each(|(n, b)| n.set_aabb(*b));
+    let leaves: Vec<u32> = (0..bvh.nodes.len() as u32).filter(|&i| bvh.nodes[i as usize].is_leaf()).collect();
+    refit_with(bvh, prim_aabbs, &leaves, &mut Vec::new(), LeafBoxes::Recompute);
+}
+
+/// Whether a refit recomputes leaf boxes or takes them as they are.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum LeafBoxes {
+    Recompute,
+    Keep,
+}
+
+/// [`refit`] with the leaves given, in an order that keeps neighbouring walks close in memory,
+/// and a scratch buffer for the visit counters.
+pub(crate) fn refit_with(
+    bvh: &mut Bvh,
+    prim_aabbs: &[Aabb],
+    leaves: &[u32],
+    visits: &mut Vec<AtomicU32>,
+    leaf_boxes: LeafBoxes,
+) {
+    let Bvh { nodes, parents, prim_ids } = bvh;
+    let nodes = parallel::SharedSlice::new(nodes);
+    parallel::bottom_up(parents, visits, leaves.par_iter().copied(), |i| {
+        // SAFETY: bottom_up gives this call exclusive access to node `i`, after its children's
+        // visits are complete and visible.
+        unsafe {
+            let mut n = nodes.get(i);
+            if n.is_leaf() && leaf_boxes == LeafBoxes::Keep {
+                return;
+            }
+            let b = if n.is_leaf() {
+                leaf_bounds(&prim_ids[n.prim_range()], prim_aabbs)
+            } else {
+                nodes.get(n.first as usize).aabb().union(nodes.get(n.first as usize + 1).aabb())
+            };
+            n.set_aabb(b);
+            nodes.set(i, n);
+        }
+    });
 }
 
 /// The same as [`refit`] on one thread, children before parents in reverse pre-order: the

@@ -49,46 +49,36 @@ impl<'a, T: Copy> SharedSlice<'a, T> {
     }
 }
 
-/// Computes `values[i]` for every node bottom-up in parallel:
-/// `values[leaf] = leaf(leaf)`, `values[p] = internal(p, values[l], values[l + 1])`.
+/// Calls `visit(node)` once for every node, children before parents, in parallel.
 ///
-/// `left_child(i)` is `None` for a leaf and the left child for an internal node; `parents` must
-/// be the parent links of that same tree, which must be valid (every internal node has exactly
-/// two children that name it as parent). Panics if the tree has more than `u32::MAX` nodes.
-pub(crate) fn bottom_up<T, L, I>(
+/// The walk starts at each leaf yielded by `leaves` (which must yield every leaf exactly once,
+/// and is best given in an order where neighbours share ancestors) and climbs `parents`. When
+/// `visit(p)` runs for an internal node `p`, both of `p`'s children have been visited, their
+/// writes are visible, and nothing else touches `p` concurrently: the callback may read the
+/// children's entries and write `p`'s through a [`SharedSlice`]. The tree must be valid (every
+/// internal node has exactly two children that name it as parent); otherwise nodes may be
+/// visited early or twice.
+///
+/// `visits` is scratch memory for the counters, kept by callers that run this repeatedly.
+pub(crate) fn bottom_up(
     parents: &[u32],
-    left_child: impl Fn(usize) -> Option<usize> + Sync,
-    values: &mut [T],
-    leaf: L,
-    internal: I,
-) where
-    T: Copy + Send + Sync,
-    L: Fn(usize) -> T + Sync,
-    I: Fn(usize, T, T) -> T + Sync,
-{
-    assert_eq!(parents.len(), values.len(), "one value per node");
-    let visits: Vec<AtomicU32> = (0..parents.len()).map(|_| AtomicU32::new(0)).collect();
-    let out = SharedSlice::new(values);
-    (0..parents.len()).into_par_iter().with_min_len(256).for_each(|start| {
-        if left_child(start).is_some() {
-            return;
-        }
-        // SAFETY: a leaf is written only by the thread that starts at it.
-        unsafe { out.set(start, leaf(start)) };
-        let mut node = parents[start];
+    visits: &mut Vec<AtomicU32>,
+    leaves: impl IndexedParallelIterator<Item = u32>,
+    visit: impl Fn(usize) + Sync,
+) {
+    visits.truncate(parents.len());
+    visits.par_iter_mut().with_min_len(4096).for_each(|v| *v.get_mut() = 0);
+    let missing = parents.len() - visits.len();
+    visits.par_extend(rayon::iter::repeat_n(0, missing).map(AtomicU32::new));
+    leaves.with_min_len(256).for_each(|leaf| {
+        visit(leaf as usize);
+        let mut node = parents[leaf as usize];
         while node != INVALID_INDEX {
-            // The first child to arrive stops; its write is released to the second.
+            // The first child to arrive stops; its writes are released to the second.
             if visits[node as usize].fetch_add(1, Ordering::AcqRel) == 0 {
                 return;
             }
-            let l = left_child(node as usize).expect("a parent is an internal node");
-            // SAFETY: both children are final (this thread wrote one, the acquire above made
-            // the other visible) and nothing writes them again; `node` is written only here,
-            // by the second arrival, and read by others only after their own acquire.
-            unsafe {
-                let v = internal(node as usize, out.get(l), out.get(l + 1));
-                out.set(node as usize, v);
-            }
+            visit(node as usize);
             node = parents[node as usize];
         }
     });

@@ -16,7 +16,7 @@
 
 use rayon::prelude::*;
 
-use super::parallel::bottom_up;
+use super::parallel::{SharedSlice, bottom_up};
 use super::{Bvh, BvhNode, INVALID_INDEX};
 
 /// The SAH's constants.
@@ -120,22 +120,24 @@ fn collapse_decisions(bvh: &Bvh, config: &CollapseConfig) -> Vec<bool> {
     // (cost in half-area units, primitive count, collapse?)
     let mut values = vec![(0.0f64, 0u32, false); bvh.nodes.len()];
     let nodes = &bvh.nodes;
-    bottom_up(
-        &bvh.parents,
-        |i| (!nodes[i].is_leaf()).then_some(nodes[i].first as usize),
-        &mut values,
-        |i| {
-            let n = &nodes[i];
-            (ci * n.prim_count as f64 * n.aabb().half_area() as f64, n.prim_count, false)
-        },
-        |i, l, r| {
-            let area = nodes[i].aabb().half_area() as f64;
+    let leaves: Vec<u32> = (0..nodes.len() as u32).filter(|&i| nodes[i as usize].is_leaf()).collect();
+    let out = SharedSlice::new(&mut values);
+    bottom_up(&bvh.parents, &mut Vec::new(), leaves.par_iter().copied(), |i| {
+        let n = &nodes[i];
+        let area = n.aabb().half_area() as f64;
+        let value = if n.is_leaf() {
+            (ci * n.prim_count as f64 * area, n.prim_count, false)
+        } else {
+            // SAFETY: bottom_up visits both children before, and visits `i` once.
+            let (l, r) = unsafe { (out.get(n.first as usize), out.get(n.first as usize + 1)) };
             let count = l.1 + r.1;
             let keep = ct * area + l.0 + r.0;
             let as_leaf = ci * count as f64 * area;
             if count <= config.max_leaf_size && as_leaf <= keep { (as_leaf, count, true) } else { (keep, count, false) }
-        },
-    );
+        };
+        // SAFETY: as above, this call owns entry `i`.
+        unsafe { out.set(i, value) };
+    });
     values.into_iter().map(|v| v.2).collect()
 }
 
