@@ -52,7 +52,9 @@ fn lbvh_build(c: &mut Criterion) {
         let prims: Vec<Aabb> = random_triangles(n).iter().map(Triangle::aabb).collect();
         let (mut builder, mut out) = (LbvhBuilder::default(), Bvh::default());
         g.throughput(Throughput::Elements(n as u64));
-        g.bench_with_input(BenchmarkId::from_parameter(n), &prims, |b, prims| b.iter(|| builder.build_into(prims, &mut out)));
+        g.bench_with_input(BenchmarkId::from_parameter(n), &prims, |b, prims| {
+            b.iter(|| builder.build_into(prims, &mut out))
+        });
     }
     g.finish();
 }

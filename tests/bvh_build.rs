@@ -8,6 +8,7 @@ use arbor::bvh::{
     refit_sequential, sah_cost, validate,
 };
 use arbor::geometry::{Aabb, Triangle};
+use bytemuck::Zeroable;
 use common::*;
 use glam::Vec3;
 
@@ -139,11 +140,13 @@ fn small_tree() -> (Bvh, Vec<Aabb>) {
     let prims = vec![Aabb::new(Vec3::ZERO, Vec3::ONE), Aabb::new(Vec3::splat(2.0), Vec3::splat(3.0))];
     let bvh = Bvh {
         nodes: vec![
-            BvhNode::internal(prims[0].union(prims[1]), 1),
+            BvhNode::internal(prims[0].union(prims[1]), 2),
+            BvhNode::zeroed(),
             BvhNode::leaf(prims[0], 0, 1),
             BvhNode::leaf(prims[1], 1, 1),
-        ],
-        parents: vec![INVALID_INDEX, 0, 0],
+        ]
+        .into(),
+        parents: vec![INVALID_INDEX, INVALID_INDEX, 0, 0],
         prim_ids: vec![0, 1],
     };
     (bvh, prims)
@@ -155,28 +158,37 @@ fn validate_rejects_broken_trees() {
     assert!(validate(&good, &prims).is_ok());
 
     let mut t = good.clone();
-    t.parents[2] = 1;
-    assert!(matches!(validate(&t, &prims), Err(ValidationError::ParentMismatch { child: 2, .. })));
+    t.parents[3] = 2;
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::ParentMismatch { child: 3, .. })));
 
     let mut t = good.clone();
     t.nodes[0].aabb_max.x += 1.0; // encloses, but not tightly
     assert!(matches!(validate(&t, &prims), Err(ValidationError::BoxNotTight { node: 0, .. })));
 
     let mut t = good.clone();
-    t.nodes[1].aabb_min.y += 0.5; // no longer encloses its primitive (nor is the root's union)
+    t.nodes[2].aabb_min.y += 0.5; // no longer encloses its primitive (nor is the root's union)
     assert!(matches!(validate(&t, &prims), Err(ValidationError::BoxNotTight { .. })));
 
     let mut t = good.clone();
     t.prim_ids = vec![0, 0];
-    t.nodes[2].set_aabb(prims[0]);
+    t.nodes[3].set_aabb(prims[0]);
     t.nodes[0].set_aabb(prims[0]);
     assert!(matches!(validate(&t, &prims), Err(ValidationError::PrimCount { prim: 0, count: 2 })));
 
-    // A cycle: node 2 becomes internal with children 1 and 2 (itself).
+    // A cycle: node 3 becomes internal with children 2 and 3 (itself).
     let mut t = good.clone();
-    t.nodes[2] = BvhNode::internal(t.nodes[2].aabb(), 1);
-    t.parents = vec![INVALID_INDEX, 2, 2];
+    t.nodes[3] = BvhNode::internal(t.nodes[3].aabb(), 2);
+    t.parents = vec![INVALID_INDEX, INVALID_INDEX, 3, 3];
     assert!(validate(&t, &prims).is_err());
+
+    let mut t = good.clone();
+    t.nodes[1].prim_count = 1;
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::BadPadding)));
+
+    // Children must be a pair at an even index.
+    let mut t = good.clone();
+    t.nodes[0].first = 1;
+    assert!(matches!(validate(&t, &prims), Err(ValidationError::ChildOutOfRange { node: 0, child: 1 })));
 
     let mut t = good.clone();
     t.parents[0] = 0;

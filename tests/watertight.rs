@@ -62,8 +62,12 @@ fn count_leaks(c: &Closed, world_from_object: Mat4, n: usize, seed: u64) -> usiz
     let mesh = c.mesh.transformed(world_from_object);
     let tris = mesh.triangles();
     let bvh = tree(&tris);
-    let edges: Vec<(Vec3, Vec3)> =
-        mesh.indices.iter().flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3]))).map(|(a, b)| (mesh.positions[a as usize], mesh.positions[b as usize])).collect();
+    let edges: Vec<(Vec3, Vec3)> = mesh
+        .indices
+        .iter()
+        .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
+        .map(|(a, b)| (mesh.positions[a as usize], mesh.positions[b as usize]))
+        .collect();
     (0..n)
         .into_par_iter()
         .chunks(4096)
@@ -168,7 +172,10 @@ fn unoffset_rays_do_self_intersect() {
     let mut self_hits = 0;
     for _ in 0..20_000 {
         let o = random_dir(&mut r) * 3e4;
-        let Some(hit) = bvh.closest_hit_triangles(&tris, &Ray::new(o, -o + random_dir(&mut r) * 5e3), f32::INFINITY) else { continue };
+        let Some(hit) = bvh.closest_hit_triangles(&tris, &Ray::new(o, -o + random_dir(&mut r) * 5e3), f32::INFINITY)
+        else {
+            continue;
+        };
         let (p, n) = hit_point_and_normal(&tris, &hit);
         let n = if n.dot(p) < 0.0 { -n } else { n };
         let dir = (n + random_dir(&mut r) * 0.9).normalize();

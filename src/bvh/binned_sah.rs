@@ -10,10 +10,11 @@
 
 use std::sync::atomic::{AtomicU32, Ordering};
 
+use bytemuck::Zeroable;
 use glam::Vec3;
 
 use super::parallel::SharedSlice;
-use super::{Bvh, BvhNode, INVALID_INDEX};
+use super::{Bvh, BvhNode, INVALID_INDEX, Nodes};
 use crate::geometry::Aabb;
 
 /// Options of [`build`].
@@ -50,8 +51,9 @@ pub fn build(prim_aabbs: &[Aabb], config: &BinnedSahConfig) -> Bvh {
     if n <= 1 {
         return Bvh::single_leaf(prim_aabbs);
     }
-    let mut nodes = vec![BvhNode::leaf(Aabb::EMPTY, 0, 1); 2 * n - 1];
-    let mut parents = vec![INVALID_INDEX; 2 * n - 1];
+    // Slot 0 is the root, slot 1 the padding; pairs are allocated from 2 on.
+    let mut nodes: Nodes = vec![BvhNode::zeroed(); 2 * n].into();
+    let mut parents = vec![INVALID_INDEX; 2 * n];
     let mut prim_ids: Vec<u32> = (0..n as u32).collect();
     let used = {
         let ctx = Context {
@@ -60,7 +62,7 @@ pub fn build(prim_aabbs: &[Aabb], config: &BinnedSahConfig) -> Bvh {
             config: *config,
             nodes: SharedSlice::new(&mut nodes),
             parents: SharedSlice::new(&mut parents),
-            next: AtomicU32::new(1),
+            next: AtomicU32::new(2),
         };
         build_node(&ctx, 0, &mut prim_ids, 0);
         ctx.next.load(Ordering::Relaxed) as usize
@@ -109,7 +111,7 @@ fn partition(ctx: &Context, ids: &mut [u32]) -> usize {
     // (cost, axis, first bin of the right side)
     let mut best: Option<(f32, usize, usize)> = None;
     for axis in 0..3 {
-        if !(extent[axis] > 0.0) {
+        if extent[axis].is_nan() || extent[axis] <= 0.0 {
             continue;
         }
         let mut count = vec![0u32; bins];

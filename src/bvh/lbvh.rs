@@ -13,22 +13,24 @@
 //!
 //! Layout: Karras numbers internal nodes `0..n-1` and leaves `0..n`, and each node (but the root)
 //! is a child of exactly one internal node. We store the two children of Karras internal node `i`
-//! at slots `1 + 2i` and `2 + 2i`, and the root (internal node 0) at slot 0. Each internal node
-//! then writes its own pair of slots, so step 3 needs no coordination, and the result has the
-//! siblings-adjacent layout of [`Bvh`] with `2n - 1` nodes and one primitive per leaf.
+//! at slots `2 + 2i` and `3 + 2i` (one cache-line pair), and the root (internal node 0) at slot 0
+//! beside the padding slot 1. Each internal node then writes its own pair, so step 3 needs no
+//! coordination, and the result has the layout of [`Bvh`]: `2n` slots, `2n - 1` nodes, one
+//! primitive per leaf.
 //!
 //! Memory: on the 2-core CI machine, first-touching fresh memory costs about 0.5 ms per MB, as
 //! much as the build's arithmetic. [`LbvhBuilder`] keeps its scratch buffers and builds into an
 //! existing tree ([`LbvhBuilder::build_into`]) so that repeated builds (animation, benchmarks)
 //! touch no new pages, and no buffer is zero-filled only to be overwritten.
 
-use std::mem::MaybeUninit;
 use std::sync::atomic::AtomicU32;
 
 use rayon::prelude::*;
 
 use super::parallel::SharedSlice;
-use super::{Bvh, BvhNode, INVALID_INDEX, LeafBoxes, refit_with};
+use bytemuck::Zeroable;
+
+use super::{Bvh, BvhNode, INVALID_INDEX, LeafBoxes, Nodes, refit_with};
 use crate::geometry::Aabb;
 use crate::geometry::morton::MortonQuantizer;
 
@@ -100,7 +102,11 @@ impl LbvhBuilder {
         self.keys.par_sort_unstable();
         self.codes.clear();
         prim_ids.clear();
-        self.keys.par_iter().with_min_len(4096).map(|&k| ((k >> 32) as u64, k as u32)).unzip_into_vecs(&mut self.codes, prim_ids);
+        self.keys
+            .par_iter()
+            .with_min_len(4096)
+            .map(|&k| ((k >> 32) as u64, k as u32))
+            .unzip_into_vecs(&mut self.codes, prim_ids);
     }
 }
 
@@ -112,50 +118,47 @@ pub fn sorted_morton_codes(prim_aabbs: &[Aabb]) -> (Vec<u64>, Vec<u32>) {
     (b.codes, prim_ids)
 }
 
-/// Karras' radix tree over sorted `codes` (at least 2), in the siblings-adjacent layout, with
-/// empty boxes. Leaf `k` (the k-th code) gets `first = k`. Fills `nodes`, `parents`, and each
-/// leaf's slot in key order (`leaf_slots`).
-pub fn radix_tree(codes: &[u64], nodes: &mut Vec<BvhNode>, parents: &mut Vec<u32>, leaf_slots: &mut Vec<u32>) {
+/// Karras' radix tree over sorted `codes` (at least 2), in the layout of [`Bvh`], with empty
+/// boxes. Leaf `k` (the k-th code) gets `first = k`. Fills `nodes`, `parents`, and each leaf's
+/// slot in key order (`leaf_slots`).
+pub fn radix_tree(codes: &[u64], nodes: &mut Nodes, parents: &mut Vec<u32>, leaf_slots: &mut Vec<u32>) {
     let n = codes.len();
     debug_assert!(n >= 2 && codes.is_sorted());
-    let len = 2 * n - 1;
-    nodes.clear();
-    nodes.reserve(len);
+    let len = 2 * n;
     parents.clear();
     parents.resize(len, INVALID_INDEX);
     leaf_slots.clear();
     leaf_slots.resize(n, 0);
-    let spare = &mut nodes.spare_capacity_mut()[..len];
-    spare[0].write(BvhNode::internal(Aabb::EMPTY, 1));
-    parents[1] = 0;
     parents[2] = 0;
+    parents[3] = 0;
     let shared_parents = SharedSlice::new(parents);
     let shared_leaf_slots = SharedSlice::new(leaf_slots);
-    spare[1..].par_chunks_mut(2).with_min_len(1024).enumerate().for_each(|(i, pair)| {
-        let (split, left_is_leaf, right_is_leaf) = karras_split(codes, i);
-        let slot = 1 + 2 * i as u32;
-        for (k, (child, is_leaf)) in [(split, left_is_leaf), (split + 1, right_is_leaf)].into_iter().enumerate() {
-            let node = if is_leaf {
-                // SAFETY: each leaf has one parent, so its entry is written once.
-                unsafe { shared_leaf_slots.set(child as usize, slot + k as u32) };
-                BvhNode::leaf(Aabb::EMPTY, child, 1)
-            } else {
-                // Internal node `child` keeps its children at 1 + 2 * child; they name this slot
-                // as parent. Each internal node has one parent, so each pair is written once.
-                let grandchildren = 1 + 2 * child as usize;
-                // SAFETY: slots 1+2c and 2+2c are written only by the parent of internal node c,
-                // and nothing reads `parents` until this pass ends.
-                unsafe {
-                    shared_parents.set(grandchildren, slot + k as u32);
-                    shared_parents.set(grandchildren + 1, slot + k as u32);
-                }
-                BvhNode::internal(Aabb::EMPTY, grandchildren as u32)
-            };
-            pair[k] = MaybeUninit::new(node);
+    nodes.fill_pairs(n, len, |pair| {
+        if pair == 0 {
+            return [BvhNode::internal(Aabb::EMPTY, 2), BvhNode::zeroed()];
         }
+        let i = pair - 1;
+        let (split, left_is_leaf, right_is_leaf) = karras_split(codes, i);
+        let slot = 2 + 2 * i as u32;
+        let child = |k: u32, child: u32, is_leaf: bool| {
+            if is_leaf {
+                // SAFETY: each leaf has one parent, so its entry is written once.
+                unsafe { shared_leaf_slots.set(child as usize, slot + k) };
+                return BvhNode::leaf(Aabb::EMPTY, child, 1);
+            }
+            // Internal node `child` keeps its children at 2 + 2 * child; they name this slot as
+            // parent. Each internal node has one parent, so each pair is written once.
+            let grandchildren = 2 + 2 * child as usize;
+            // SAFETY: slots 2+2c and 3+2c are written only by the parent of internal node c,
+            // and nothing reads `parents` until this pass ends.
+            unsafe {
+                shared_parents.set(grandchildren, slot + k);
+                shared_parents.set(grandchildren + 1, slot + k);
+            }
+            BvhNode::internal(Aabb::EMPTY, grandchildren as u32)
+        };
+        [child(0, split, left_is_leaf), child(1, split + 1, right_is_leaf)]
     });
-    // SAFETY: slot 0 and every pair 1+2i, 2+2i (i < n - 1) were written above: 2n - 1 slots.
-    unsafe { nodes.set_len(len) };
 }
 
 /// For Karras internal node `i`: the split position γ, and whether each child is a leaf

@@ -9,7 +9,7 @@ pub mod sah;
 mod traverse;
 mod validate;
 
-pub use node::{Bvh, BvhNode, INVALID_INDEX};
+pub use node::{Bvh, BvhNode, INVALID_INDEX, NodePair, Nodes, PAD_INDEX};
 pub use sah::{CollapseConfig, SahCosts, collapse_leaves, sah_cost, sah_cost_with};
 pub use traverse::{CULL_ABS_ULPS, CULL_SCALE, Hit, brute_force_any, brute_force_closest, hit_point_and_normal};
 pub use validate::{BvhStats, ValidationError, validate};

@@ -17,7 +17,9 @@
 use rayon::prelude::*;
 
 use super::parallel::{SharedSlice, bottom_up};
-use super::{Bvh, BvhNode, INVALID_INDEX};
+use bytemuck::Zeroable;
+
+use super::{Bvh, BvhNode, INVALID_INDEX, Nodes, PAD_INDEX};
 
 /// The SAH's constants.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -50,11 +52,13 @@ pub fn sah_cost_with(bvh: &Bvh, costs: &SahCosts) -> f64 {
     let weight = |n: &BvhNode| -> f64 {
         if n.is_leaf() { costs.intersection as f64 * n.prim_count as f64 } else { costs.traversal as f64 }
     };
+    // Every node but the padding.
+    let nodes = || bvh.nodes.par_iter().enumerate().with_min_len(4096).filter(|&(i, _)| i != PAD_INDEX as usize);
     let root_area = bvh.nodes[0].aabb().half_area() as f64;
     if root_area == 0.0 {
-        return bvh.nodes.par_iter().map(weight).sum();
+        return nodes().map(|(_, n)| weight(n)).sum();
     }
-    let sum: f64 = bvh.nodes.par_iter().with_min_len(4096).map(|n| weight(n) * n.aabb().half_area() as f64).sum();
+    let sum: f64 = nodes().map(|(_, n)| weight(n) * n.aabb().half_area() as f64).sum();
     sum / root_area
 }
 
@@ -83,12 +87,16 @@ pub fn collapse_leaves(bvh: &Bvh, config: &CollapseConfig) -> Bvh {
     }
     let collapse = collapse_decisions(bvh, config);
     let mut out = Bvh {
-        nodes: Vec::with_capacity(bvh.nodes.len()),
+        nodes: Nodes::with_capacity(bvh.nodes.len()),
         parents: Vec::with_capacity(bvh.nodes.len()),
         prim_ids: Vec::with_capacity(bvh.prim_ids.len()),
     };
     out.nodes.push(bvh.nodes[0]);
     out.parents.push(INVALID_INDEX);
+    if !bvh.nodes[0].is_leaf() && !collapse[0] {
+        out.nodes.push(BvhNode::zeroed());
+        out.parents.push(INVALID_INDEX);
+    }
     // (old node, its slot in the new tree)
     let mut stack = vec![(0u32, 0u32)];
     let mut leaf_stack = Vec::new();
@@ -171,11 +179,13 @@ mod tests {
     fn two_leaves() -> Bvh {
         Bvh {
             nodes: vec![
-                BvhNode::internal(unit(0.0).union(unit(2.0)), 1),
+                BvhNode::internal(unit(0.0).union(unit(2.0)), 2),
+                BvhNode::zeroed(),
                 BvhNode::leaf(unit(0.0), 0, 1),
                 BvhNode::leaf(unit(2.0), 1, 1),
-            ],
-            parents: vec![INVALID_INDEX, 0, 0],
+            ]
+            .into(),
+            parents: vec![INVALID_INDEX, INVALID_INDEX, 0, 0],
             prim_ids: vec![0, 1],
         }
     }
@@ -193,8 +203,9 @@ mod tests {
         // Two primitives with the same box: one leaf of 2 costs 2*2 = 4 < 3 + 2 + 2.
         let b = unit(0.0);
         let bvh = Bvh {
-            nodes: vec![BvhNode::internal(b, 1), BvhNode::leaf(b, 0, 1), BvhNode::leaf(b, 1, 1)],
-            parents: vec![INVALID_INDEX, 0, 0],
+            nodes: vec![BvhNode::internal(b, 2), BvhNode::zeroed(), BvhNode::leaf(b, 0, 1), BvhNode::leaf(b, 1, 1)]
+                .into(),
+            parents: vec![INVALID_INDEX, INVALID_INDEX, 0, 0],
             prim_ids: vec![0, 1],
         };
         let c = collapse_leaves(&bvh, &CollapseConfig::default());
@@ -214,6 +225,6 @@ mod tests {
         // A high intersection cost makes the split worth keeping.
         let costs = SahCosts { traversal: 1.0, intersection: 10.0 };
         let kept = collapse_leaves(&two_leaves(), &CollapseConfig { costs, ..Default::default() });
-        assert_eq!(kept.nodes.len(), 3);
+        assert_eq!(kept.nodes.len(), 4);
     }
 }

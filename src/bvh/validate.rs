@@ -3,7 +3,9 @@
 //! Every builder and every tree edit is followed by `validate()` in tests (and, for the
 //! optimiser, in debug builds).
 
-use super::{Bvh, INVALID_INDEX};
+use bytemuck::Zeroable;
+
+use super::{Bvh, BvhNode, INVALID_INDEX, PAD_INDEX};
 use crate::geometry::Aabb;
 
 /// What a valid tree looks like.
@@ -25,7 +27,9 @@ pub enum ValidationError {
     EmptyMismatch(usize),
     #[error("root's parent is {0}, expected INVALID_INDEX")]
     RootHasParent(u32),
-    #[error("node {node}: child index {child} out of range or pointing at the root")]
+    #[error("node 1, the padding after the root, is not zeroed or has a parent")]
+    BadPadding,
+    #[error("node {node}: child pair {child} out of range, odd, or pointing at the root or padding")]
     ChildOutOfRange { node: u32, child: u32 },
     #[error("node {child}: parent link {found}, but it is a child of {expected}")]
     ParentMismatch { child: u32, expected: u32, found: u32 },
@@ -51,7 +55,8 @@ pub enum ValidationError {
 /// - every primitive sits in exactly one leaf, and `prim_ids` holds nothing else;
 /// - parent and child links agree, and the root has no parent;
 /// - every box is exactly the union of its children's (or its primitives') boxes;
-/// - every node is reached exactly once from the root: no cycles, no orphans.
+/// - every node is reached exactly once from the root: no cycles, no orphans, children in pairs
+///   at even indices, and the padding node 1 zeroed and unreferenced.
 pub fn validate(bvh: &Bvh, prim_aabbs: &[Aabb]) -> Result<BvhStats, ValidationError> {
     use ValidationError as E;
     let len = bvh.nodes.len();
@@ -66,6 +71,11 @@ pub fn validate(bvh: &Bvh, prim_aabbs: &[Aabb]) -> Result<BvhStats, ValidationEr
     }
     if bvh.parents[0] != INVALID_INDEX {
         return Err(E::RootHasParent(bvh.parents[0]));
+    }
+    if len >= 2
+        && (bvh.parents[PAD_INDEX as usize] != INVALID_INDEX || bvh.nodes[PAD_INDEX as usize] != BvhNode::zeroed())
+    {
+        return Err(E::BadPadding);
     }
     if bvh.prim_ids.len() != prim_aabbs.len() {
         return Err(E::PrimIdsLength { expected: prim_aabbs.len(), found: bvh.prim_ids.len() });
@@ -99,7 +109,7 @@ pub fn validate(bvh: &Bvh, prim_aabbs: &[Aabb]) -> Result<BvhStats, ValidationEr
             b
         } else {
             let left = node.first;
-            if left == 0 || left as usize + 1 >= len {
+            if left < 2 || left % 2 == 1 || left as usize + 1 >= len {
                 return Err(E::ChildOutOfRange { node: i, child: left });
             }
             for child in [left, left + 1] {
@@ -115,8 +125,9 @@ pub fn validate(bvh: &Bvh, prim_aabbs: &[Aabb]) -> Result<BvhStats, ValidationEr
             return Err(E::BoxNotTight { node: i, expected, found: node.aabb() });
         }
     }
-    if stats.node_count != len {
-        return Err(E::Unreachable(len - stats.node_count));
+    let expected_nodes = if len >= 2 { len - 1 } else { len };
+    if stats.node_count != expected_nodes {
+        return Err(E::Unreachable(expected_nodes - stats.node_count));
     }
     if let Some((prim, &count)) = prim_seen.iter().enumerate().find(|&(_, &c)| c != 1) {
         return Err(E::PrimCount { prim: prim as u32, count });

@@ -63,8 +63,8 @@ impl TriangleMesh {
     pub fn load_obj(path: impl AsRef<Path>) -> Result<Self, MeshError> {
         let path = path.as_ref();
         let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-        let (models, _materials) = tobj::load_obj(path, &opts)
-            .map_err(|source| MeshError::Obj { path: path.to_owned(), source })?;
+        let (models, _materials) =
+            tobj::load_obj(path, &opts).map_err(|source| MeshError::Obj { path: path.to_owned(), source })?;
         let mut mesh = TriangleMesh::default();
         for m in &models {
             let part = TriangleMesh {

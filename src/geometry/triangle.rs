@@ -78,8 +78,7 @@ impl Triangle {
         let mut v = ax * cy - ay * cx;
         let mut w = bx * ay - by * ax;
         if u == 0.0 || v == 0.0 || w == 0.0 {
-            let (ax, ay, bx, by, cx, cy) =
-                (ax as f64, ay as f64, bx as f64, by as f64, cx as f64, cy as f64);
+            let (ax, ay, bx, by, cx, cy) = (ax as f64, ay as f64, bx as f64, by as f64, cx as f64, cy as f64);
             u = (cx * by - cy * bx) as f32;
             v = (ax * cy - ay * cx) as f32;
             w = (bx * ay - by * ax) as f32;
@@ -121,7 +120,13 @@ impl WatertightRay {
     pub fn new(ray: &Ray) -> Self {
         let d = ray.dir;
         let ad = d.abs();
-        let kz = if ad.x > ad.y { if ad.x > ad.z { 0 } else { 2 } } else if ad.y > ad.z { 1 } else { 2 };
+        let kz = if ad.x > ad.y {
+            if ad.x > ad.z { 0 } else { 2 }
+        } else if ad.y > ad.z {
+            1
+        } else {
+            2
+        };
         let mut kx = (kz + 1) % 3;
         let mut ky = (kx + 1) % 3;
         // Swapping keeps the triangle's winding, so the sign of det tells the facing.
@@ -163,13 +168,15 @@ mod tests {
     fn a_shared_edge_lets_no_ray_through() {
         // A quad split along its diagonal; rays from one point aimed at points along the shared
         // edge must hit at least one of the two triangles.
-        let (a, b, c, d) = (Vec3::new(0.0, 0.0, 2.0), Vec3::new(1.3, 0.1, 2.2), Vec3::new(0.2, 1.1, 1.9), Vec3::new(1.1, 1.3, 2.5));
+        let (a, b, c, d) =
+            (Vec3::new(0.0, 0.0, 2.0), Vec3::new(1.3, 0.1, 2.2), Vec3::new(0.2, 1.1, 1.9), Vec3::new(1.1, 1.3, 2.5));
         let (t0, t1) = (Triangle::new(a, b, c), Triangle::new(b, d, c));
         let o = Vec3::new(0.37, 0.41, -1.0);
         for k in 0..=1000 {
             let target = b.lerp(c, k as f32 / 1000.0);
             let wr = WatertightRay::new(&Ray::new(o, target - o));
-            let hits = t0.intersect(&wr, f32::INFINITY).is_some() as u32 + t1.intersect(&wr, f32::INFINITY).is_some() as u32;
+            let hits =
+                t0.intersect(&wr, f32::INFINITY).is_some() as u32 + t1.intersect(&wr, f32::INFINITY).is_some() as u32;
             assert!(hits >= 1, "ray {k} leaked through the shared edge");
         }
     }

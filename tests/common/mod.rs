@@ -87,10 +87,8 @@ pub fn all_shared_models() -> Vec<(String, TriangleMesh)> {
         shared_model("bunny.obj");
         return vec![];
     };
-    let mut names: Vec<String> = dir
-        .filter_map(|e| e.ok()?.file_name().into_string().ok())
-        .filter(|n| n.ends_with(".obj"))
-        .collect();
+    let mut names: Vec<String> =
+        dir.filter_map(|e| e.ok()?.file_name().into_string().ok()).filter(|n| n.ends_with(".obj")).collect();
     names.sort();
     names.into_iter().filter_map(|n| shared_model(&n).map(|m| (n, m))).collect()
 }
