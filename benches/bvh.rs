@@ -8,6 +8,10 @@
 //!   the mesh and diffuse rays bounced off their hits; over LBVH and over a top-down binned-SAH
 //!   tree, each after leaf collapse and with one triangle per leaf.
 //! - `refit/parallel` against `refit/sequential`: what the unsafe parallel bottom-up pass buys.
+//! - Baselines measured in the same run, on the same input: `build_vs_obvhs/{dragon,1000000}`
+//!   (our LBVH against the obvhs crate's PLOC with search radius 1 and one primitive per leaf,
+//!   its `fastest_build` preset), and `trace_dragon/*/obvhs-very-fast` (obvhs's traversal of
+//!   its `very_fast_build` tree, leaves up to 8, on the same rays).
 //!
 //! Run: `cargo bench --bench bvh` (all threads; set `RAYON_NUM_THREADS` to change).
 
@@ -70,16 +74,62 @@ fn refit(c: &mut Criterion) {
     g.finish();
 }
 
+fn to_obvhs(tris: &[Triangle]) -> Vec<obvhs::triangle::Triangle> {
+    tris.iter().map(|t| obvhs::triangle::Triangle { v0: t.v0.into(), v1: t.v1.into(), v2: t.v2.into() }).collect()
+}
+
+fn obvhs_build(tris: &[obvhs::triangle::Triangle], params: obvhs::BvhBuildParams) -> obvhs::bvh2::Bvh2 {
+    let mut core_time = std::time::Duration::ZERO;
+    obvhs::bvh2::builder::build_bvh2_from_tris(tris, params, &mut core_time)
+}
+
+fn dragon() -> Option<TriangleMesh> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/models/dragon_res2.obj");
+    let mesh = TriangleMesh::load_obj(&path).ok();
+    if mesh.is_none() {
+        eprintln!("skipping the dragon benchmarks: {} not found", path.display());
+    }
+    mesh
+}
+
+fn build_vs_obvhs(c: &mut Criterion) {
+    let mut inputs = vec![("1000000".to_string(), random_triangles(1_000_000))];
+    if let Some(mesh) = dragon() {
+        inputs.insert(0, ("dragon".to_string(), mesh.triangles()));
+    }
+    for (name, tris) in inputs {
+        let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
+        let theirs = to_obvhs(&tris);
+        let mut g = c.benchmark_group(format!("build_vs_obvhs/{name}"));
+        g.sample_size(10);
+        g.throughput(Throughput::Elements(tris.len() as u64));
+        // Both from triangles, both computing the boxes, both allocating their output.
+        g.bench_function("arbor-lbvh", |b| {
+            b.iter(|| lbvh::build(&tris.iter().map(Triangle::aabb).collect::<Vec<_>>()))
+        });
+        let (mut builder, mut out) = (LbvhBuilder::default(), Bvh::default());
+        g.bench_function("arbor-lbvh-warm", |b| b.iter(|| builder.build_into(&prims, &mut out)));
+        g.bench_function("obvhs-ploc1", |b| b.iter(|| obvhs_build(&theirs, obvhs::BvhBuildParams::fastest_build())));
+        g.finish();
+    }
+}
+
 fn trace(bvh: &Bvh, tris: &[Triangle], rays: &[Ray]) -> usize {
     rays.par_iter().with_min_len(64).filter(|r| bvh.closest_hit_triangles(tris, r, f32::INFINITY).is_some()).count()
 }
 
+fn trace_obvhs(bvh: &obvhs::bvh2::Bvh2, tris: &[obvhs::triangle::Triangle], rays: &[obvhs::ray::Ray]) -> usize {
+    rays.par_iter()
+        .with_min_len(64)
+        .filter(|r| {
+            let mut hit = obvhs::ray::RayHit::none();
+            bvh.ray_traverse(**r, &mut hit, |ray, id| tris[bvh.primitive_indices[id] as usize].intersect(ray))
+        })
+        .count()
+}
+
 fn trace_dragon(c: &mut Criterion) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/models/dragon_res2.obj");
-    let Ok(mesh) = TriangleMesh::load_obj(&path) else {
-        eprintln!("skipping trace_dragon: {} not found", path.display());
-        return;
-    };
+    let Some(mesh) = dragon() else { return };
     let tris = mesh.triangles();
     let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
     let cfg = CollapseConfig::default();
@@ -94,6 +144,8 @@ fn trace_dragon(c: &mut Criterion) {
     let primary = bench_rays::primary_rays(&mesh.bounds(), 512, 512);
     // Bounced off the binned tree's hits; every tree then traces the same rays.
     let diffuse = bench_rays::diffuse_rays(&trees[1].1, &tris, &primary);
+    let theirs = to_obvhs(&tris);
+    let theirs_bvh = obvhs_build(&theirs, obvhs::BvhBuildParams::very_fast_build());
     for (kind, rays) in [("primary", &primary), ("diffuse", &diffuse)] {
         let mut g = c.benchmark_group(format!("trace_dragon/{kind}"));
         g.sample_size(10);
@@ -101,9 +153,12 @@ fn trace_dragon(c: &mut Criterion) {
         for (name, tree) in &trees {
             g.bench_function(*name, |b| b.iter(|| black_box(trace(tree, &tris, rays))));
         }
+        let their_rays: Vec<obvhs::ray::Ray> =
+            rays.iter().map(|r| obvhs::ray::Ray::new(r.origin.into(), r.dir.into(), 0.0, f32::INFINITY)).collect();
+        g.bench_function("obvhs-very-fast", |b| b.iter(|| black_box(trace_obvhs(&theirs_bvh, &theirs, &their_rays))));
         g.finish();
     }
 }
 
-criterion_group!(benches, lbvh_build, refit, trace_dragon);
+criterion_group!(benches, lbvh_build, build_vs_obvhs, refit, trace_dragon);
 criterion_main!(benches);

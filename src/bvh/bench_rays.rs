@@ -11,19 +11,27 @@ use super::{Bvh, hit_point_and_normal};
 use crate::geometry::{Aabb, Ray, Triangle, spawn_ray};
 
 /// Pinhole camera rays through pixel centres, `width * height` of them, looking at the centre
-/// of `bounds` from the front-right-above diagonal, with a 45° vertical field of view and the
-/// bounding sphere just inside the frame.
+/// of `bounds` from the front (+z), a little right and above, with the field of view narrowed until the
+/// projected corners of `bounds` just fill the frame (2% margin).
 pub fn primary_rays(bounds: &Aabb, width: u32, height: u32) -> Vec<Ray> {
     let center = bounds.center();
     let radius = (bounds.extent().length() * 0.5).max(f32::MIN_POSITIVE);
-    let fov_y = 45f32.to_radians();
-    let back = Vec3::new(0.35, 0.3, 1.0).normalize();
-    let eye = center + back * (radius / (fov_y * 0.5).sin());
+    let back = Vec3::new(0.1, 0.2, 1.0).normalize();
+    // Far enough back that the bounding sphere is in front of the camera.
+    let eye = center + back * radius * 2.5;
     let forward = (center - eye).normalize();
     let right = forward.cross(Vec3::Y).normalize();
     let up = right.cross(forward);
-    let half_h = (fov_y * 0.5).tan();
-    let half_w = half_h * width as f32 / height as f32;
+    let aspect = width as f32 / height as f32;
+    let mut half_h = f32::MIN_POSITIVE;
+    for k in 0..8 {
+        let corner = Vec3::select(glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0), bounds.max, bounds.min);
+        let d = corner - eye;
+        let depth = d.dot(forward);
+        half_h = half_h.max((d.dot(up) / depth).abs()).max((d.dot(right) / depth).abs() / aspect);
+    }
+    half_h *= 1.02;
+    let half_w = half_h * aspect;
     (0..width * height)
         .map(|i| {
             let (x, y) = (i % width, i / width);
