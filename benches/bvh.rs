@@ -6,7 +6,8 @@
 //! - `trace_dragon/{primary,diffuse}/BUILDER`: closest-hit traversal on the Stanford dragon
 //!   (`../shared/models/dragon_res2.obj`), in rays/s, for primary rays from a camera that frames
 //!   the mesh and diffuse rays bounced off their hits; over LBVH and over a top-down binned-SAH
-//!   tree, each after leaf collapse and with one triangle per leaf.
+//!   tree, each after leaf collapse and with one triangle per leaf; `*-ordered` reads the
+//!   collapsed trees' triangles stored in leaf order ([`MeshBvh`]).
 //! - `refit/parallel` against `refit/sequential`: what the unsafe parallel bottom-up pass buys.
 //! - Baselines measured in the same run, on the same input: `build_vs_obvhs/{dragon,1000000}`
 //!   (our LBVH against the obvhs crate's PLOC with search radius 1 and one primitive per leaf,
@@ -18,7 +19,7 @@
 use std::path::Path;
 
 use arbor::bvh::lbvh::LbvhBuilder;
-use arbor::bvh::{self, Bvh, CollapseConfig, bench_rays, binned_sah, collapse_leaves, lbvh};
+use arbor::bvh::{self, Bvh, CollapseConfig, MeshBvh, bench_rays, binned_sah, collapse_leaves, lbvh};
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
@@ -118,6 +119,10 @@ fn trace(bvh: &Bvh, tris: &[Triangle], rays: &[Ray]) -> usize {
     rays.par_iter().with_min_len(64).filter(|r| bvh.closest_hit_triangles(tris, r, f32::INFINITY).is_some()).count()
 }
 
+fn trace_ordered(mesh: &MeshBvh, rays: &[Ray]) -> usize {
+    rays.par_iter().with_min_len(64).filter(|r| mesh.closest_hit(r, f32::INFINITY).is_some()).count()
+}
+
 fn trace_obvhs(bvh: &obvhs::bvh2::Bvh2, tris: &[obvhs::triangle::Triangle], rays: &[obvhs::ray::Ray]) -> usize {
     rays.par_iter()
         .with_min_len(64)
@@ -144,6 +149,10 @@ fn trace_dragon(c: &mut Criterion) {
     let primary = bench_rays::primary_rays(&mesh.bounds(), 512, 512);
     // Bounced off the binned tree's hits; every tree then traces the same rays.
     let diffuse = bench_rays::diffuse_rays(&trees[1].1, &tris, &primary);
+    let ordered = [
+        ("lbvh-ordered", MeshBvh::new(trees[0].1.clone(), &tris)),
+        ("binned-sah-ordered", MeshBvh::new(trees[1].1.clone(), &tris)),
+    ];
     let theirs = to_obvhs(&tris);
     let theirs_bvh = obvhs_build(&theirs, obvhs::BvhBuildParams::very_fast_build());
     for (kind, rays) in [("primary", &primary), ("diffuse", &diffuse)] {
@@ -152,6 +161,9 @@ fn trace_dragon(c: &mut Criterion) {
         g.throughput(Throughput::Elements(rays.len() as u64));
         for (name, tree) in &trees {
             g.bench_function(*name, |b| b.iter(|| black_box(trace(tree, &tris, rays))));
+        }
+        for (name, mesh) in &ordered {
+            g.bench_function(*name, |b| b.iter(|| black_box(trace_ordered(mesh, rays))));
         }
         let their_rays: Vec<obvhs::ray::Ray> =
             rays.iter().map(|r| obvhs::ray::Ray::new(r.origin.into(), r.dir.into(), 0.0, f32::INFINITY)).collect();

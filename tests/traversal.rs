@@ -3,7 +3,9 @@
 
 mod common;
 
-use arbor::bvh::{Bvh, CollapseConfig, Hit, binned_sah, brute_force_any, brute_force_closest, collapse_leaves, lbvh};
+use arbor::bvh::{
+    Bvh, CollapseConfig, Hit, MeshBvh, binned_sah, brute_force_any, brute_force_closest, collapse_leaves, lbvh,
+};
 use arbor::geometry::{Ray, Triangle};
 use common::*;
 use rand::RngExt;
@@ -73,6 +75,18 @@ fn check(name: &str, tris: &[Triangle], rays: &[Ray]) -> usize {
             })
             .map(|(i, _)| i)
             .collect();
+        // The same queries through the leaf-ordered triangles.
+        let mesh_bvh = MeshBvh::new(bvh.clone(), tris);
+        let bad_ordered = rays
+            .par_iter()
+            .zip(&expected)
+            .filter(|(r, e)| {
+                !same_hit(mesh_bvh.closest_hit(r, f32::INFINITY), e.full)
+                    || mesh_bvh.any_hit(r, f32::INFINITY) != e.full.is_some()
+                    || e.full.is_some_and(|h| mesh_bvh.any_hit(r, h.t * 0.5) != e.any_half)
+            })
+            .count();
+        assert_eq!(bad_ordered, 0, "{name}/{tree_name}: leaf-ordered traversal differs from brute force");
         if let Some(&i) = bad.first() {
             let r = &rays[i];
             panic!(

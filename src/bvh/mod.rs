@@ -3,12 +3,14 @@
 pub mod bench_rays;
 pub mod binned_sah;
 pub mod lbvh;
+mod mesh_bvh;
 mod node;
 mod parallel;
 pub mod sah;
 mod traverse;
 mod validate;
 
+pub use mesh_bvh::MeshBvh;
 pub use node::{Bvh, BvhNode, INVALID_INDEX, NodePair, Nodes, PAD_INDEX};
 pub use sah::{CollapseConfig, SahCosts, collapse_leaves, sah_cost, sah_cost_with};
 pub use traverse::{CULL_ABS_ULPS, CULL_SCALE, Hit, brute_force_any, brute_force_closest, hit_point_and_normal};
@@ -23,7 +25,7 @@ use crate::geometry::Aabb;
 /// Recomputes every box bottom-up in parallel from the primitives' boxes, keeping the topology
 /// (Karras 2012, section 4; the refit step of Meister & Bittner 2018, section 5).
 pub fn refit(bvh: &mut Bvh, prim_aabbs: &[Aabb]) {
-    let leaves: Vec<u32> = (0..bvh.nodes.len() as u32).filter(|&i| bvh.nodes[i as usize].is_leaf()).collect();
+    let leaves = bvh.leaf_indices();
     refit_with(bvh, prim_aabbs, &leaves, &mut Vec::new(), LeafBoxes::Recompute);
 }
 

@@ -71,6 +71,13 @@ impl BvhNode {
         self.aabb_max = aabb.max;
     }
 
+    /// The node as 8 floats: `[min.xyz, first bits, max.xyz, prim_count bits]`, the form the
+    /// traversal's slab test reads.
+    #[inline(always)]
+    pub fn as_floats(&self) -> &[f32; 8] {
+        bytemuck::cast_ref(self)
+    }
+
     /// The primitive range of a leaf, as indices into `prim_ids`.
     #[inline]
     pub fn prim_range(&self) -> std::ops::Range<usize> {
@@ -204,7 +211,12 @@ impl Bvh {
     }
 
     pub fn leaf_count(&self) -> usize {
-        self.nodes.iter().filter(|n| n.is_leaf()).count()
+        self.nodes.par_iter().filter(|n| n.is_leaf()).count()
+    }
+
+    /// Indices of the leaves, ascending (the start points of bottom-up passes).
+    pub fn leaf_indices(&self) -> Vec<u32> {
+        self.nodes.par_iter().enumerate().filter(|(_, n)| n.is_leaf()).map(|(i, _)| i as u32).collect()
     }
 
     /// The other child of `node`'s parent; `None` for the root (and the padding node).

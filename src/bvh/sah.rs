@@ -128,7 +128,7 @@ fn collapse_decisions(bvh: &Bvh, config: &CollapseConfig) -> Vec<bool> {
     // (cost in half-area units, primitive count, collapse?)
     let mut values = vec![(0.0f64, 0u32, false); bvh.nodes.len()];
     let nodes = &bvh.nodes;
-    let leaves: Vec<u32> = (0..nodes.len() as u32).filter(|&i| nodes[i as usize].is_leaf()).collect();
+    let leaves = bvh.leaf_indices();
     let out = SharedSlice::new(&mut values);
     bottom_up(&bvh.parents, &mut Vec::new(), leaves.par_iter().copied(), |i| {
         let n = &nodes[i];

@@ -17,7 +17,7 @@
 use glam::Vec3;
 
 use super::{Bvh, BvhNode};
-use crate::geometry::{Ray, RayInv, Triangle, WatertightRay};
+use crate::geometry::{Ray, RayInv, Triangle, WatertightRay, intersect_ray_packed};
 
 /// Relative slack on the best hit distance when culling boxes.
 pub const CULL_SCALE: f32 = 1.0 + 1.0 / 65536.0;
@@ -91,23 +91,25 @@ impl Stack {
 impl Bvh {
     /// Closest primitive hit by `ray` with `0 < t <= t_max`, ties going to the lowest id.
     ///
-    /// `intersect(prim_id, t_limit)` returns the hit distance on that primitive (and any payload)
-    /// if it is hit with `0 < t <= t_limit`; it must compute `t` independently of `t_limit`.
-    /// Returns `(prim_id, t, payload)`.
+    /// `intersect(leaf_pos, prim_id, t_limit)` returns the hit distance on primitive `prim_id`
+    /// (which sits at `prim_ids[leaf_pos]`; primitives stored in leaf order are indexed by
+    /// `leaf_pos`) and any payload, if it is hit with `0 < t <= t_limit`; it must compute `t`
+    /// independently of `t_limit`. Returns `(prim_id, t, payload)`.
     pub fn closest_hit<H>(
         &self,
         ray: &Ray,
         t_max: f32,
-        mut intersect: impl FnMut(u32, f32) -> Option<(f32, H)>,
+        mut intersect: impl FnMut(u32, u32, f32) -> Option<(f32, H)>,
     ) -> Option<(u32, f32, H)> {
         let inv = ray.inv();
         let mut best: Option<(u32, f32, H)> = None;
         let slack = cull_slack(&self.bounds(), ray);
         let mut limit = cull_limit(t_max, slack);
         self.traverse(&inv, &mut limit, |n, bvh, limit| {
-            for &prim in &bvh.prim_ids[n.prim_range()] {
+            for pos in n.prim_range() {
+                let prim = bvh.prim_ids[pos];
                 let t_limit = best.as_ref().map_or(t_max, |b| b.1);
-                let Some((t, payload)) = intersect(prim, t_limit) else { continue };
+                let Some((t, payload)) = intersect(pos as u32, prim, t_limit) else { continue };
                 let better = best.as_ref().is_none_or(|&(bp, bt, _)| t < bt || (t == bt && prim < bp));
                 if better {
                     best = Some((prim, t, payload));
@@ -120,12 +122,13 @@ impl Bvh {
     }
 
     /// Whether any primitive is hit with `0 < t <= t_max`; stops at the first one found.
-    pub fn any_hit(&self, ray: &Ray, t_max: f32, mut intersect: impl FnMut(u32, f32) -> bool) -> bool {
+    /// `intersect(leaf_pos, prim_id, t_max)` as for [`Bvh::closest_hit`].
+    pub fn any_hit(&self, ray: &Ray, t_max: f32, mut intersect: impl FnMut(u32, u32, f32) -> bool) -> bool {
         let inv = ray.inv();
         let mut limit = cull_limit(t_max, cull_slack(&self.bounds(), ray));
         let mut found = false;
         self.traverse(&inv, &mut limit, |n, bvh, _| {
-            found = bvh.prim_ids[n.prim_range()].iter().any(|&p| intersect(p, t_max));
+            found = n.prim_range().any(|pos| intersect(pos as u32, bvh.prim_ids[pos], t_max));
             found
         });
         found
@@ -149,8 +152,8 @@ impl Bvh {
             } else {
                 let (l, r) = (node.first as usize, node.first as usize + 1);
                 let (nl, nr) = (&self.nodes[l], &self.nodes[r]);
-                let tl = nl.aabb().intersect_ray(ray, *limit);
-                let tr = nr.aabb().intersect_ray(ray, *limit);
+                let tl = intersect_ray_packed(nl.as_floats(), ray, *limit);
+                let tr = intersect_ray_packed(nr.as_floats(), ray, *limit);
                 match (tl, tr) {
                     (Some(tl), Some(tr)) => {
                         let (near, far, t_far) = if tl <= tr { (nl, r, tr) } else { (nr, l, tl) };
@@ -184,7 +187,7 @@ impl Bvh {
     /// triangles the tree was built on (indexed by primitive id).
     pub fn closest_hit_triangles(&self, triangles: &[Triangle], ray: &Ray, t_max: f32) -> Option<Hit> {
         let wr = WatertightRay::new(ray);
-        self.closest_hit(ray, t_max, |prim, t_limit| {
+        self.closest_hit(ray, t_max, |_, prim, t_limit| {
             triangles[prim as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
         })
         .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
@@ -193,7 +196,7 @@ impl Bvh {
     /// Whether any triangle is hit with `0 < t <= t_max` (shadow rays).
     pub fn any_hit_triangles(&self, triangles: &[Triangle], ray: &Ray, t_max: f32) -> bool {
         let wr = WatertightRay::new(ray);
-        self.any_hit(ray, t_max, |prim, t_limit| triangles[prim as usize].intersect(&wr, t_limit).is_some())
+        self.any_hit(ray, t_max, |_, prim, t_limit| triangles[prim as usize].intersect(&wr, t_limit).is_some())
     }
 }
 

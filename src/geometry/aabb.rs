@@ -113,6 +113,24 @@ impl Aabb {
     }
 }
 
+/// [`Aabb::intersect_ray`] on a box given as `[min.x, min.y, min.z, _, max.x, max.y, max.z, _]`,
+/// picking planes by index instead of by select: the same arithmetic, so the same result to the
+/// bit, in fewer instructions. This is how traversal tests BVH nodes.
+#[inline(always)]
+pub fn intersect_ray_packed(b: &[f32; 8], ray: &RayInv, t_max: f32) -> Option<f32> {
+    let [ix, iy, iz] = ray.near_index;
+    // `& 7` lets the compiler drop the bounds checks.
+    let near_x = (b[ix & 7] - ray.origin.x) * ray.inv_dir.x;
+    let near_y = (b[iy & 7] - ray.origin.y) * ray.inv_dir.y;
+    let near_z = (b[iz & 7] - ray.origin.z) * ray.inv_dir.z;
+    let far_x = (b[(ix ^ 4) & 7] - ray.origin.x) * ray.inv_dir.x;
+    let far_y = (b[(iy ^ 4) & 7] - ray.origin.y) * ray.inv_dir.y;
+    let far_z = (b[(iz ^ 4) & 7] - ray.origin.z) * ray.inv_dir.z;
+    let t_enter = nan_ignoring_max(nan_ignoring_max(nan_ignoring_max(0.0, near_x), near_y), near_z);
+    let t_exit = nan_ignoring_min(nan_ignoring_min(nan_ignoring_min(t_max, far_x), far_y), far_z);
+    (t_enter <= t_exit * ROBUST_SLAB_SCALE).then_some(t_enter)
+}
+
 /// `max(acc, x)`, keeping `acc` when `x` is NaN. `acc` must not be NaN.
 #[inline(always)]
 fn nan_ignoring_max(acc: f32, x: f32) -> f32 {
@@ -136,12 +154,17 @@ pub struct RayInv {
     pub origin: Vec3,
     pub inv_dir: Vec3,
     pub negative: glam::BVec3,
+    /// For a box read as 8 floats `[min.xyz, _, max.xyz, _]` (the layout of a BVH node): the
+    /// index of the near plane on each axis; the far plane is at `index ^ 4`.
+    pub near_index: [usize; 3],
 }
 
 impl RayInv {
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
         let inv_dir = dir.recip();
-        Self { origin, inv_dir, negative: inv_dir.cmplt(Vec3::ZERO) }
+        let negative = inv_dir.cmplt(Vec3::ZERO);
+        let near_index = [negative.x as usize * 4, 1 + negative.y as usize * 4, 2 + negative.z as usize * 4];
+        Self { origin, inv_dir, negative, near_index }
     }
 }
 
@@ -184,6 +207,33 @@ mod tests {
                 let r = RayInv::new(origin, dir);
                 assert_eq!(b.intersect_ray(&r, f32::INFINITY), Some(4.0), "{origin} {dir}");
             }
+        }
+    }
+
+    #[test]
+    fn packed_slab_test_equals_the_plain_one() {
+        let mut seed = 1u32;
+        let mut next = || {
+            seed = seed.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+            (seed >> 8) as f32 / (1 << 24) as f32 * 4.0 - 2.0
+        };
+        for k in 0..100_000 {
+            let (a, b) = (Vec3::new(next(), next(), next()), Vec3::new(next(), next(), next()));
+            let bx = Aabb::new(a.min(b), a.max(b));
+            let mut dir = Vec3::new(next(), next(), next());
+            if k % 7 == 0 {
+                dir.y = if k % 2 == 0 { 0.0 } else { -0.0 }; // zero components: NaN slabs
+            }
+            let origin =
+                if k % 11 == 0 { Vec3::new(bx.min.x, next(), next()) } else { Vec3::new(next(), next(), next()) };
+            let r = RayInv::new(origin, dir);
+            let packed = [bx.min.x, bx.min.y, bx.min.z, 0.0, bx.max.x, bx.max.y, bx.max.z, 0.0];
+            let t_max = if k % 3 == 0 { f32::INFINITY } else { next().abs() * 3.0 };
+            assert_eq!(
+                bx.intersect_ray(&r, t_max).map(f32::to_bits),
+                intersect_ray_packed(&packed, &r, t_max).map(f32::to_bits),
+                "{bx:?} {r:?}"
+            );
         }
     }
 

@@ -6,7 +6,7 @@ pub mod morton;
 mod ray;
 mod triangle;
 
-pub use aabb::{Aabb, ROBUST_SLAB_SCALE, RayInv};
+pub use aabb::{Aabb, ROBUST_SLAB_SCALE, RayInv, intersect_ray_packed};
 pub use mesh::{MeshError, TriangleMesh};
 pub use ray::{Ray, offset_ray_origin, spawn_ray};
 pub use triangle::{Triangle, TriangleHit, WatertightRay};
