@@ -6,6 +6,7 @@ pub mod lbvh;
 mod mesh_bvh;
 mod node;
 mod parallel;
+pub mod prbvh;
 pub mod sah;
 mod traverse;
 mod validate;

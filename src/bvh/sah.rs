@@ -52,14 +52,29 @@ pub fn sah_cost_with(bvh: &Bvh, costs: &SahCosts) -> f64 {
     let weight = |n: &BvhNode| -> f64 {
         if n.is_leaf() { costs.intersection as f64 * n.prim_count as f64 } else { costs.traversal as f64 }
     };
-    // Every node but the padding.
-    let nodes = || bvh.nodes.par_iter().enumerate().with_min_len(4096).filter(|&(i, _)| i != PAD_INDEX as usize);
+    // Every node but the padding, summed in fixed chunks and then in order, so the result does
+    // not depend on the thread count (PRBVH's termination test compares successive values).
+    let sum_by = |f: &(dyn Fn(&BvhNode) -> f64 + Sync)| -> f64 {
+        let partial: Vec<f64> = bvh
+            .nodes
+            .par_chunks(4096)
+            .enumerate()
+            .map(|(c, chunk)| {
+                chunk
+                    .iter()
+                    .enumerate()
+                    .filter(|&(k, _)| c * 4096 + k != PAD_INDEX as usize)
+                    .map(|(_, n)| f(n))
+                    .sum::<f64>()
+            })
+            .collect();
+        partial.iter().sum()
+    };
     let root_area = bvh.nodes[0].aabb().half_area() as f64;
     if root_area == 0.0 {
-        return nodes().map(|(_, n)| weight(n)).sum();
+        return sum_by(&weight);
     }
-    let sum: f64 = nodes().map(|(_, n)| weight(n) * n.aabb().half_area() as f64).sum();
-    sum / root_area
+    sum_by(&|n| weight(n) * n.aabb().half_area() as f64) / root_area
 }
 
 /// Options of [`collapse_leaves`].

@@ -1,0 +1,394 @@
+//! Parallel reinsertion (PRBVH): Meister & Bittner, "Parallel Reinsertion for Bounding Volume
+//! Hierarchy Optimization" (Eurographics 2018).
+//!
+//! Each iteration (section 4.4):
+//! 1. **Search** (section 4.2, Algorithm 1): every candidate node finds, in parallel, the output
+//!    node whose sibling it should become to decrease the total surface area most. The search
+//!    climbs from the input node through its ancestors (the pivots) and walks each pivot's other
+//!    subtree in pre-order using parent links only, accumulating the surface-area decrease `d`
+//!    along the path and pruning a subtree when `dbound + d <= dbest`.
+//! 2. **Locks** (section 4.3): a reinsertion claims the six nodes whose topology it changes
+//!    (input, sibling, parent, grandparent, output, output's parent) with an atomic max of
+//!    `(decrease bits << 32) | input index`: the highest decrease wins each node, ties go to the
+//!    higher index. The conservative strategy also claims every node on the path between input
+//!    and output, which makes the decreases of the winners add up exactly.
+//! 3. **Reinsert**: the winners, which share no node, are applied in parallel.
+//! 4. **Refit and SAH**: a parallel bottom-up refit (atomic visit counters), then the SAH by a
+//!    parallel reduction.
+//!
+//! Sparse search and termination (section 4.4.1–4.4.2): node `i` searches in iteration `I` when
+//! `I ≡ i (mod μ)`; when an iteration lowers the SAH by less than `ε`, `μ` drops by one, and at
+//! `μ = 1` the run stops. Afterwards the leaf collapse of [`super::sah`] picks leaf sizes.
+//!
+//! Departures from the paper:
+//! - When the output is a pivot itself (Algorithm 1, lines 30–36), the paper's candidate value
+//!   `ddirect + d` leaves out the pivot's own shrink, `AREA(pivot) - AREA(bpivot)`, which line 37
+//!   adds only afterwards. We add it to the candidate too, so that every value the search reports
+//!   is the true decrease of that reinsertion (the brute-force test checks this).
+//! - Our layout keeps siblings adjacent, so a reinsertion moves node contents rather than child
+//!   links ([`reinsert`]): the sibling's content moves into the parent's slot, and the freed pair
+//!   holds the output and the input under a new node in the output's slot. The grandparent and
+//!   the output's parent keep their links; they are locked anyway, as the paper does.
+//! - Surface areas are half areas (`Aabb::half_area`): the decreases are all halved, which
+//!   changes no comparison.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+
+use super::parallel::SharedSlice;
+use super::{Bvh, BvhNode, CollapseConfig, INVALID_INDEX, LeafBoxes, PAD_INDEX, SahCosts, collapse_leaves, refit_with};
+use crate::geometry::Aabb;
+
+/// Which nodes a reinsertion locks (section 4.3.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LockStrategy {
+    /// The six nodes whose topology changes. Faster convergence and slightly lower SAH in the
+    /// paper's experiments, but one iteration can raise the SAH.
+    Aggressive,
+    /// The six nodes and every node on the path between input and output: the SAH never rises.
+    Conservative,
+}
+
+/// Options of [`optimize`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PrbvhConfig {
+    /// Initial search sparsity μ: node `i` searches in iteration `I` when `I ≡ i (mod μ)`.
+    /// Default 9, the fastest of the paper's three presets (μ = 1, 4, 9) at nearly the same SAH
+    /// (Table 1).
+    pub mu: u32,
+    /// When an iteration lowers the SAH by less than this, μ drops by one; at μ = 1 the run
+    /// stops. Default 0.1, the paper's value (section 4.4.2).
+    pub epsilon: f64,
+    /// Stop after this many iterations whatever the SAH does. Default 10,000.
+    pub max_iterations: u32,
+    /// Default [`LockStrategy::Aggressive`], the paper's choice.
+    pub strategy: LockStrategy,
+    /// SAH constants for the termination test. Default cT = 3, cI = 2.
+    pub costs: SahCosts,
+    /// The leaf collapse applied at the end, or `None` to keep one primitive per leaf. Default
+    /// `Some(CollapseConfig::default())`.
+    pub collapse: Option<CollapseConfig>,
+}
+
+impl Default for PrbvhConfig {
+    fn default() -> Self {
+        Self {
+            mu: 9,
+            epsilon: 0.1,
+            max_iterations: 10_000,
+            strategy: LockStrategy::Aggressive,
+            costs: SahCosts::default(),
+            collapse: Some(CollapseConfig::default()),
+        }
+    }
+}
+
+/// One iteration of [`optimize`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IterationStats {
+    /// μ used by this iteration.
+    pub mu: u32,
+    /// Nodes that searched.
+    pub searched: usize,
+    /// Nodes that found a positive decrease.
+    pub candidates: usize,
+    /// Reinsertions that won all their locks and were applied.
+    pub reinsertions: usize,
+    /// SAH after the iteration's refit.
+    pub sah: f64,
+    /// Time since `optimize` started, at the end of this iteration.
+    pub elapsed: Duration,
+}
+
+/// What [`optimize`] did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PrbvhStats {
+    pub initial_sah: f64,
+    pub iterations: Vec<IterationStats>,
+    /// SAH before the leaf collapse.
+    pub sah_before_collapse: f64,
+    /// SAH of the returned tree.
+    pub final_sah: f64,
+    /// Time of the reinsertion iterations (without the collapse).
+    pub optimize_time: Duration,
+    /// Time of the leaf collapse.
+    pub collapse_time: Duration,
+}
+
+/// Optimises `bvh` by parallel reinsertion, then collapses leaves as configured.
+///
+/// Works on any valid tree; leaves are moved whole, so their boxes need no primitives. In debug
+/// builds (and so in tests) the tree is validated after every iteration.
+pub fn optimize(bvh: &mut Bvh, config: &PrbvhConfig) -> PrbvhStats {
+    assert!(config.mu >= 1, "PRBVH needs mu >= 1");
+    let start = Instant::now();
+    let sah = |b: &Bvh| super::sah_cost_with(b, &config.costs);
+    let mut stats = PrbvhStats { initial_sah: sah(bvh), ..Default::default() };
+    let mut mu = config.mu;
+    let mut previous = stats.initial_sah;
+    let mut locks: Vec<AtomicU64> = Vec::new();
+    let mut visits = Vec::new();
+    // A tree of fewer than three nodes has nothing to reinsert.
+    let mut iteration = 0u32;
+    while bvh.nodes.len() > 3 && iteration < config.max_iterations {
+        let (searched, candidates, reinsertions) = iterate(bvh, iteration, mu, config.strategy, &mut locks);
+        let leaves = bvh.leaf_indices();
+        refit_with(bvh, &[], &leaves, &mut visits, LeafBoxes::Keep);
+        #[cfg(debug_assertions)]
+        debug_validate(bvh, iteration);
+        let current = sah(bvh);
+        stats.iterations.push(IterationStats {
+            mu,
+            searched,
+            candidates,
+            reinsertions,
+            sah: current,
+            elapsed: start.elapsed(),
+        });
+        iteration += 1;
+        if previous - current < config.epsilon {
+            if mu == 1 {
+                break;
+            }
+            mu -= 1;
+        }
+        previous = current;
+    }
+    stats.optimize_time = start.elapsed();
+    stats.sah_before_collapse = sah(bvh);
+    if let Some(collapse) = &config.collapse {
+        let t = Instant::now();
+        *bvh = collapse_leaves(bvh, collapse);
+        stats.collapse_time = t.elapsed();
+    }
+    stats.final_sah = sah(bvh);
+    stats
+}
+
+/// One search-lock-reinsert round; returns (searched, candidates, reinsertions).
+fn iterate(
+    bvh: &mut Bvh,
+    iteration: u32,
+    mu: u32,
+    strategy: LockStrategy,
+    locks: &mut Vec<AtomicU64>,
+) -> (usize, usize, usize) {
+    let len = bvh.nodes.len();
+    let phase = (iteration % mu) as usize;
+    // Search: (input, output, decrease) for every searching node with a positive decrease.
+    let moves: Vec<(u32, u32, f32)> = (2..len)
+        .into_par_iter()
+        .with_min_len(256)
+        .filter(|&i| i % mu as usize == phase)
+        .filter_map(|i| {
+            let (out, d) = find_best_output(bvh, i as u32);
+            (d > 0.0).then_some((i as u32, out, d))
+        })
+        .collect();
+    let searched = (2..len).filter(|&i| i % mu as usize == phase).count();
+    if moves.is_empty() {
+        return (searched, 0, 0);
+    }
+    // Lock: the highest (decrease, index) wins each node.
+    locks.truncate(len);
+    locks.par_iter_mut().for_each(|l| *l.get_mut() = 0);
+    locks.resize_with(len, || AtomicU64::new(0));
+    let key = |&(input, _, d): &(u32, u32, f32)| ((d.to_bits() as u64) << 32) | input as u64;
+    let claimed = |m: &(u32, u32, f32)| locked_nodes(bvh, m.0, m.1, strategy);
+    moves.par_iter().for_each(|m| {
+        let k = key(m);
+        for n in claimed(m) {
+            locks[n as usize].fetch_max(k, Ordering::Relaxed);
+        }
+    });
+    // Check: a reinsertion goes ahead only if it holds every lock it asked for.
+    let winners: Vec<(u32, u32)> = moves
+        .par_iter()
+        .filter(|m| claimed(m).into_iter().all(|n| locks[n as usize].load(Ordering::Relaxed) == key(m)))
+        .map(|&(i, o, _)| (i, o))
+        .collect();
+    // Reinsert the winners in parallel.
+    let Bvh { nodes, parents, .. } = bvh;
+    let (nodes, parents) = (SharedSlice::new(nodes), SharedSlice::new(parents));
+    winners.par_iter().for_each(|&(input, output)| {
+        // SAFETY: winners hold disjoint lock sets, and a reinsertion reads and writes only its
+        // locked nodes and the parent links of their children, which no other winner touches
+        // (a child's parent is one of the locked nodes, locked by one winner only).
+        unsafe { reinsert_shared(&nodes, &parents, input, output) };
+    });
+    (searched, moves.len(), winners.len())
+}
+
+/// The nodes a reinsertion of `input` next to `output` locks.
+fn locked_nodes(bvh: &Bvh, input: u32, output: u32, strategy: LockStrategy) -> Vec<u32> {
+    let parent = bvh.parents[input as usize];
+    let mut nodes = vec![input, input ^ 1, parent, bvh.parents[parent as usize], output, bvh.parents[output as usize]];
+    if strategy == LockStrategy::Conservative {
+        // The path: from the input's parent up to the common ancestor, and down to the output.
+        let mut up = Vec::new();
+        let mut n = parent;
+        while n != INVALID_INDEX {
+            up.push(n);
+            n = bvh.parents[n as usize];
+        }
+        let mut n = output;
+        while n != INVALID_INDEX {
+            if let Some(k) = up.iter().position(|&a| a == n) {
+                nodes.extend_from_slice(&up[..=k]);
+                break;
+            }
+            nodes.push(n);
+            n = bvh.parents[n as usize];
+        }
+    }
+    nodes.retain(|&n| n != INVALID_INDEX);
+    nodes
+}
+
+#[inline]
+fn area(b: &Aabb) -> f32 {
+    b.half_area()
+}
+
+/// Algorithm 1: the output node `input` should become the sibling of, and the surface-area
+/// decrease that gives (0 and the current sibling when nothing is better). `input` must not be
+/// the root or the padding node.
+pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
+    let nodes = &bvh.nodes;
+    let parents = &bvh.parents;
+    let bbox = |n: u32| nodes[n as usize].aabb();
+    let b_in = bbox(input);
+    let parent = parents[input as usize];
+    let a_parent = area(&bbox(parent));
+    let mut b_pivot = Aabb::EMPTY;
+    let d_bound = a_parent - area(&b_in);
+    let (mut d_best, mut d) = (0.0f32, 0.0f32);
+    let mut out = input ^ 1;
+    let mut out_best = out;
+    let mut pivot = parent;
+    let mut down = true;
+    loop {
+        let b_out = bbox(out);
+        let b_merged = b_in.union(b_out);
+        if down {
+            let d_direct = a_parent - area(&b_merged);
+            if d_best < d_direct + d {
+                d_best = d_direct + d;
+                out_best = out;
+            }
+            d += area(&b_out) - area(&b_merged);
+            if nodes[out as usize].is_leaf() || d_bound + d <= d_best {
+                down = false;
+            } else {
+                out = nodes[out as usize].first;
+            }
+        } else {
+            d -= area(&b_out) - area(&b_merged);
+            if pivot == parents[out as usize] {
+                b_pivot = b_pivot.union(b_out);
+                out = pivot;
+                let a_out = area(&bbox(out));
+                if out != parent {
+                    let d_direct = a_parent - area(&b_in.union(b_pivot));
+                    // The pivot's own shrink (see the module docs).
+                    let own = a_out - area(&b_pivot);
+                    if d_best < d_direct + d + own {
+                        d_best = d_direct + d + own;
+                        out_best = out;
+                    }
+                    d += own;
+                }
+                if out == 0 {
+                    break;
+                }
+                out = pivot ^ 1;
+                pivot = parents[out as usize];
+                down = true;
+            } else if out % 2 == 0 {
+                // Came up from a left child: its right sibling is next.
+                out += 1;
+                down = true;
+            } else {
+                out = parents[out as usize];
+            }
+        }
+    }
+    (out_best, d_best)
+}
+
+/// Moves `input` (with its subtree) to become the sibling of `output`, and refits nothing: the
+/// new parent's box is exact, the other ancestors' boxes are stale until a refit.
+///
+/// `input` must not be the root or the padding node; `output` must not be `input`'s parent nor
+/// lie in `input`'s subtree.
+pub fn reinsert(bvh: &mut Bvh, input: u32, output: u32) {
+    assert!(input >= 2 && (input as usize) < bvh.nodes.len(), "cannot reinsert node {input}");
+    let Bvh { nodes, parents, .. } = bvh;
+    let (nodes, parents) = (SharedSlice::new(nodes), SharedSlice::new(parents));
+    // SAFETY: one thread, exclusive borrows.
+    unsafe { reinsert_shared(&nodes, &parents, input, output) };
+}
+
+/// The reinsertion itself, on shared arrays:
+///
+/// ```text
+///        G                  G                       P                 P
+///        |                  |                       |                 |
+///        Q        remove    S'       insert at O    O      ->         O' (new: first = e)
+///       / \       ------>  / \      ------------>  / \               /  \
+///  (e) N   S      (pair e free)                   .   .      (e) O    N (e + 1)
+/// ```
+/// Q's slot takes S's content, so G's link stays valid; the pair `e = N & !1` is then free and
+/// takes O's content and N's, under a new internal node in O's slot.
+///
+/// # Safety
+/// No other thread reads or writes, concurrently, the nodes input, its sibling, its parent,
+/// output, or the parent links of their children.
+unsafe fn reinsert_shared(nodes: &SharedSlice<BvhNode>, parents: &SharedSlice<u32>, input: u32, output: u32) {
+    // SAFETY (whole body): the caller guarantees exclusive access to every index used here.
+    unsafe {
+        let (n, s) = (input as usize, (input ^ 1) as usize);
+        let q = parents.get(n) as usize;
+        debug_assert!(output != q as u32 && output != input, "invalid reinsertion {input} -> {output}");
+        let adopt = |node: &BvhNode, slot: usize| {
+            if !node.is_leaf() {
+                parents.set(node.first as usize, slot as u32);
+                parents.set(node.first as usize + 1, slot as u32);
+            }
+        };
+        let n_node = nodes.get(n);
+        let s_node = nodes.get(s);
+        // Remove: the sibling takes the parent's place.
+        nodes.set(q, s_node);
+        adopt(&s_node, q);
+        // Insert: the output's content and the input's go to the freed pair.
+        let o = if output as usize == s { q } else { output as usize };
+        let o_node = nodes.get(o);
+        let e = n & !1;
+        nodes.set(e, o_node);
+        adopt(&o_node, e);
+        nodes.set(e + 1, n_node);
+        adopt(&n_node, e + 1);
+        parents.set(e, o as u32);
+        parents.set(e + 1, o as u32);
+        nodes.set(o, BvhNode::internal(o_node.aabb().union(n_node.aabb()), e as u32));
+    }
+}
+
+/// Validates the tree's structure and boxes; each primitive's box is taken from its leaf.
+#[cfg(debug_assertions)]
+fn debug_validate(bvh: &Bvh, iteration: u32) {
+    let mut prim_aabbs = vec![Aabb::EMPTY; bvh.prim_ids.len()];
+    for (i, n) in bvh.nodes.iter().enumerate() {
+        if n.is_leaf() && i != PAD_INDEX as usize {
+            for &p in &bvh.prim_ids[n.prim_range()] {
+                prim_aabbs[p as usize] = n.aabb();
+            }
+        }
+    }
+    if let Err(e) = super::validate(bvh, &prim_aabbs) {
+        panic!("PRBVH iteration {iteration} broke the tree: {e}");
+    }
+}
