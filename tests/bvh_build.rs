@@ -225,3 +225,20 @@ fn a_reused_builder_equals_fresh_builds() {
         validate(&out, &prims).unwrap();
     }
 }
+
+#[test]
+fn every_named_builder_gives_a_valid_tree() {
+    use arbor::bvh::builders::Builder;
+    let mut r = rng(14);
+    let inputs =
+        [random_triangles(1, 0.1, &mut r), random_triangles(2, 0.1, &mut r), random_triangles(5000, 0.05, &mut r)];
+    for tris in &inputs {
+        let prims = aabbs(tris);
+        for name in Builder::names() {
+            let builder: Builder = name.parse().unwrap();
+            let built = builder.build(tris, &prims, &Default::default());
+            let stats = validate(&built.bvh, &prims).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(stats.leaf_count, tris.len(), "{name}: one primitive per leaf");
+        }
+    }
+}

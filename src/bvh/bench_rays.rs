@@ -58,6 +58,26 @@ pub fn diffuse_rays(bvh: &Bvh, triangles: &[Triangle], primary: &[Ray]) -> Vec<R
         .collect()
 }
 
+/// A point light for shadow rays: above, right and in front of `bounds`, three bounding radii
+/// from its centre.
+pub fn light_position(bounds: &Aabb) -> Vec3 {
+    bounds.center() + Vec3::new(0.3, 1.0, 0.6).normalize() * bounds.extent().length() * 1.5
+}
+
+/// One shadow ray from each primary hit towards `light`, spawned with the robust offset; the
+/// light sits at `t = 1`, so trace with `t_max = 1`.
+pub fn shadow_rays(bvh: &Bvh, triangles: &[Triangle], primary: &[Ray], light: Vec3) -> Vec<Ray> {
+    primary
+        .par_iter()
+        .filter_map(|ray| {
+            let hit = bvh.closest_hit_triangles(triangles, ray, f32::INFINITY)?;
+            let (p, n) = hit_point_and_normal(triangles, &hit);
+            let from = spawn_ray(p, n, light - p).origin;
+            Some(Ray::new(from, light - from))
+        })
+        .collect()
+}
+
 /// A direction around unit `n` with density cos θ / π.
 fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
     let r = u1.sqrt();

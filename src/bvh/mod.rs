@@ -1,11 +1,15 @@
 //! The bounding volume hierarchy: layout, builders, cost, validation and traversal.
 
+pub mod bench;
 pub mod bench_rays;
 pub mod binned_sah;
+pub mod builders;
 pub mod lbvh;
 mod mesh_bvh;
 mod node;
 mod parallel;
+#[cfg(feature = "peers")]
+pub mod peers;
 pub mod prbvh;
 pub mod sah;
 mod traverse;

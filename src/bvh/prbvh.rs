@@ -38,7 +38,7 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 
 use super::parallel::SharedSlice;
-use super::{Bvh, BvhNode, CollapseConfig, INVALID_INDEX, LeafBoxes, PAD_INDEX, SahCosts, collapse_leaves, refit_with};
+use super::{Bvh, BvhNode, CollapseConfig, INVALID_INDEX, LeafBoxes, SahCosts, collapse_leaves, refit_with};
 use crate::geometry::Aabb;
 
 /// Which nodes a reinsertion locks (section 4.3.3).
@@ -382,7 +382,7 @@ unsafe fn reinsert_shared(nodes: &SharedSlice<BvhNode>, parents: &SharedSlice<u3
 fn debug_validate(bvh: &Bvh, iteration: u32) {
     let mut prim_aabbs = vec![Aabb::EMPTY; bvh.prim_ids.len()];
     for (i, n) in bvh.nodes.iter().enumerate() {
-        if n.is_leaf() && i != PAD_INDEX as usize {
+        if n.is_leaf() && i != super::PAD_INDEX as usize {
             for &p in &bvh.prim_ids[n.prim_range()] {
                 prim_aabbs[p as usize] = n.aabb();
             }

@@ -3,6 +3,7 @@
 mod aabb;
 pub mod mesh;
 pub mod morton;
+pub mod procedural;
 mod ray;
 mod triangle;
 

@@ -1,0 +1,329 @@
+//! `bvh-bench`: compares BVH builders on one mesh by build time, SAH and trace speed.
+//!
+//! Argument parsing and reporting only; the measuring is `arbor::bvh::bench`.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use arbor::bvh::bench::{self, BenchConfig, Report};
+use arbor::bvh::builders::Builder;
+use arbor::bvh::prbvh::PrbvhConfig;
+use arbor::geometry::{TriangleMesh, procedural};
+use clap::Parser;
+
+/// Compare BVH builders: build time, SAH cost (cT = 3, cI = 2) and trace speed of primary,
+/// shadow and diffuse rays, all builders tracing the same rays.
+#[derive(Parser, Debug)]
+#[command(name = "bvh-bench", version)]
+struct Args {
+    /// Mesh to build over (.obj). Optional with --procedural, except for `subdivided`.
+    input: Option<PathBuf>,
+    /// Make a mesh instead: hairball:N, city:N, or subdivided:N (the input mesh split until it
+    /// has at least N triangles). N may use k/M suffixes (e.g. city:2M).
+    #[arg(long, value_name = "KIND:N")]
+    procedural: Option<String>,
+    /// Builders to compare, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = default_builders())]
+    builders: Vec<String>,
+    /// Builds and traces per builder; medians are reported.
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Primary rays: RESOLUTION x RESOLUTION.
+    #[arg(long, default_value_t = 512)]
+    resolution: u32,
+    /// PRBVH's initial search sparsity μ.
+    #[arg(long, default_value_t = PrbvhConfig::default().mu)]
+    mu: u32,
+    /// PRBVH's termination threshold ε on the SAH change.
+    #[arg(long, default_value_t = PrbvhConfig::default().epsilon)]
+    epsilon: f64,
+    /// Seed of procedural meshes.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Write the report as JSON.
+    #[arg(long, value_name = "OUT")]
+    json: Option<PathBuf>,
+    /// Write the table as CSV.
+    #[arg(long, value_name = "OUT")]
+    csv: Option<PathBuf>,
+    /// Plot SAH against build + optimisation time, iteration by iteration (.svg or .png).
+    #[arg(long, value_name = "OUT")]
+    plot: Option<PathBuf>,
+}
+
+fn default_builders() -> Vec<String> {
+    let mut v = vec!["lbvh".to_string(), "lbvh+prbvh".into(), "binned-sah".into()];
+    if cfg!(feature = "peers") {
+        v.push("obvhs-medium".into());
+    }
+    v
+}
+
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("bvh-bench: error: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run() -> Result<()> {
+    let args = Args::parse();
+    let builders = args
+        .builders
+        .iter()
+        .map(|b| b.trim().parse::<Builder>())
+        .collect::<Result<Vec<_>, _>>()
+        .context("--builders")?;
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    if args.mu == 0 {
+        bail!("--mu must be at least 1");
+    }
+    if let Some(plot) = &args.plot {
+        plot_format(plot)?;
+    }
+    let (name, mesh) = load_input(&args)?;
+    if mesh.indices.is_empty() {
+        bail!("{name}: no triangles");
+    }
+    let triangles = mesh.triangles();
+    eprintln!("{name}: {} triangles, {} threads", triangles.len(), rayon::current_num_threads());
+    let config = BenchConfig {
+        builders,
+        runs: args.runs,
+        resolution: args.resolution,
+        prbvh: PrbvhConfig { mu: args.mu, epsilon: args.epsilon, ..Default::default() },
+        ..Default::default()
+    };
+    let report = bench::run(&triangles, &config).map_err(anyhow::Error::msg)?;
+    print_table(&report);
+    if let Some(path) = &args.json {
+        write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, &report)?))?;
+    }
+    if let Some(path) = &args.csv {
+        write_atomic(path, |f| write_csv(f, &report))?;
+    }
+    if let Some(path) = &args.plot {
+        write_plot(path, &name, &report)?;
+    }
+    if !report.mismatches.is_empty() {
+        bail!("builders disagree on hits:\n  {}", report.mismatches.join("\n  "));
+    }
+    Ok(())
+}
+
+/// The mesh and a name for it.
+fn load_input(args: &Args) -> Result<(String, TriangleMesh)> {
+    let input = match &args.input {
+        Some(path) if path.extension().is_some_and(|e| e == "toml") => {
+            bail!("{}: scene files are read by the renderer, which is not built yet; pass an .obj mesh", path.display())
+        }
+        Some(path) => {
+            let mesh = TriangleMesh::load_obj(path)?;
+            Some((path.file_name().map_or(path.display().to_string(), |n| n.to_string_lossy().into_owned()), mesh))
+        }
+        None => None,
+    };
+    let Some(spec) = &args.procedural else {
+        return input.context("give a mesh (.obj) or --procedural KIND:N");
+    };
+    let (kind, count) = spec.split_once(':').context("--procedural: expected KIND:N, e.g. city:1M")?;
+    let n = parse_count(count).with_context(|| format!("--procedural: bad triangle count `{count}`"))?;
+    let mesh = match kind {
+        "hairball" => procedural::hairball(n, args.seed),
+        "city" => procedural::city(n, args.seed),
+        "subdivided" => {
+            let (_, base) = input.as_ref().context("--procedural subdivided:N needs an input mesh to subdivide")?;
+            procedural::subdivide(base, n)
+        }
+        other => bail!("--procedural: unknown kind `{other}`; known: hairball, city, subdivided"),
+    };
+    let name = match &input {
+        Some((base, _)) if kind == "subdivided" => format!("{base} subdivided"),
+        _ => kind.to_string(),
+    };
+    Ok((name, mesh))
+}
+
+fn parse_count(s: &str) -> Result<usize> {
+    let (digits, scale) = match s.chars().last() {
+        Some('k' | 'K') => (&s[..s.len() - 1], 1_000.0),
+        Some('m' | 'M') => (&s[..s.len() - 1], 1_000_000.0),
+        _ => (s, 1.0),
+    };
+    let v: f64 = digits.parse()?;
+    if !(v.is_finite() && v >= 1.0) {
+        bail!("must be at least 1");
+    }
+    Ok((v * scale) as usize)
+}
+
+fn print_table(r: &Report) {
+    println!(
+        "{} triangles, {} threads; rays: {} primary, {} shadow, {} diffuse",
+        r.triangles, r.threads, r.rays.primary, r.rays.shadow, r.rays.diffuse
+    );
+    println!(
+        "{:<26} {:>10} {:>12} {:>10} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9}",
+        "builder", "build ms", "optimize ms", "SAH leaf1", "SAH", "nodes", "leaves", "primary", "shadow", "diffuse"
+    );
+    for b in &r.builders {
+        println!(
+            "{:<26} {:>10.1} {:>12.1} {:>10.2} {:>8.2} {:>9} {:>9} {:>9.2} {:>9.2} {:>9.2}",
+            b.name,
+            b.build_ms,
+            b.optimize_ms,
+            b.sah_leaf1,
+            b.sah,
+            b.nodes,
+            b.leaves,
+            b.primary_mrays,
+            b.shadow_mrays,
+            b.diffuse_mrays
+        );
+    }
+    println!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
+}
+
+fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {
+    writeln!(
+        f,
+        "name,build_ms,optimize_ms,collapse_ms,sah,sah_leaf1,nodes,leaves,depth,primary_mrays,shadow_mrays,diffuse_mrays"
+    )?;
+    for b in &r.builders {
+        writeln!(
+            f,
+            "{},{},{},{},{},{},{},{},{},{},{},{}",
+            b.name,
+            b.build_ms,
+            b.optimize_ms,
+            b.collapse_ms,
+            b.sah,
+            b.sah_leaf1,
+            b.nodes,
+            b.leaves,
+            b.depth,
+            b.primary_mrays,
+            b.shadow_mrays,
+            b.diffuse_mrays
+        )?;
+    }
+    Ok(())
+}
+
+/// Writes through a temporary file in the same folder, renamed into place only when complete.
+fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
+    let tmp = temp_path(path);
+    let result = (|| -> Result<()> {
+        let mut f = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        write(&mut f)?;
+        f.flush()?;
+        f.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        std::fs::rename(&tmp, path)?;
+        Ok(())
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.with_context(|| format!("writing {}", path.display()))
+}
+
+fn temp_path(path: &Path) -> PathBuf {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(format!(".tmp{}", std::process::id()));
+    path.with_file_name(name)
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum PlotFormat {
+    Svg,
+    Png,
+}
+
+fn plot_format(path: &Path) -> Result<PlotFormat> {
+    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+        Some("svg") => Ok(PlotFormat::Svg),
+        Some("png") => Ok(PlotFormat::Png),
+        _ => bail!("--plot {}: the name must end in .svg or .png", path.display()),
+    }
+}
+
+/// Fonts plotters may use for labels, first found wins.
+const FONT_PATHS: [&str; 3] = [
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+];
+
+fn write_plot(path: &Path, title: &str, report: &Report) -> Result<()> {
+    use plotters::prelude::*;
+    let font = FONT_PATHS
+        .iter()
+        .find_map(|p| std::fs::read(p).ok())
+        .context("the plot needs the DejaVu Sans font (Debian package fonts-dejavu-core)")?;
+    // plotters keeps registered fonts for the whole process.
+    plotters::style::register_font("sans-serif", FontStyle::Normal, Box::leak(font.into_boxed_slice()))
+        .map_err(|_| anyhow::anyhow!("DejaVu Sans could not be read as a font"))?;
+    let tmp = temp_path(path).with_extension(path.extension().unwrap_or_default());
+    let result = match plot_format(path)? {
+        PlotFormat::Svg => draw_chart(SVGBackend::new(&tmp, (900, 600)).into_drawing_area(), title, report),
+        PlotFormat::Png => draw_chart(BitMapBackend::new(&tmp, (900, 600)).into_drawing_area(), title, report),
+    }
+    .and_then(|()| Ok(std::fs::rename(&tmp, path)?));
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.with_context(|| format!("writing {}", path.display()))
+}
+
+/// SAH against time, one curve per builder.
+fn draw_chart<DB: plotters::prelude::DrawingBackend>(
+    root: plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
+    title: &str,
+    report: &Report,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    use plotters::prelude::*;
+    let points: Vec<&[f64; 2]> = report.builders.iter().flat_map(|b| &b.sah_curve).collect();
+    let x_max = points.iter().map(|p| p[0]).fold(1.0, f64::max) * 1.05;
+    let y_min = points.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min) * 0.97;
+    let y_max = points.iter().map(|p| p[1]).fold(0.0, f64::max) * 1.03;
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(format!("SAH against time: {title}"), ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..x_max, y_min..y_max)
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .x_desc("build + optimisation time (ms)")
+        .y_desc("SAH, one primitive per leaf")
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    for (k, b) in report.builders.iter().enumerate() {
+        let color = Palette99::pick(k).to_rgba();
+        let pts: Vec<(f64, f64)> = b.sah_curve.iter().map(|p| (p[0], p[1])).collect();
+        chart
+            .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
+            .map_err(|e| anyhow::anyhow!("{e}"))?
+            .label(b.name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2)));
+        chart
+            .draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    Ok(())
+}

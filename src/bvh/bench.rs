@@ -1,0 +1,207 @@
+//! The builder comparison behind `bvh-bench`: every builder builds the same triangles, gets the
+//! same leaf collapse, and traces the same primary, shadow and diffuse rays (Meister & Bittner
+//! 2018, Table 1). Closest hits must be the same for every tree (traversal is exact), so each
+//! ray set's checksum must agree between builders; a disagreement is reported.
+
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::builders::Builder;
+use super::prbvh::PrbvhConfig;
+use super::{CollapseConfig, MeshBvh, bench_rays, collapse_leaves, lbvh, sah_cost, validate};
+use crate::geometry::{Aabb, Ray, Triangle};
+
+/// What to measure.
+#[derive(Clone, Debug)]
+pub struct BenchConfig {
+    pub builders: Vec<Builder>,
+    /// Builds (and traces) per builder; the median time is reported. Default 3.
+    pub runs: usize,
+    /// Primary rays are `resolution²`. Default 512.
+    pub resolution: u32,
+    pub prbvh: PrbvhConfig,
+    pub collapse: CollapseConfig,
+}
+
+impl Default for BenchConfig {
+    fn default() -> Self {
+        Self {
+            builders: Vec::new(),
+            runs: 3,
+            resolution: 512,
+            prbvh: PrbvhConfig::default(),
+            collapse: CollapseConfig::default(),
+        }
+    }
+}
+
+/// One builder's results. Times in milliseconds, trace speeds in millions of rays per second.
+#[derive(Clone, Debug, Serialize)]
+pub struct BuilderReport {
+    pub name: String,
+    /// Median build time, without optimisation.
+    pub build_ms: f64,
+    /// Median PRBVH time (0 without).
+    pub optimize_ms: f64,
+    /// Leaf collapse time.
+    pub collapse_ms: f64,
+    /// SAH (cT = 3, cI = 2) after leaf collapse.
+    pub sah: f64,
+    /// SAH with one primitive per leaf, before collapse.
+    pub sah_leaf1: f64,
+    pub nodes: usize,
+    pub leaves: usize,
+    pub depth: usize,
+    pub primary_mrays: f64,
+    pub shadow_mrays: f64,
+    pub diffuse_mrays: f64,
+    /// PRBVH iterations: `[milliseconds since the build started, leaf-1 SAH]`, starting with
+    /// the unoptimised tree; one point for builders without optimisation.
+    pub sah_curve: Vec<[f64; 2]>,
+    /// Checksums of the hits of each ray set: equal for every builder.
+    pub checksums: [u64; 3],
+}
+
+/// Everything `bvh-bench` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub triangles: usize,
+    pub threads: usize,
+    pub rays: RayCounts,
+    pub builders: Vec<BuilderReport>,
+    /// Disagreements between builders' checksums; empty when all agree.
+    pub mismatches: Vec<String>,
+}
+
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct RayCounts {
+    pub primary: usize,
+    pub shadow: usize,
+    pub diffuse: usize,
+}
+
+/// The ray sets, made once from an LBVH (every exact traversal gives the same hits).
+struct RaySets {
+    primary: Vec<Ray>,
+    shadow: Vec<Ray>,
+    diffuse: Vec<Ray>,
+}
+
+fn ray_sets(triangles: &[Triangle], prim_aabbs: &[Aabb], resolution: u32) -> RaySets {
+    let bvh = lbvh::build(prim_aabbs);
+    let bounds = bvh.bounds();
+    let primary = bench_rays::primary_rays(&bounds, resolution, resolution);
+    let shadow = bench_rays::shadow_rays(&bvh, triangles, &primary, bench_rays::light_position(&bounds));
+    let diffuse = bench_rays::diffuse_rays(&bvh, triangles, &primary);
+    RaySets { primary, shadow, diffuse }
+}
+
+/// Runs the comparison. Fails only on a tree that does not validate (a bug); checksum
+/// disagreements are listed in the report.
+pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, String> {
+    let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
+    let rays = ray_sets(triangles, &prim_aabbs, config.resolution);
+    let mut report = Report {
+        triangles: triangles.len(),
+        threads: rayon::current_num_threads(),
+        rays: RayCounts { primary: rays.primary.len(), shadow: rays.shadow.len(), diffuse: rays.diffuse.len() },
+        builders: Vec::new(),
+        mismatches: Vec::new(),
+    };
+    for builder in &config.builders {
+        let r = measure(builder, triangles, &prim_aabbs, &rays, config)?;
+        if let Some(first) = report.builders.first() {
+            for (k, set) in ["primary", "shadow", "diffuse"].iter().enumerate() {
+                if r.checksums[k] != first.checksums[k] {
+                    report
+                        .mismatches
+                        .push(format!("{set} rays: {} and {} hit different triangles", first.name, r.name));
+                }
+            }
+        }
+        report.builders.push(r);
+    }
+    Ok(report)
+}
+
+fn median(mut v: Vec<Duration>) -> f64 {
+    v.sort();
+    v[v.len() / 2].as_secs_f64() * 1e3
+}
+
+fn measure(
+    builder: &Builder,
+    triangles: &[Triangle],
+    prim_aabbs: &[Aabb],
+    rays: &RaySets,
+    config: &BenchConfig,
+) -> Result<BuilderReport, String> {
+    let runs = config.runs.max(1);
+    let mut builds = Vec::with_capacity(runs);
+    let mut optimizations = Vec::with_capacity(runs);
+    let mut last = None;
+    for _ in 0..runs {
+        let built = builder.build(triangles, prim_aabbs, &config.prbvh);
+        builds.push(built.build_time);
+        optimizations.push(built.optimize_time);
+        last = Some(built);
+    }
+    let built = last.expect("at least one run");
+    validate(&built.bvh, prim_aabbs).map_err(|e| format!("{builder}: invalid tree: {e}"))?;
+    let sah_leaf1 = sah_cost(&built.bvh);
+    let build_ms = median(builds);
+    let mut sah_curve = vec![[build_ms, built.prbvh.as_ref().map_or(sah_leaf1, |s| s.initial_sah)]];
+    if let Some(stats) = &built.prbvh {
+        sah_curve.extend(stats.iterations.iter().map(|i| [build_ms + i.elapsed.as_secs_f64() * 1e3, i.sah]));
+    }
+    let t = Instant::now();
+    let collapsed = collapse_leaves(&built.bvh, &config.collapse);
+    let collapse_ms = t.elapsed().as_secs_f64() * 1e3;
+    let stats = validate(&collapsed, prim_aabbs).map_err(|e| format!("{builder}: invalid collapsed tree: {e}"))?;
+    let sah = sah_cost(&collapsed);
+    let mesh = MeshBvh::new(collapsed, triangles);
+    let (primary_mrays, c0) = trace(&mesh, &rays.primary, f32::INFINITY, runs);
+    let (shadow_mrays, c1) = trace(&mesh, &rays.shadow, 1.0, runs);
+    let (diffuse_mrays, c2) = trace(&mesh, &rays.diffuse, f32::INFINITY, runs);
+    Ok(BuilderReport {
+        name: builder.to_string(),
+        build_ms,
+        optimize_ms: median(optimizations),
+        collapse_ms,
+        sah,
+        sah_leaf1,
+        nodes: stats.node_count,
+        leaves: stats.leaf_count,
+        depth: stats.depth,
+        primary_mrays,
+        shadow_mrays,
+        diffuse_mrays,
+        sah_curve,
+        checksums: [c0, c1, c2],
+    })
+}
+
+/// Traces `rays` (closest hit, or any hit when `t_max` is finite: shadow rays) `runs` times;
+/// returns the median speed in Mrays/s and a checksum of the hits.
+fn trace(mesh: &MeshBvh, rays: &[Ray], t_max: f32, runs: usize) -> (f64, u64) {
+    let shadow = t_max.is_finite();
+    let hit_code = |r: &Ray| -> u64 {
+        if shadow {
+            mesh.any_hit(r, t_max) as u64
+        } else {
+            mesh.closest_hit(r, t_max).map_or(0, |h| h.prim_id as u64 + 1)
+        }
+    };
+    let mut times = Vec::with_capacity(runs);
+    let mut codes = Vec::new();
+    for _ in 0..runs {
+        let t = Instant::now();
+        codes = rays.par_iter().with_min_len(64).map(hit_code).collect::<Vec<u64>>();
+        times.push(t.elapsed());
+    }
+    let checksum = codes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &c| (h ^ c).wrapping_mul(0x0100_0000_01b3));
+    let ms = median(times);
+    (if ms > 0.0 { rays.len() as f64 / ms / 1e3 } else { 0.0 }, checksum)
+}

@@ -1,0 +1,157 @@
+//! Builders by name: what `bvh-bench --builders` and `render --builder` accept.
+//!
+//! | name | what |
+//! |---|---|
+//! | `lbvh` | [`super::lbvh`] |
+//! | `lbvh+prbvh` | LBVH optimised by [`super::prbvh`] (aggressive locks) |
+//! | `lbvh+prbvh-conservative` | the same with conservative locks |
+//! | `binned-sah` | [`super::binned_sah`] |
+//! | `binned-sah+prbvh` | binned SAH optimised by PRBVH |
+//! | `obvhs-fastest` … `obvhs-very-slow` | the obvhs crate's presets (feature `peers`) |
+//!
+//! Every builder returns a tree with one primitive per leaf; the leaf collapse is applied by the
+//! caller, the same for all, so that trees compare by topology and not by leaf policy.
+
+use std::fmt;
+use std::str::FromStr;
+use std::time::{Duration, Instant};
+
+use super::prbvh::{self, LockStrategy, PrbvhConfig, PrbvhStats};
+use super::{Bvh, binned_sah, lbvh};
+use crate::geometry::{Aabb, Triangle};
+
+/// A builder, optionally followed by parallel reinsertion.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Builder {
+    pub base: BaseBuilder,
+    pub optimize: Option<LockStrategy>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BaseBuilder {
+    Lbvh,
+    BinnedSah,
+    /// An obvhs preset, by name (`fastest`, `very-fast`, `fast`, `medium`, `slow`, `very-slow`).
+    Obvhs(&'static str),
+}
+
+/// The obvhs presets' names, fastest first.
+pub const OBVHS_PRESETS: [&str; 6] = ["fastest", "very-fast", "fast", "medium", "slow", "very-slow"];
+
+#[derive(Debug, thiserror::Error)]
+#[error("unknown builder `{name}`; known: {known}")]
+pub struct UnknownBuilder {
+    pub name: String,
+    pub known: String,
+}
+
+impl Builder {
+    /// Every name [`FromStr`] accepts (obvhs ones only with the `peers` feature).
+    pub fn names() -> Vec<String> {
+        let mut v: Vec<String> = ["lbvh", "lbvh+prbvh", "lbvh+prbvh-conservative", "binned-sah", "binned-sah+prbvh"]
+            .map(String::from)
+            .to_vec();
+        if cfg!(feature = "peers") {
+            v.extend(OBVHS_PRESETS.iter().map(|p| format!("obvhs-{p}")));
+        }
+        v
+    }
+}
+
+impl FromStr for Builder {
+    type Err = UnknownBuilder;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let unknown = || UnknownBuilder { name: s.to_owned(), known: Builder::names().join(", ") };
+        let (base, optimize) = match s.split_once('+') {
+            None => (s, None),
+            Some((b, "prbvh")) => (b, Some(LockStrategy::Aggressive)),
+            Some((b, "prbvh-conservative")) => (b, Some(LockStrategy::Conservative)),
+            Some(_) => return Err(unknown()),
+        };
+        let base = match base {
+            "lbvh" => BaseBuilder::Lbvh,
+            "binned-sah" => BaseBuilder::BinnedSah,
+            b if cfg!(feature = "peers") && optimize.is_none() => {
+                let preset = b.strip_prefix("obvhs-").ok_or_else(unknown)?;
+                BaseBuilder::Obvhs(OBVHS_PRESETS.iter().find(|&&p| p == preset).ok_or_else(unknown)?)
+            }
+            _ => return Err(unknown()),
+        };
+        Ok(Builder { base, optimize })
+    }
+}
+
+impl fmt::Display for Builder {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.base {
+            BaseBuilder::Lbvh => write!(f, "lbvh")?,
+            BaseBuilder::BinnedSah => write!(f, "binned-sah")?,
+            BaseBuilder::Obvhs(p) => write!(f, "obvhs-{p}")?,
+        }
+        match self.optimize {
+            None => Ok(()),
+            Some(LockStrategy::Aggressive) => write!(f, "+prbvh"),
+            Some(LockStrategy::Conservative) => write!(f, "+prbvh-conservative"),
+        }
+    }
+}
+
+/// A tree and what making it cost.
+#[derive(Clone, Debug)]
+pub struct Built {
+    /// One primitive per leaf.
+    pub bvh: Bvh,
+    pub build_time: Duration,
+    pub optimize_time: Duration,
+    pub prbvh: Option<PrbvhStats>,
+}
+
+impl Builder {
+    /// Builds over `triangles` (whose boxes are `prim_aabbs`). `prbvh` configures the
+    /// optimisation step, whose `strategy` and `collapse` this builder overrides.
+    pub fn build(&self, triangles: &[Triangle], prim_aabbs: &[Aabb], prbvh: &PrbvhConfig) -> Built {
+        let t = Instant::now();
+        let mut bvh = match self.base {
+            BaseBuilder::Lbvh => lbvh::build(prim_aabbs),
+            BaseBuilder::BinnedSah => binned_sah::build(prim_aabbs, &Default::default()),
+            BaseBuilder::Obvhs(preset) => obvhs_build(preset, triangles, prim_aabbs),
+        };
+        let build_time = t.elapsed();
+        let mut built = Built { bvh: Bvh::default(), build_time, optimize_time: Duration::ZERO, prbvh: None };
+        if let Some(strategy) = self.optimize {
+            let config = PrbvhConfig { strategy, collapse: None, ..*prbvh };
+            let stats = prbvh::optimize(&mut bvh, &config);
+            built.optimize_time = stats.optimize_time;
+            built.prbvh = Some(stats);
+        }
+        built.bvh = bvh;
+        built
+    }
+}
+
+#[cfg(feature = "peers")]
+fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) -> Bvh {
+    super::peers::obvhs_build(preset, triangles, prim_aabbs)
+}
+
+#[cfg(not(feature = "peers"))]
+fn obvhs_build(_: &str, _: &[Triangle], _: &[Aabb]) -> Bvh {
+    unreachable!("obvhs builders are not parsed without the `peers` feature")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip() {
+        for name in Builder::names() {
+            let b: Builder = name.parse().unwrap();
+            assert_eq!(b.to_string(), name);
+        }
+        assert!("lbvh+prbvh+prbvh".parse::<Builder>().is_err());
+        let e = "nope".parse::<Builder>().unwrap_err().to_string();
+        assert!(e.contains("unknown builder `nope`") && e.contains("lbvh+prbvh"), "{e}");
+    }
+}
