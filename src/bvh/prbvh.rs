@@ -187,7 +187,9 @@ fn iterate(
             (d > 0.0).then_some((i as u32, out, d))
         })
         .collect();
-    let searched = (2..len).filter(|&i| i % mu as usize == phase).count();
+    // Nodes i in 2..len with i ≡ phase (mod μ).
+    let count_below = |end: usize| end / mu as usize + usize::from(end % mu as usize > phase);
+    let searched = count_below(len) - count_below(2);
     if moves.is_empty() {
         return (searched, 0, 0);
     }
@@ -247,9 +249,12 @@ fn locked_nodes(bvh: &Bvh, input: u32, output: u32, strategy: LockStrategy) -> V
     nodes
 }
 
-#[inline]
+/// Half surface area without `Aabb::half_area`'s emptiness test: every box the search measures
+/// is a node's box or a union with one, never empty.
+#[inline(always)]
 fn area(b: &Aabb) -> f32 {
-    b.half_area()
+    let e = b.max - b.min;
+    e.x * e.y + e.y * e.z + e.z * e.x
 }
 
 /// Algorithm 1: the output node `input` should become the sibling of, and the surface-area
