@@ -2,13 +2,15 @@
 //! converted into Arbor's layout so that they are traced by the same traversal as ours.
 //!
 //! The presets run with `max_prims_per_leaf = 1` (no leaf collapse of their own): callers apply
-//! Arbor's leaf collapse to every builder alike. obvhs may pad or share boxes, so the converted
+//! Arbor's leaf collapse to every builder alike. They also run with `pre_split = false`: spatial
+//! pre-splits put one triangle in several leaves, which Arbor's trees do not allow (every
+//! primitive sits in exactly one leaf), so the slower presets are measured without them. obvhs may pad or share boxes, so the converted
 //! tree is refitted from our primitive boxes, which makes it pass `validate()` exactly.
 
 use obvhs::BvhBuildParams;
 use obvhs::bvh2::Bvh2;
 
-use super::{Bvh, BvhNode, INVALID_INDEX, Nodes, refit};
+use super::{Bvh, BvhNode, INVALID_INDEX, refit};
 use crate::geometry::{Aabb, Triangle};
 
 /// Builds with the obvhs preset `preset` (one of [`super::builders::OBVHS_PRESETS`]).
@@ -23,6 +25,7 @@ pub fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) ->
         other => panic!("unknown obvhs preset {other}"),
     };
     params.max_prims_per_leaf = 1;
+    params.pre_split = false;
     let tris: Vec<obvhs::triangle::Triangle> = triangles
         .iter()
         .map(|t| obvhs::triangle::Triangle { v0: t.v0.into(), v1: t.v1.into(), v2: t.v2.into() })
@@ -34,47 +37,33 @@ pub fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) ->
     bvh
 }
 
-/// obvhs's `Bvh2` (root 0, children adjacent) in Arbor's layout (root 0, padding 1, pairs at
-/// even slots), depth first.
+/// obvhs's `Bvh2` in Arbor's layout. Both keep the root at 0 and sibling pairs adjacent, and
+/// obvhs packs its pairs from index 1; shifting every other index up by one opens Arbor's
+/// padding slot and puts every pair at an even index.
 fn from_bvh2(b: &Bvh2) -> Bvh {
     if b.nodes.is_empty() || b.primitive_indices.is_empty() {
         return Bvh::default();
     }
-    let node = |n: &obvhs::bvh2::node::Bvh2Node, first: u32| -> BvhNode {
+    let slot = |i: u32| if i == 0 { 0 } else { i + 1 };
+    let mut nodes: Vec<BvhNode> = Vec::with_capacity(b.nodes.len() + 1);
+    for (i, n) in b.nodes.iter().enumerate() {
         let aabb = Aabb::new(n.aabb.min.into(), n.aabb.max.into());
-        if n.prim_count > 0 { BvhNode::leaf(aabb, first, n.prim_count) } else { BvhNode::internal(aabb, first) }
-    };
-    let mut out = Bvh { nodes: Nodes::with_capacity(b.nodes.len() + 1), parents: Vec::new(), prim_ids: Vec::new() };
-    out.nodes.push(node(&b.nodes[0], 0));
-    out.parents.push(INVALID_INDEX);
-    if b.nodes[0].prim_count == 0 {
-        out.nodes.push(bytemuck::Zeroable::zeroed());
-        out.parents.push(INVALID_INDEX);
-    }
-    // (their index, our slot)
-    let mut stack = vec![(0usize, 0usize)];
-    while let Some((theirs, ours)) = stack.pop() {
-        let n = &b.nodes[theirs];
-        if n.prim_count > 0 {
-            let first = out.prim_ids.len() as u32;
-            let range = n.first_index as usize..(n.first_index + n.prim_count) as usize;
-            out.prim_ids.extend_from_slice(&b.primitive_indices[range]);
-            out.nodes[ours] = node(n, first);
+        nodes.push(if n.prim_count > 0 {
+            BvhNode::leaf(aabb, n.first_index, n.prim_count)
         } else {
-            let left = out.nodes.len();
-            out.nodes[ours] = node(n, left as u32);
-            for k in 0..2 {
-                out.nodes.push(BvhNode::zeroed_leaf());
-                out.parents.push(ours as u32);
-                stack.push((n.first_index as usize + k, left + k));
-            }
+            assert!(n.first_index % 2 == 1, "obvhs put the children of node {i} at an even index");
+            BvhNode::internal(aabb, slot(n.first_index))
+        });
+        if i == 0 && b.nodes.len() > 1 {
+            nodes.push(bytemuck::Zeroable::zeroed());
         }
     }
-    out
-}
-
-impl BvhNode {
-    fn zeroed_leaf() -> Self {
-        bytemuck::Zeroable::zeroed()
+    let mut parents = vec![INVALID_INDEX; nodes.len()];
+    for (i, n) in nodes.iter().enumerate() {
+        if !n.is_leaf() && i != 1 {
+            parents[n.first as usize] = i as u32;
+            parents[n.first as usize + 1] = i as u32;
+        }
     }
+    Bvh { nodes: nodes.into(), parents, prim_ids: b.primitive_indices.clone() }
 }

@@ -16,10 +16,9 @@
 
 use rayon::prelude::*;
 
+use super::layout::depth_first;
 use super::parallel::{SharedSlice, bottom_up};
-use bytemuck::Zeroable;
-
-use super::{Bvh, BvhNode, INVALID_INDEX, Nodes, PAD_INDEX};
+use super::{Bvh, BvhNode, PAD_INDEX};
 
 /// The SAH's constants.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -101,40 +100,7 @@ pub fn collapse_leaves(bvh: &Bvh, config: &CollapseConfig) -> Bvh {
         return bvh.clone();
     }
     let collapse = collapse_decisions(bvh, config);
-    let mut out = Bvh {
-        nodes: Nodes::with_capacity(bvh.nodes.len()),
-        parents: Vec::with_capacity(bvh.nodes.len()),
-        prim_ids: Vec::with_capacity(bvh.prim_ids.len()),
-    };
-    out.nodes.push(bvh.nodes[0]);
-    out.parents.push(INVALID_INDEX);
-    if !bvh.nodes[0].is_leaf() && !collapse[0] {
-        out.nodes.push(BvhNode::zeroed());
-        out.parents.push(INVALID_INDEX);
-    }
-    // (old node, its slot in the new tree)
-    let mut stack = vec![(0u32, 0u32)];
-    let mut leaf_stack = Vec::new();
-    while let Some((old, new)) = stack.pop() {
-        let node = bvh.nodes[old as usize];
-        if node.is_leaf() || collapse[old as usize] {
-            let first = out.prim_ids.len() as u32;
-            gather_prims(bvh, old, &mut out.prim_ids, &mut leaf_stack);
-            let count = out.prim_ids.len() as u32 - first;
-            out.nodes[new as usize] = BvhNode::leaf(node.aabb(), first, count);
-        } else {
-            let left = out.nodes.len() as u32;
-            out.nodes[new as usize].first = left;
-            for k in 0..2 {
-                out.nodes.push(bvh.nodes[(node.first + k) as usize]);
-                out.parents.push(new);
-            }
-            // Right pushed first so the left subtree is laid out first.
-            stack.push((node.first + 1, left + 1));
-            stack.push((node.first, left));
-        }
-    }
-    out
+    depth_first(bvh, &collapse)
 }
 
 /// For every node: true where replacing its subtree by one leaf is no more expensive.
@@ -164,26 +130,13 @@ fn collapse_decisions(bvh: &Bvh, config: &CollapseConfig) -> Vec<bool> {
     values.into_iter().map(|v| v.2).collect()
 }
 
-/// Appends the primitives of every leaf under `node` to `out`, left to right.
-fn gather_prims(bvh: &Bvh, node: u32, out: &mut Vec<u32>, stack: &mut Vec<u32>) {
-    stack.clear();
-    stack.push(node);
-    while let Some(i) = stack.pop() {
-        let n = &bvh.nodes[i as usize];
-        if n.is_leaf() {
-            out.extend_from_slice(&bvh.prim_ids[n.prim_range()]);
-        } else {
-            stack.push(n.first + 1);
-            stack.push(n.first);
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
+    use bytemuck::Zeroable;
     use glam::Vec3;
 
     use super::*;
+    use crate::bvh::INVALID_INDEX;
     use crate::geometry::Aabb;
 
     fn unit(x: f32) -> Aabb {
