@@ -3,6 +3,12 @@
 //! - [`geometry`]: boxes, rays, the watertight triangle test, Morton codes, meshes.
 //! - [`bvh`]: the tree layout shared with the GPU, the LBVH and binned-SAH builders, SAH cost and
 //!   leaf collapse, validation, and closest/any-hit traversal.
+//! - [`scene`]: the TOML scene format and its loader.
+//! - [`render`]: film, materials (BSDFs) and sampling; the integrator comes next.
+//! - [`image_io`]: EXR and PNG output, written atomically.
 
 pub mod bvh;
 pub mod geometry;
+pub mod image_io;
+pub mod render;
+pub mod scene;

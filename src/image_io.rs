@@ -1,0 +1,1 @@
+//! Image output (in progress).

@@ -1,0 +1,1 @@
+//! Materials: BSDF sampling and evaluation (in progress).

@@ -1,0 +1,1 @@
+//! The film: per-pixel accumulation (in progress).

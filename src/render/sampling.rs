@@ -1,0 +1,1 @@
+//! Sampling routines (in progress).

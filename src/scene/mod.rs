@@ -1,0 +1,1 @@
+//! Scenes: the TOML format and its loader (in progress).
