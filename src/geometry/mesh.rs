@@ -107,6 +107,100 @@ impl TriangleMesh {
         Self { positions, indices }
     }
 
+    /// The built-in quad: the square [-1, 1]² in the xy plane, facing +z.
+    pub fn quad() -> Self {
+        Self {
+            positions: vec![
+                Vec3::new(-1.0, -1.0, 0.0),
+                Vec3::new(1.0, -1.0, 0.0),
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::new(-1.0, 1.0, 0.0),
+            ],
+            indices: vec![[0, 1, 2], [0, 2, 3]],
+        }
+    }
+
+    /// The built-in box: the cube [-1, 1]³, 12 triangles over 8 shared corners, wound outward.
+    pub fn cube() -> Self {
+        let corner = |i: u32| {
+            Vec3::new(
+                if i & 1 != 0 { 1.0 } else { -1.0 },
+                if i & 2 != 0 { 1.0 } else { -1.0 },
+                if i & 4 != 0 { 1.0 } else { -1.0 },
+            )
+        };
+        // Each face's corners counter-clockwise seen from outside.
+        let faces: [[u32; 4]; 6] = [[0, 4, 6, 2], [1, 3, 7, 5], [0, 1, 5, 4], [2, 6, 7, 3], [0, 2, 3, 1], [4, 5, 7, 6]];
+        Self {
+            positions: (0..8).map(corner).collect(),
+            indices: faces.iter().flat_map(|f| [[f[0], f[1], f[2]], [f[0], f[2], f[3]]]).collect(),
+        }
+    }
+
+    /// The built-in sphere: an icosahedron of radius 1 whose triangles are split in four
+    /// `level` times (20 · 4^level triangles), new vertices pushed out to the sphere. Edge
+    /// midpoints are shared between neighbours, so it stays closed.
+    pub fn icosphere(level: u32) -> Self {
+        let t = (1.0 + 5f32.sqrt()) / 2.0;
+        let mut positions: Vec<Vec3> = [
+            [-1.0, t, 0.0],
+            [1.0, t, 0.0],
+            [-1.0, -t, 0.0],
+            [1.0, -t, 0.0],
+            [0.0, -1.0, t],
+            [0.0, 1.0, t],
+            [0.0, -1.0, -t],
+            [0.0, 1.0, -t],
+            [t, 0.0, -1.0],
+            [t, 0.0, 1.0],
+            [-t, 0.0, -1.0],
+            [-t, 0.0, 1.0],
+        ]
+        .iter()
+        .map(|&p| Vec3::from(p).normalize())
+        .collect();
+        let mut indices: Vec<[u32; 3]> = vec![
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ];
+        for _ in 0..level {
+            let mut midpoints = std::collections::HashMap::new();
+            let mut mid = |a: u32, b: u32, positions: &mut Vec<Vec3>| -> u32 {
+                *midpoints.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                    positions.push(((positions[a as usize] + positions[b as usize]) * 0.5).normalize());
+                    positions.len() as u32 - 1
+                })
+            };
+            indices = indices
+                .iter()
+                .flat_map(|&[a, b, c]| {
+                    let (ab, bc, ca) =
+                        (mid(a, b, &mut positions), mid(b, c, &mut positions), mid(c, a, &mut positions));
+                    [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+                })
+                .collect();
+        }
+        Self { positions, indices }
+    }
+
     /// A torus around the y axis: the tube of radius `minor` follows a circle of radius `major`,
     /// with `major_segments` x `minor_segments` quads split in two.
     pub fn torus(center: Vec3, major: f32, minor: f32, major_segments: u32, minor_segments: u32) -> Self {
@@ -168,6 +262,25 @@ mod tests {
         let t = TriangleMesh::torus(Vec3::ZERO, 2.0, 0.5, 16, 8);
         assert_eq!(t.triangle_count(), 2 * 16 * 8);
         assert_closed(&t);
+    }
+
+    #[test]
+    fn built_in_shapes_are_closed_and_outward() {
+        for (name, m, count) in [
+            ("cube", TriangleMesh::cube(), 12),
+            ("icosphere 0", TriangleMesh::icosphere(0), 20),
+            ("icosphere 3", TriangleMesh::icosphere(3), 1280),
+        ] {
+            assert_eq!(m.triangle_count(), count, "{name}");
+            assert_closed(&m);
+            for i in 0..m.triangle_count() {
+                let t = m.triangle(i);
+                assert!(t.normal().dot((t.v0 + t.v1 + t.v2) / 3.0) > 0.0, "{name}: triangle {i} faces inward");
+            }
+        }
+        let q = TriangleMesh::quad();
+        assert!(q.triangles().iter().all(|t| t.normal().z > 0.0));
+        assert!((q.triangles().iter().map(|t| t.area()).sum::<f32>() - 4.0).abs() < 1e-6);
     }
 
     #[test]
