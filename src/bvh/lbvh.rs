@@ -9,7 +9,7 @@
 //! 3. The radix tree: every internal node finds its key range and split independently (section
 //!    4, Figure 4). Duplicate codes are disambiguated by appending the key's index, the trick of
 //!    section 4 ("augment each key with its index"): δ(i, j) = 64 + clz(i ^ j) when codes tie.
-//! 4. Boxes bottom-up in parallel with atomic visit counters ([`super::parallel::bottom_up`]).
+//! 4. Boxes bottom-up in parallel with atomic visit counters (the parallel bottom-up pass of `bvh::refit`).
 //!
 //! Layout: Karras numbers internal nodes `0..n-1` and leaves `0..n`, and each node (but the root)
 //! is a child of exactly one internal node. We store the two children of Karras internal node `i`

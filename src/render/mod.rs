@@ -1,5 +1,11 @@
-//! Rendering: film, materials and sampling.
+//! Rendering: camera, random streams, film, materials, lights and the path tracer.
 
 pub mod bsdf;
+pub mod camera;
 pub mod film;
+pub mod integrator;
+pub mod lights;
+pub mod rng;
 pub mod sampling;
+
+pub use integrator::{BuildReport, RenderScene};

@@ -1,0 +1,252 @@
+//! Unidirectional path tracing with next-event estimation (one shadow ray per bounce) and
+//! multiple importance sampling of light and BSDF samples with the power heuristic (Veach 1997,
+//! chapter 9), Russian roulette from the fifth segment on.
+//!
+//! Conventions, those of the Mitsuba reference (`../shared/reference/cornell-box`): `max_depth`
+//! counts path segments (1 = emitters seen directly, 2 = direct light); reflectors (diffuse,
+//! conductor) are one-sided, black seen from the back of their triangle; emitters emit from the
+//! front unless two-sided, and also reflect with their BSDF. An emitter reached by a BSDF sample
+//! is weighted against the light sampling that could have found it, so it is neither lost nor
+//! counted twice. What a scene lacks costs nothing: no emitters, no shadow rays; no
+//! environment, no environment lookups.
+
+use std::time::Instant;
+
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+use super::bsdf::{Bsdf, ConductorFresnel as BsdfFresnel};
+use super::camera::CameraModel;
+use super::film::Film;
+use super::lights::Lights;
+use super::rng::Rng;
+use super::sampling::{Frame, power_heuristic};
+use crate::bvh::builders::Builder;
+use crate::bvh::prbvh::PrbvhConfig;
+use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, sah_cost};
+use crate::geometry::{Ray, Triangle, offset_ray_origin, spawn_ray};
+use crate::scene::{ConductorFresnel, Scattering, Scene};
+
+/// Russian roulette starts at this many path segments (Mitsuba's `rr_depth`).
+const RR_DEPTH: u32 = 5;
+
+/// A material as the integrator uses it.
+#[derive(Clone, Copy, Debug)]
+pub struct RenderMaterial {
+    /// `None`: absorbs everything.
+    pub bsdf: Option<Bsdf>,
+    pub emission: Option<Vec3>,
+    pub two_sided: bool,
+}
+
+/// Everything a render reads: geometry and its BVH, materials, lights, camera.
+pub struct RenderScene {
+    pub mesh: MeshBvh,
+    /// World-space triangles by primitive id.
+    pub triangles: Vec<Triangle>,
+    pub material_of: Vec<u32>,
+    pub materials: Vec<RenderMaterial>,
+    pub lights: Lights,
+    pub environment: Option<Vec3>,
+    pub camera: CameraModel,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// What building the acceleration structure cost.
+#[derive(Clone, Copy, Debug)]
+pub struct BuildReport {
+    pub build_ms: f64,
+    pub sah: f64,
+    pub triangles: usize,
+}
+
+impl RenderMaterial {
+    pub fn from_scene(m: &crate::scene::Material) -> Self {
+        let bsdf = match &m.scattering {
+            Scattering::Black => None,
+            Scattering::Diffuse { albedo } => Some(Bsdf::Diffuse { albedo: *albedo }),
+            Scattering::Conductor { roughness, fresnel } => Some(Bsdf::Conductor {
+                alpha: *roughness,
+                fresnel: match fresnel {
+                    ConductorFresnel::Complex { eta, k } => BsdfFresnel::Complex { eta: *eta, k: *k },
+                    ConductorFresnel::BaseColor(c) => BsdfFresnel::Schlick { f0: *c },
+                },
+            }),
+            Scattering::Dielectric { ior, roughness } => Some(Bsdf::Dielectric { alpha: *roughness, ior: *ior }),
+        };
+        Self { bsdf, emission: m.emission, two_sided: m.two_sided }
+    }
+}
+
+impl RenderScene {
+    /// Flattens `scene` to world-space triangles and builds their BVH with `builder`, then the
+    /// default leaf collapse.
+    pub fn build(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
+        let t = Instant::now();
+        let (triangles, material_of) = scene.world_triangles();
+        let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
+        let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
+        let bvh = collapse_leaves(&built.bvh, &CollapseConfig::default());
+        let sah = sah_cost(&bvh);
+        let mesh = MeshBvh::new(bvh, &triangles);
+        let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
+        let lights = Lights::new(&triangles, |i| {
+            let m = &materials[material_of[i] as usize];
+            m.emission.map(|e| (e, m.two_sided))
+        });
+        let report = BuildReport { build_ms: t.elapsed().as_secs_f64() * 1e3, sah, triangles: triangles.len() };
+        let s = Self {
+            mesh,
+            triangles,
+            material_of,
+            materials,
+            lights,
+            environment: scene.environment.filter(|e| e.max_element() > 0.0),
+            camera: CameraModel::new(&scene.camera),
+            width: scene.camera.width,
+            height: scene.camera.height,
+        };
+        (s, report)
+    }
+
+    /// Radiance along `ray` (unit direction) for a path of at most `max_depth` segments;
+    /// also returns the number of rays traced.
+    pub fn radiance(&self, mut ray: Ray, rng: &mut Rng, max_depth: u32) -> (Vec3, u32) {
+        let (mut l, mut beta) = (Vec3::ZERO, Vec3::ONE);
+        let (mut prev_pdf, mut prev_delta) = (0.0f32, true);
+        let mut rays = 0;
+        for depth in 1..=max_depth {
+            rays += 1;
+            let Some(hit) = self.mesh.closest_hit(&ray, f32::INFINITY) else {
+                if let Some(env) = self.environment {
+                    l += beta * env;
+                }
+                break;
+            };
+            let tri = &self.triangles[hit.prim_id as usize];
+            let ng = tri.normal().normalize_or_zero();
+            if ng == Vec3::ZERO {
+                break;
+            }
+            let p = tri.point(hit.u, hit.v);
+            let wo_world = -ray.dir;
+            let front = ng.dot(wo_world) > 0.0;
+            let material = &self.materials[self.material_of[hit.prim_id as usize] as usize];
+            if let Some(le) = material.emission.filter(|_| front || material.two_sided) {
+                if prev_delta {
+                    l += beta * le;
+                } else {
+                    let dist2 = (p - ray.origin).length_squared();
+                    let p_light = self.lights.pdf_area(hit.prim_id) * dist2 / ng.dot(wo_world).abs();
+                    l += beta * le * power_heuristic(prev_pdf, p_light);
+                }
+            }
+            if depth == max_depth {
+                break;
+            }
+            let Some(bsdf) = material.bsdf else { break };
+            let dielectric = matches!(bsdf, Bsdf::Dielectric { .. });
+            if !dielectric && !front {
+                break; // one-sided reflector seen from the back
+            }
+            let frame = Frame::from_normal(ng);
+            let wo = frame.to_local(wo_world);
+            if !self.lights.is_empty() && bsdf.has_non_delta() {
+                rays += self.direct_light(&bsdf, &frame, p, ng, wo, beta, rng, &mut l);
+            }
+            let Some(s) = bsdf.sample(wo, rng.next_vec2(), rng.next_f32()) else { break };
+            if !(s.weight.is_finite() && s.weight.max_element() > 0.0) {
+                break;
+            }
+            beta *= s.weight;
+            prev_pdf = s.pdf;
+            prev_delta = s.is_delta;
+            ray = spawn_ray(p, ng, frame.to_world(s.wi).normalize());
+            if depth >= RR_DEPTH {
+                let q = beta.max_element().min(0.95);
+                if rng.next_f32() >= q {
+                    break;
+                }
+                beta /= q;
+            }
+        }
+        (l, rays)
+    }
+
+    /// Next-event estimation: one light sample, MIS-weighted against the BSDF. Adds to `l` and
+    /// returns the rays traced (0 or 1).
+    #[allow(clippy::too_many_arguments)]
+    fn direct_light(
+        &self,
+        bsdf: &Bsdf,
+        frame: &Frame,
+        p: Vec3,
+        ng: Vec3,
+        wo: Vec3,
+        beta: Vec3,
+        rng: &mut Rng,
+        l: &mut Vec3,
+    ) -> u32 {
+        let u_select = rng.next_f32();
+        let u = rng.next_vec2();
+        let Some(lp) = self.lights.sample(u_select, u) else { return 0 };
+        let to = lp.point - p;
+        let dist2 = to.length_squared();
+        if dist2 <= 0.0 {
+            return 0;
+        }
+        let wi_world = to / dist2.sqrt();
+        let cos_light = lp.normal.dot(-wi_world);
+        if !(cos_light > 0.0 || (lp.two_sided && cos_light < 0.0)) {
+            return 0;
+        }
+        let wi = frame.to_local(wi_world);
+        let f = bsdf.eval(wo, wi);
+        if f.max_element() <= 0.0 {
+            return 0;
+        }
+        // Both ends offset off their surfaces, towards each other; the light sits at t = 1.
+        let from = offset_ray_origin(p, if ng.dot(wi_world) > 0.0 { ng } else { -ng });
+        let to_light = offset_ray_origin(lp.point, if cos_light > 0.0 { lp.normal } else { -lp.normal });
+        if self.mesh.any_hit(&Ray::new(from, to_light - from), 1.0) {
+            return 1;
+        }
+        let p_light = lp.pdf_area * dist2 / cos_light.abs();
+        let w = power_heuristic(p_light, bsdf.pdf(wo, wi));
+        *l += beta * f * wi.z.abs() * lp.radiance * (w / p_light);
+        1
+    }
+
+    /// Adds samples `samples` of every pixel to `film`, rows in parallel; calls `progress` with
+    /// the rays of each finished row. Returns the rays traced. The result depends only on the
+    /// seed and the sample indices, not on the thread count.
+    pub fn render(
+        &self,
+        film: &mut Film,
+        seed: u64,
+        max_depth: u32,
+        samples: std::ops::Range<u32>,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> u64 {
+        let width = self.width as u64;
+        film.rows_mut()
+            .map(|(y, row)| {
+                let mut rays = 0u64;
+                for (x, px) in row.iter_mut().enumerate() {
+                    let pixel = y as u64 * width + x as u64;
+                    for s in samples.clone() {
+                        let mut rng = Rng::for_sample(seed, pixel, s as u64);
+                        let film_pos = Vec2::new(x as f32, y as f32) + rng.next_vec2();
+                        let ray = self.camera.ray(film_pos, rng.next_vec2());
+                        let (l, r) = self.radiance(ray, &mut rng, max_depth);
+                        px.add(l);
+                        rays += r as u64;
+                    }
+                }
+                progress(rays);
+                rays
+            })
+            .sum()
+    }
+}

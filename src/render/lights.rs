@@ -1,0 +1,107 @@
+//! Area lights: every emissive triangle, chosen in proportion to its emitted power and then
+//! sampled uniformly by area.
+
+use glam::{Vec2, Vec3};
+
+use super::sampling::uniform_triangle;
+use crate::geometry::Triangle;
+
+/// A point sampled on a light.
+#[derive(Clone, Copy, Debug)]
+pub struct LightPoint {
+    pub point: Vec3,
+    /// The triangle's unit geometric normal (its front side).
+    pub normal: Vec3,
+    pub radiance: Vec3,
+    pub two_sided: bool,
+    /// Density of having sampled this point, per unit area (selection probability / area).
+    pub pdf_area: f32,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct LightTriangle {
+    triangle: Triangle,
+    normal: Vec3,
+    area: f32,
+    radiance: Vec3,
+    two_sided: bool,
+}
+
+/// The emissive triangles of a scene.
+#[derive(Clone, Debug, Default)]
+pub struct Lights {
+    lights: Vec<LightTriangle>,
+    /// Running sums of power, normalised so the last is 1.
+    cdf: Vec<f32>,
+    /// For each primitive id: its selection probability / area, 0 for non-lights.
+    pdf_area_by_prim: Vec<f32>,
+}
+
+impl Lights {
+    /// `emission(prim)` gives a triangle's radiance and two-sidedness, or `None`.
+    pub fn new(triangles: &[Triangle], emission: impl Fn(usize) -> Option<(Vec3, bool)>) -> Self {
+        let mut lights = Vec::new();
+        let mut prims = Vec::new();
+        let mut power = Vec::new();
+        for (i, t) in triangles.iter().enumerate() {
+            let Some((radiance, two_sided)) = emission(i) else { continue };
+            let area = t.area();
+            // Emitted power of a Lambertian emitter: π · L · area per side.
+            let p = std::f32::consts::PI * luminance(radiance) * area * if two_sided { 2.0 } else { 1.0 };
+            if !(p > 0.0 && p.is_finite()) {
+                continue;
+            }
+            lights.push(LightTriangle { triangle: *t, normal: t.normal().normalize(), area, radiance, two_sided });
+            prims.push(i);
+            power.push(p as f64);
+        }
+        let total: f64 = power.iter().sum();
+        let mut acc = 0.0;
+        let cdf: Vec<f32> = power
+            .iter()
+            .map(|p| {
+                acc += p;
+                (acc / total) as f32
+            })
+            .collect();
+        let mut pdf_area_by_prim = vec![0.0; triangles.len()];
+        for (k, &prim) in prims.iter().enumerate() {
+            pdf_area_by_prim[prim] = (power[k] / total) as f32 / lights[k].area;
+        }
+        Self { lights, cdf, pdf_area_by_prim }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.lights.is_empty()
+    }
+
+    /// A light chosen by power with `u_select`, and a point on it uniform by area from `u`.
+    pub fn sample(&self, u_select: f32, u: Vec2) -> Option<LightPoint> {
+        if self.lights.is_empty() {
+            return None;
+        }
+        let k = self.cdf.partition_point(|&c| c <= u_select).min(self.lights.len() - 1);
+        let l = &self.lights[k];
+        let b = uniform_triangle(u);
+        let t = &l.triangle;
+        let point = t.v0 * b.x + t.v1 * b.y + t.v2 * b.z;
+        let p_select = self.cdf[k] - if k == 0 { 0.0 } else { self.cdf[k - 1] };
+        Some(LightPoint {
+            point,
+            normal: l.normal,
+            radiance: l.radiance,
+            two_sided: l.two_sided,
+            pdf_area: p_select / l.area,
+        })
+    }
+
+    /// The density per unit area with which [`Lights::sample`] picks points on primitive `prim`.
+    pub fn pdf_area(&self, prim: u32) -> f32 {
+        self.pdf_area_by_prim.get(prim as usize).copied().unwrap_or(0.0)
+    }
+}
+
+/// Rec. 709 luminance.
+pub fn luminance(c: Vec3) -> f32 {
+    c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
+}
