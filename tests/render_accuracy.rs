@@ -8,6 +8,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use arbor::bvh::builders::Builder;
+use arbor::geometry::TriangleMesh;
 use arbor::image_io::{Image, read_exr};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
@@ -107,4 +108,157 @@ fn cornell_box_matches_the_reference() {
     }
     eprintln!("{}\nworst z = {worst:.2}", report.join("\n"));
     assert!(worst <= 3.0, "a region differs from the reference by more than 3 standard errors:\n{}", report.join("\n"));
+}
+
+fn scene_from(text: &str, name: &str) -> Scene {
+    let dir = std::env::temp_dir().join(format!("arbor-accuracy-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, text).unwrap();
+    Scene::load(&path).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// A convex sphere of albedo 0.8 under environment radiance 1: every path bounces once and
+/// leaves, so every sample on the sphere is exactly 0.8 and the background exactly 1.
+#[test]
+fn furnace_sphere_is_exactly_its_albedo() {
+    let scene = Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/furnace.toml")).unwrap();
+    let film = render(&scene, 16, scene.render.max_depth);
+    let image = film.mean();
+    let at = |x: u32, y: u32| Vec3::from(image.pixels[(y * image.width + x) as usize]);
+    let c = image.width / 2;
+    for y in c - 20..c + 20 {
+        for x in c - 20..c + 20 {
+            assert!((at(x, y) - Vec3::splat(0.8)).abs().max_element() < 1e-6, "pixel ({x}, {y}) = {}", at(x, y));
+        }
+    }
+    for (x, y) in [(0, 0), (image.width - 1, 0), (0, image.height - 1)] {
+        assert_eq!(at(x, y), Vec3::ONE, "background pixel ({x}, {y})");
+    }
+}
+
+/// A camera inside a closed diffuse shell of albedo `a` that emits radiance 1 inward sees
+/// `1 + a + ... + a^(D-1) = (1 - a^D) / (1 - a)` at max depth D. The mean over the image must be
+/// within 3 standard errors of it.
+#[test]
+fn closed_shell_sums_the_geometric_series() {
+    let dir = std::env::temp_dir().join(format!("arbor-shell-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // An icosphere with its triangles turned inward.
+    let sphere = TriangleMesh::icosphere(3);
+    let mut obj = String::new();
+    for p in &sphere.positions {
+        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &sphere.indices {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[2] + 1, t[1] + 1);
+    }
+    std::fs::write(dir.join("shell.obj"), obj).unwrap();
+    for (a, depth) in [(0.5f32, 4u32), (0.8, 3), (0.3, 1)] {
+        let text = format!(
+            "[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nfov = 60\nresolution = [24, 24]\n\n\
+             [materials.shell]\ntype = \"emissive\"\nradiance = [1, 1, 1]\nalbedo = [{a}, {a}, {a}]\n\n\
+             [[objects]]\nmesh = \"shell.obj\"\nmaterial = \"shell\"\n"
+        );
+        std::fs::write(dir.join("scene.toml"), text).unwrap();
+        let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
+        let film = render(&scene, 64, depth);
+        let (mean, se, _) = region(&film.mean(), &film.stderr(), |_, _| true);
+        let expected = (1.0 - a.powi(depth as i32)) / (1.0 - a);
+        let z = ((mean - Vec3::splat(expected)).abs() / se.max(Vec3::splat(1e-7))).max_element();
+        eprintln!("shell a = {a}, D = {depth}: mean {mean}, expected {expected}, standard error {se}, z {z:.2}");
+        assert!(z <= 3.0, "a = {a}, D = {depth}: {mean} vs {expected} (standard error {se})");
+    }
+}
+
+/// Irradiance from a polygon of radiance `l` at point `p` with normal `n` (Lambert's formula):
+/// `E = l/2 Σ θ_i n·(u_i × u_{i+1})/|u_i × u_{i+1}|`, `u_i` the unit directions to the vertices.
+fn polygon_irradiance(p: Vec3, n: Vec3, vertices: &[Vec3], l: f32) -> f32 {
+    let u: Vec<Vec3> = vertices.iter().map(|v| (*v - p).normalize()).collect();
+    let mut sum = 0.0f64;
+    for i in 0..u.len() {
+        let (a, b) = (u[i], u[(i + 1) % u.len()]);
+        let theta = (a.dot(b) as f64).clamp(-1.0, 1.0).acos();
+        sum += theta * n.dot(a.cross(b).normalize()) as f64;
+    }
+    (0.5 * l as f64 * sum.abs()) as f32
+}
+
+/// A diffuse floor under a square area light, direct light only: each 8x8 block of pixels
+/// must match `albedo/π · E` from the closed form, within 3 standard errors.
+#[test]
+fn irradiance_under_a_square_light_matches_the_closed_form() {
+    let (albedo, radiance, half, height) = (0.5f32, 10.0f32, 0.25f32, 1.0f32);
+    let scene = scene_from(
+        &format!(
+            "[camera]\nposition = [0, 2.5, 3]\nlook_at = [0, 0, 0.5]\nfov = 30\nresolution = [48, 48]\n\n\
+             [materials.floor]\ntype = \"diffuse\"\nalbedo = [{albedo}, {albedo}, {albedo}]\n\n\
+             [materials.lamp]\ntype = \"emissive\"\nradiance = [{radiance}, {radiance}, {radiance}]\n\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"floor\"\nrotate = [-90, 0, 0]\nscale = 10\n\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [0, {height}, 0]\nrotate = [90, 0, 0]\nscale = {half}\n"
+        ),
+        "irradiance",
+    );
+    let film = render(&scene, 256, 2);
+    let (image, stderr) = (film.mean(), film.stderr());
+    let camera = arbor::render::camera::CameraModel::new(&scene.camera);
+    let light = [
+        Vec3::new(-half, height, -half),
+        Vec3::new(half, height, -half),
+        Vec3::new(half, height, half),
+        Vec3::new(-half, height, half),
+    ];
+    // Expected pixel value: the floor's radiance averaged over 4x4 points of the pixel, or None
+    // where the pixel sees the light or misses the floor.
+    let expected = |x: u32, y: u32| -> Option<f32> {
+        let mut sum = 0.0;
+        for k in 0..16 {
+            let film_pos =
+                glam::Vec2::new(x as f32 + (k % 4) as f32 * 0.25 + 0.125, y as f32 + (k / 4) as f32 * 0.25 + 0.125);
+            let ray = camera.ray(film_pos, glam::Vec2::ZERO);
+            let t_floor = -ray.origin.y / ray.dir.y;
+            let t_light = (height - ray.origin.y) / ray.dir.y;
+            let at_light = ray.at(t_light);
+            if t_light > 0.0 && at_light.x.abs() <= half * 1.05 && at_light.z.abs() <= half * 1.05 {
+                return None;
+            }
+            let p = ray.at(t_floor);
+            if !(t_floor > 0.0) || p.x.abs() > 10.0 || p.z.abs() > 10.0 {
+                return None;
+            }
+            sum += albedo / std::f32::consts::PI * polygon_irradiance(p, Vec3::Y, &light, radiance);
+        }
+        Some(sum / 16.0)
+    };
+    let mut worst = 0.0f32;
+    let mut blocks = 0;
+    for by in 0..6 {
+        for bx in 0..6 {
+            let pixels: Vec<(u32, u32)> = (0..64).map(|k| (bx * 8 + k % 8, by * 8 + k / 8)).collect();
+            let Some(want): Option<Vec<f32>> = pixels.iter().map(|&(x, y)| expected(x, y)).collect() else { continue };
+            let want = want.iter().sum::<f32>() / 64.0;
+            let (got, se, _) = region(&image, &stderr, |x, y| x / 8 == bx && y / 8 == by);
+            let z = (got.x - want).abs() / se.x.max(1e-7);
+            worst = worst.max(z);
+            blocks += 1;
+            assert!(z <= 3.0, "block ({bx}, {by}): {} vs closed form {want} (standard error {})", got.x, se.x);
+        }
+    }
+    assert!(blocks >= 20, "only {blocks} blocks see the floor alone");
+    eprintln!("irradiance: {blocks} blocks, worst z {worst:.2}");
+}
+
+/// Same scene, seed and spp: the same image to the bit, whatever the thread count.
+#[test]
+fn images_do_not_depend_on_thread_count() {
+    let mut scene = Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-box.toml")).unwrap();
+    scene.camera.width = 40;
+    scene.camera.height = 40;
+    let run = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| render(&scene, 8, 8).mean().pixels)
+    };
+    let one = run(1);
+    assert_eq!(one, run(2));
+    assert_eq!(one, run(3));
 }
