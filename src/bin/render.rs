@@ -18,7 +18,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 /// Render a scene (TOML) to a linear EXR image, or an 8-bit sRGB PNG when OUT ends in .png.
 #[derive(Parser, Debug)]
-#[command(name = "render", version)]
+#[command(name = "render", version, allow_negative_numbers = true)]
 struct Args {
     /// The scene file (see docs/scene-format.md).
     scene: PathBuf,

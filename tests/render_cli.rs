@@ -1,0 +1,95 @@
+//! `render` as a user runs it: outputs, the summary line, overrides, and clear errors.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn render() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_render"))
+}
+
+fn scene(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("arbor-render-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn renders_exr_and_png_with_a_summary() {
+    let dir = temp_dir("outputs");
+    for name in ["out.exr", "out.png"] {
+        let out = dir.join(name);
+        let o = render()
+            .arg(scene("furnace.toml"))
+            .arg("-o")
+            .arg(&out)
+            .args(["--spp", "2", "--threads", "2", "--builder", "binned-sah"])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        for word in ["triangles", "BVH (binned-sah)", "SAH", "render", "Mrays/s", "2 spp"] {
+            assert!(stdout.contains(word), "summary lacks `{word}`: {stdout}");
+        }
+        assert!(std::fs::metadata(&out).unwrap().len() > 0);
+    }
+    let image = arbor::image_io::read_exr(dir.join("out.exr")).unwrap();
+    assert_eq!((image.width, image.height), (128, 128));
+    let quiet = render()
+        .arg(scene("furnace.toml"))
+        .arg("-o")
+        .arg(dir.join("q.exr"))
+        .args(["--spp", "1", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(quiet.status.success() && quiet.stdout.is_empty() && quiet.stderr.is_empty());
+}
+
+/// Each bad call exits non-zero with a message naming the problem, and writes no image.
+#[test]
+fn errors_are_clear_and_leave_nothing_behind() {
+    let dir = temp_dir("errors");
+    let bad_scene = dir.join("bad.toml");
+    std::fs::write(&bad_scene, "[camera]\nposition = [0, 0, 1]\n").unwrap();
+    let out = dir.join("never.exr");
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (vec![scene("furnace.toml").display().to_string(), "--device".into(), "gpu".into()], "not built yet"),
+        (
+            vec![scene("furnace.toml").display().to_string(), "--builder".into(), "octree".into()],
+            "unknown builder `octree`",
+        ),
+        (vec![bad_scene.display().to_string()], "bad.toml:1: camera"),
+        (vec![dir.join("missing.toml").display().to_string()], "missing.toml: cannot read"),
+        (vec![scene("furnace.toml").display().to_string(), "--spp".into(), "0".into()], "at least 1"),
+        (vec![scene("furnace.toml").display().to_string(), "--time".into(), "-3".into()], "--time"),
+    ];
+    for (args, expected) in cases {
+        let o = render().args(&args).arg("-o").arg(&out).output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} should fail");
+        assert!(stderr.contains(expected), "{args:?}: expected `{expected}` in {stderr}");
+        assert!(!out.exists(), "{args:?} wrote an image");
+    }
+    let o = render().arg(scene("furnace.toml")).arg("-o").arg(dir.join("out.jpg")).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains(".exr or .png"));
+}
+
+#[test]
+fn a_time_budget_stops_early() {
+    let dir = temp_dir("time");
+    let o = render()
+        .arg(scene("cornell-box.toml"))
+        .arg("-o")
+        .arg(dir.join("t.exr"))
+        .args(["--spp", "100000", "--time", "0.5"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let spp: u32 =
+        stdout.split(", ").find_map(|f| f.strip_suffix(" spp\n").or(f.strip_suffix(" spp"))).unwrap().parse().unwrap();
+    assert!(spp >= 4 && spp < 100_000, "{stdout}");
+}
