@@ -80,6 +80,14 @@ fn writes_table_json_csv_and_plot() {
 }
 
 #[test]
+fn scenes_as_input() {
+    let scene = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/showcase.toml");
+    let out = bench().arg(&scene).args(["--builders", "lbvh,lbvh+prbvh", "--runs", "1", "--resolution", "32"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("lbvh+prbvh"));
+}
+
+#[test]
 fn procedural_meshes() {
     for spec in ["hairball:3k", "city:2000"] {
         let out = bench()
@@ -102,7 +110,7 @@ fn bad_input_is_a_clear_error() {
             vec![obj.display().to_string(), "--builders".into(), "lbvh,fastest-ever".into()],
             "unknown builder `fastest-ever`",
         ),
-        (vec!["scene.toml".into()], "scene files are read by the renderer"),
+        (vec!["scene.toml".into()], "scene.toml: cannot read"),
         (vec![dir.join("missing.obj").display().to_string()], "missing.obj"),
         (vec!["--procedural".into(), "donut:100".into()], "unknown kind `donut`"),
         (vec!["--procedural".into(), "city:lots".into()], "bad triangle count `lots`"),

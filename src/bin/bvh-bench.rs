@@ -17,7 +17,8 @@ use clap::Parser;
 #[derive(Parser, Debug)]
 #[command(name = "bvh-bench", version)]
 struct Args {
-    /// Mesh to build over (.obj). Optional with --procedural, except for `subdivided`.
+    /// Mesh (.obj) or scene (.toml) to build over. Optional with --procedural, except for
+    /// `subdivided`.
     input: Option<PathBuf>,
     /// Make a mesh instead: hairball:N, city:N, or subdivided:N (the input mesh split until it
     /// has at least N triangles). N may use k/M suffixes (e.g. city:2M).
@@ -118,7 +119,14 @@ fn run() -> Result<()> {
 fn load_input(args: &Args) -> Result<(String, TriangleMesh)> {
     let input = match &args.input {
         Some(path) if path.extension().is_some_and(|e| e == "toml") => {
-            bail!("{}: scene files are read by the renderer, which is not built yet; pass an .obj mesh", path.display())
+            // A scene: every object's triangles in world space, as the renderer builds over them.
+            let scene = arbor::scene::Scene::load(path)?;
+            let (triangles, _) = scene.world_triangles();
+            let mesh = TriangleMesh {
+                positions: triangles.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect(),
+                indices: (0..triangles.len() as u32).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect(),
+            };
+            Some((path.file_name().map_or(path.display().to_string(), |n| n.to_string_lossy().into_owned()), mesh))
         }
         Some(path) => {
             let mesh = TriangleMesh::load_obj(path)?;
