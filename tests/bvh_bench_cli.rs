@@ -82,7 +82,11 @@ fn writes_table_json_csv_and_plot() {
 #[test]
 fn scenes_as_input() {
     let scene = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/showcase.toml");
-    let out = bench().arg(&scene).args(["--builders", "lbvh,lbvh+prbvh", "--runs", "1", "--resolution", "32"]).output().unwrap();
+    let out = bench()
+        .arg(&scene)
+        .args(["--builders", "lbvh,lbvh+prbvh", "--runs", "1", "--resolution", "32"])
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stdout).contains("lbvh+prbvh"));
 }

@@ -223,7 +223,7 @@ fn irradiance_under_a_square_light_matches_the_closed_form() {
                 return None;
             }
             let p = ray.at(t_floor);
-            if !(t_floor > 0.0) || p.x.abs() > 10.0 || p.z.abs() > 10.0 {
+            if t_floor.is_nan() || t_floor <= 0.0 || p.x.abs() > 10.0 || p.z.abs() > 10.0 {
                 return None;
             }
             sum += albedo / std::f32::consts::PI * polygon_irradiance(p, Vec3::Y, &light, radiance);
