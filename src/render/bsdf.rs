@@ -489,22 +489,9 @@ fn rough_dielectric_sample(ggx: Ggx, ior: f32, wo: Vec3, u: Vec2, u_lobe: f32) -
 
 #[cfg(test)]
 mod tests {
-    use super::super::sampling::test_rng::Pcg32;
+    use super::super::sampling::test_rng::{Pcg32, mean_and_se};
     use super::super::sampling::{uniform_sphere, uniform_sphere_pdf};
     use super::*;
-
-    /// Mean and standard error of the mean of `n` draws of `f`.
-    fn mean_and_se(n: usize, mut f: impl FnMut() -> f64) -> (f64, f64) {
-        let (mut sum, mut sum2) = (0.0, 0.0);
-        for _ in 0..n {
-            let x = f();
-            sum += x;
-            sum2 += x * x;
-        }
-        let mean = sum / n as f64;
-        let var = (sum2 / n as f64 - mean * mean).max(0.0);
-        (mean, (var / n as f64).sqrt())
-    }
 
     /// A unit direction at polar angle `theta_deg` from +z (negative z when `below`).
     fn dir(theta_deg: f32, phi: f32, below: bool) -> Vec3 {

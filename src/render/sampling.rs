@@ -143,47 +143,36 @@ impl Frame {
 /// (O'Neill 2014, XSH-RR output), so tests are reproducible without a dev-dependency's API.
 #[cfg(test)]
 pub(crate) mod test_rng {
-    use glam::{Vec2, vec2};
+    //! Seeded random numbers and a Monte Carlo helper for the sampling and BSDF tests: one
+    //! stream of the renderer's own generator per seed.
 
-    pub struct Pcg32 {
-        state: u64,
-        inc: u64,
-    }
+    use glam::Vec2;
+
+    use crate::render::rng::Rng;
+
+    pub struct Pcg32(Rng);
 
     impl Pcg32 {
         pub fn new(seed: u64) -> Self {
-            let mut rng = Self { state: 0, inc: (seed << 1) | 1 };
-            rng.next_u32();
-            rng.state = rng.state.wrapping_add(0x853c_49e6_748f_ea9b ^ seed);
-            rng.next_u32();
-            rng
+            Self(Rng::for_sample(seed, 0, 0))
         }
 
         pub fn next_u32(&mut self) -> u32 {
-            let old = self.state;
-            self.state = old.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(self.inc);
-            let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
-            xorshifted.rotate_right((old >> 59) as u32)
+            self.0.next_u32()
         }
 
-        /// Uniform in `[0, 1)`: the top 24 bits, so every value is exactly representable.
+        /// Uniform in `[0, 1)`.
         pub fn f32(&mut self) -> f32 {
-            (self.next_u32() >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
+            self.0.next_f32()
         }
 
         pub fn vec2(&mut self) -> Vec2 {
-            vec2(self.f32(), self.f32())
+            self.0.next_vec2()
         }
     }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::test_rng::Pcg32;
-    use super::*;
 
     /// Mean and standard error of the mean of `n` draws of `f`.
-    fn mean_and_se(n: usize, mut f: impl FnMut() -> f64) -> (f64, f64) {
+    pub fn mean_and_se(n: usize, mut f: impl FnMut() -> f64) -> (f64, f64) {
         let (mut sum, mut sum2) = (0.0, 0.0);
         for _ in 0..n {
             let x = f();
@@ -194,6 +183,12 @@ mod tests {
         let var = (sum2 / n as f64 - mean * mean).max(0.0);
         (mean, (var / n as f64).sqrt())
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::test_rng::{Pcg32, mean_and_se};
+    use super::*;
 
     /// ∫ pdf dω over the sphere, estimated with uniform sphere samples: E[pdf(ω) · 4π] = 1.
     /// Accepted within 5 standard errors (a fixed seed makes the test deterministic; 5σ is where a
