@@ -139,8 +139,6 @@ impl Frame {
     }
 }
 
-/// A small deterministic generator for Monte Carlo tests in this module and in `bsdf`: PCG32
-/// (O'Neill 2014, XSH-RR output), so tests are reproducible without a dev-dependency's API.
 #[cfg(test)]
 pub(crate) mod test_rng {
     //! Seeded random numbers and a Monte Carlo helper for the sampling and BSDF tests: one
@@ -155,10 +153,6 @@ pub(crate) mod test_rng {
     impl Pcg32 {
         pub fn new(seed: u64) -> Self {
             Self(Rng::for_sample(seed, 0, 0))
-        }
-
-        pub fn next_u32(&mut self) -> u32 {
-            self.0.next_u32()
         }
 
         /// Uniform in `[0, 1)`.
