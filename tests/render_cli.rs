@@ -93,3 +93,31 @@ fn a_time_budget_stops_early() {
         stdout.split(", ").find_map(|f| f.strip_suffix(" spp\n").or(f.strip_suffix(" spp"))).unwrap().parse().unwrap();
     assert!((4..100_000).contains(&spp), "{stdout}");
 }
+
+/// `auto` optimises only while it pays: a tiny render stops after at most two iterations, a
+/// huge one runs on and reaches a lower SAH.
+#[test]
+fn auto_builder_scales_optimisation_with_the_ray_budget() {
+    use arbor::render::RenderScene;
+    let showcase = arbor::scene::Scene::load(scene("showcase.toml")).unwrap();
+    let iterations = |label: &str| -> usize {
+        let after = label.split("lbvh+prbvh, ").nth(1).unwrap();
+        after.split(' ').next().unwrap().parse().unwrap()
+    };
+    let (_, small) = RenderScene::build_auto(&showcase, 1.0);
+    let (_, large) = RenderScene::build_auto(&showcase, 1e13);
+    assert!(iterations(&small.builder) <= 2, "{}", small.builder);
+    assert!(iterations(&large.builder) > iterations(&small.builder), "{} / {}", small.builder, large.builder);
+    assert!(large.sah < small.sah, "{} vs {}", large.sah, small.sah);
+
+    let dir = temp_dir("auto");
+    let o = render()
+        .arg(scene("furnace.toml"))
+        .arg("-o")
+        .arg(dir.join("a.exr"))
+        .args(["--spp", "1", "--builder", "auto"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("BVH (auto: lbvh+prbvh, "));
+}

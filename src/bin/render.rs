@@ -37,7 +37,8 @@ struct Args {
     /// Where to render.
     #[arg(long, value_enum, default_value_t = Device::Auto)]
     device: Device,
-    /// BVH builder: lbvh, lbvh+prbvh, binned-sah, ... (see bvh-bench --help).
+    /// BVH builder: auto, or a name bvh-bench takes (lbvh, lbvh+prbvh, binned-sah, ...). `auto`
+    /// optimises the LBVH only while that pays for itself in this render's estimated time.
     #[arg(long, default_value = "lbvh+prbvh")]
     builder: String,
     /// Worker threads (default: all cores).
@@ -70,7 +71,8 @@ fn run() -> Result<()> {
     if args.device == Device::Gpu {
         bail!("--device gpu: GPU rendering is not built yet; use --device cpu");
     }
-    let builder: Builder = args.builder.parse().context("--builder")?;
+    let builder: Option<Builder> =
+        if args.builder == "auto" { None } else { Some(args.builder.parse().context("--builder")?) };
     if let Some(n) = args.threads {
         if n == 0 {
             bail!("--threads must be at least 1");
@@ -94,7 +96,16 @@ fn run() -> Result<()> {
         bail!("{}: the output name must end in .exr or .png", args.output.display());
     }
 
-    let (render_scene, build) = RenderScene::build(&scene, &builder);
+    let (render_scene, build) = match &builder {
+        Some(b) => RenderScene::build(&scene, b),
+        None => {
+            // Rays of the whole render: each path segment traces one ray, plus a shadow ray when
+            // the scene has emitters; paths rarely run past five segments (Russian roulette).
+            let per_path = max_depth.min(5) as f64 * if scene.has_emitters() { 2.0 } else { 1.0 };
+            let pixels = scene.camera.width as f64 * scene.camera.height as f64;
+            RenderScene::build_auto(&scene, pixels * spp as f64 * per_path)
+        }
+    };
     let mut film = Film::new(render_scene.width, render_scene.height);
     let show_progress = !args.quiet && std::io::stderr().is_terminal();
     let bar = progress_bar(show_progress, spp as u64 * render_scene.height as u64);
@@ -123,9 +134,10 @@ fn run() -> Result<()> {
     if !args.quiet {
         let rays = rays.load(Ordering::Relaxed) as f64;
         println!(
-            "{}: {} triangles, BVH ({builder}) {:.1} ms, SAH {:.2}; render {:.2} s, {:.2} Mrays/s, {done} spp{}",
+            "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}; render {:.2} s, {:.2} Mrays/s, {done} spp{}",
             args.output.display(),
             build.triangles,
+            build.builder,
             build.build_ms,
             build.sah,
             render_secs,

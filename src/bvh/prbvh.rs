@@ -122,6 +122,27 @@ pub struct PrbvhStats {
 /// Works on any valid tree; leaves are moved whole, so their boxes need no primitives. In debug
 /// builds (and so in tests) the tree is validated after every iteration.
 pub fn optimize(bvh: &mut Bvh, config: &PrbvhConfig) -> PrbvhStats {
+    optimize_while(bvh, config, |_| true)
+}
+
+/// What [`optimize_while`] asks about after each iteration.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    pub initial_sah: f64,
+    /// SAH before and after this iteration.
+    pub previous_sah: f64,
+    pub sah: f64,
+    /// Time this iteration took.
+    pub iteration_time: Duration,
+}
+
+/// [`optimize`], stopping early as soon as `keep_going` returns false after an iteration (the
+/// μ/ε rule and the iteration cap still apply).
+pub fn optimize_while(
+    bvh: &mut Bvh,
+    config: &PrbvhConfig,
+    mut keep_going: impl FnMut(&Progress) -> bool,
+) -> PrbvhStats {
     assert!(config.mu >= 1, "PRBVH needs mu >= 1");
     let start = Instant::now();
     let sah = |b: &Bvh| super::sah_cost_with(b, &config.costs);
@@ -133,6 +154,7 @@ pub fn optimize(bvh: &mut Bvh, config: &PrbvhConfig) -> PrbvhStats {
     // A tree of fewer than three nodes has nothing to reinsert.
     let mut iteration = 0u32;
     while bvh.nodes.len() > 3 && iteration < config.max_iterations {
+        let iteration_start = Instant::now();
         let (searched, candidates, reinsertions) = iterate(bvh, iteration, mu, config.strategy, &mut locks);
         let leaves = bvh.leaf_indices();
         refit_with(bvh, &[], &leaves, &mut visits, LeafBoxes::Keep);
@@ -148,6 +170,15 @@ pub fn optimize(bvh: &mut Bvh, config: &PrbvhConfig) -> PrbvhStats {
             elapsed: start.elapsed(),
         });
         iteration += 1;
+        let progress = Progress {
+            initial_sah: stats.initial_sah,
+            previous_sah: previous,
+            sah: current,
+            iteration_time: iteration_start.elapsed(),
+        };
+        if !keep_going(&progress) {
+            break;
+        }
         if previous - current < config.epsilon {
             if mu == 1 {
                 break;

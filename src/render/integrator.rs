@@ -22,8 +22,8 @@ use super::lights::Lights;
 use super::rng::Rng;
 use super::sampling::{Frame, power_heuristic};
 use crate::bvh::builders::Builder;
-use crate::bvh::prbvh::PrbvhConfig;
-use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, sah_cost};
+use crate::bvh::prbvh::{self, PrbvhConfig};
+use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh, sah_cost};
 use crate::geometry::{Ray, Triangle, offset_ray_origin, spawn_ray};
 use crate::scene::{ConductorFresnel, Scattering, Scene};
 
@@ -54,11 +54,28 @@ pub struct RenderScene {
 }
 
 /// What building the acceleration structure cost.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct BuildReport {
     pub build_ms: f64,
     pub sah: f64,
     pub triangles: usize,
+    /// The builder used (for `auto`, what it decided).
+    pub builder: String,
+}
+
+/// Rays per second of closest-hit queries on the leaf-collapsed `bvh`, measured on a 64x64 grid
+/// of camera rays.
+fn probe_trace_speed(bvh: &crate::bvh::Bvh, triangles: &[Triangle], camera: &crate::scene::Camera) -> f64 {
+    let mesh = MeshBvh::new(collapse_leaves(bvh, &CollapseConfig::default()), triangles);
+    let model = CameraModel::new(camera);
+    let (w, h) = (camera.width as f32 / 64.0, camera.height as f32 / 64.0);
+    let rays: Vec<Ray> = (0..64 * 64)
+        .map(|i| model.ray(Vec2::new(((i % 64) as f32 + 0.5) * w, ((i / 64) as f32 + 0.5) * h), Vec2::splat(0.5)))
+        .collect();
+    let t = Instant::now();
+    let hits = rays.par_iter().filter(|r| mesh.closest_hit(r, f32::INFINITY).is_some()).count();
+    std::hint::black_box(hits);
+    rays.len() as f64 / t.elapsed().as_secs_f64().max(1e-9)
 }
 
 impl RenderMaterial {
@@ -87,7 +104,43 @@ impl RenderScene {
         let (triangles, material_of) = scene.world_triangles();
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
         let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
-        let bvh = collapse_leaves(&built.bvh, &CollapseConfig::default());
+        Self::assemble(scene, triangles, material_of, &built.bvh, t, builder.to_string())
+    }
+
+    /// `--builder auto`: LBVH, then parallel reinsertion only for as long as it pays for itself
+    /// in a render of about `rays` rays.
+    ///
+    /// The render's length is estimated from the trace speed of the LBVH on a probe of 4096
+    /// camera rays. Trace cost is taken as proportional to the SAH, so an iteration that lowers
+    /// the SAH by a fraction `f` saves `f` of the estimated render time; optimisation stops after
+    /// the first iteration whose saving is less than the time it took.
+    pub fn build_auto(scene: &Scene, rays: f64) -> (Self, BuildReport) {
+        let t = Instant::now();
+        let (triangles, material_of) = scene.world_triangles();
+        let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
+        let mut bvh = lbvh::build(&prims);
+        let render_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
+        let stats = prbvh::optimize_while(&mut bvh, &PrbvhConfig { collapse: None, ..Default::default() }, |p| {
+            let saved = (p.previous_sah - p.sah) / p.initial_sah * render_seconds;
+            saved > p.iteration_time.as_secs_f64()
+        });
+        let label = format!(
+            "auto: lbvh+prbvh, {} iterations for a render estimated at {render_seconds:.1} s",
+            stats.iterations.len()
+        );
+        Self::assemble(scene, triangles, material_of, &bvh, t, label)
+    }
+
+    /// The rest of a build: leaf collapse, materials, lights, camera.
+    fn assemble(
+        scene: &Scene,
+        triangles: Vec<Triangle>,
+        material_of: Vec<u32>,
+        leaf1: &crate::bvh::Bvh,
+        start: Instant,
+        builder: String,
+    ) -> (Self, BuildReport) {
+        let bvh = collapse_leaves(leaf1, &CollapseConfig::default());
         let sah = sah_cost(&bvh);
         let mesh = MeshBvh::new(bvh, &triangles);
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
@@ -95,7 +148,8 @@ impl RenderScene {
             let m = &materials[material_of[i] as usize];
             m.emission.map(|e| (e, m.two_sided))
         });
-        let report = BuildReport { build_ms: t.elapsed().as_secs_f64() * 1e3, sah, triangles: triangles.len() };
+        let report =
+            BuildReport { build_ms: start.elapsed().as_secs_f64() * 1e3, sah, triangles: triangles.len(), builder };
         let s = Self {
             mesh,
             triangles,
