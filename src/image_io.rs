@@ -1,19 +1,18 @@
 //! Image files: linear float RGB [`Image`]s written as EXR (float32, lossless ZIP) or as 8-bit
 //! sRGB PNG, and EXR read back for golden-image tests.
 //!
-//! Writes are atomic: the encoder writes a temporary file beside the target
-//! (`.<name>.tmp<pid>-<n>`, hidden, created exclusively so two writers never share one), which is
-//! flushed, synced and then renamed over the target. A failed write removes its temporary file;
-//! only a process killed mid-write can leave one behind, and never a half-written target.
+//! Writes are atomic ([`crate::atomic_file`]): a failed write leaves the target untouched and no
+//! temporary file behind.
 //!
 //! PNG encoding applies the exact piecewise sRGB transfer function (IEC 61966-2-1), clamps to
 //! [0, 1] (NaN becomes 0) and rounds to the nearest 8-bit code. No tonemapping: that is the
 //! caller's choice, made before writing.
 
-use std::fs::{self, File, OpenOptions};
+use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+
+use crate::atomic_file::{AtomicWriteError, write_atomic};
 
 /// A linear RGB image, row-major, row 0 at the top (the convention of our reference images).
 ///
@@ -129,47 +128,24 @@ pub fn write_image(path: impl AsRef<Path>, image: &Image) -> Result<(), ImageErr
     let path = path.as_ref();
     let format = Format::of(path)?;
     image.check_size(path)?;
-    let tmp = temp_path(path);
-    let result = write_temp(&tmp, path, format, image).and_then(|()| {
-        fs::rename(&tmp, path).map_err(|source| io_error(path, "cannot rename the temporary file over", source))
-    });
-    if result.is_err() {
-        // Best effort: the temporary may not exist (its creation failed), which is fine.
-        let _ = fs::remove_file(&tmp);
-    }
-    result
-}
-
-/// `dir/.name.tmp<pid>-<n>`: same directory so the rename stays on one file system; the counter
-/// keeps concurrent writes of one target from one process apart.
-fn temp_path(path: &Path) -> PathBuf {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".{name}.tmp{}-{n}", std::process::id()))
-}
-
-/// Encodes into the freshly created `tmp`, then flushes and syncs it, so the rename that follows
-/// publishes complete data. Errors name `target`, the file the caller asked for.
-fn write_temp(tmp: &Path, target: &Path, format: Format, image: &Image) -> Result<(), ImageError> {
-    let file = OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(tmp)
-        .map_err(|source| io_error(target, "cannot create a temporary file beside", source))?;
-    let mut out = BufWriter::new(file);
-    match format {
-        Format::Exr => encode_exr(&mut out, image).map_err(|source| ImageError::Exr {
-            path: target.to_path_buf(),
+    write_atomic(path, |out| match format {
+        Format::Exr => encode_exr(out, image).map_err(|source| ImageError::Exr {
+            path: path.to_path_buf(),
             what: "encode",
             source,
-        })?,
-        Format::Png => {
-            encode_png(&mut out, image).map_err(|source| ImageError::Png { path: target.to_path_buf(), source })?
-        }
-    }
-    let file: File = out.into_inner().map_err(|e| io_error(target, "cannot write", e.into_error()))?;
-    file.sync_all().map_err(|source| io_error(target, "cannot sync", source))
+        }),
+        Format::Png => encode_png(out, image).map_err(|source| ImageError::Png { path: path.to_path_buf(), source }),
+    })
+    .map_err(|e| match e {
+        AtomicWriteError::Io { what, source } => io_error(path, what, source),
+        AtomicWriteError::Write(e) => e,
+    })
+}
+
+/// Checks that `path` names an image format [`write_image`] can write, before any work is spent
+/// on the image.
+pub fn check_output_path(path: impl AsRef<Path>) -> Result<(), ImageError> {
+    Format::of(path.as_ref()).map(|_| ())
 }
 
 fn io_error(path: &Path, what: &'static str, source: std::io::Error) -> ImageError {
@@ -239,6 +215,8 @@ pub fn read_exr(path: impl AsRef<Path>) -> Result<Image, ImageError> {
 
 #[cfg(test)]
 mod tests {
+    use std::fs;
+
     use super::*;
 
     /// A fresh, empty directory under the system temp dir, unique to this test and process.

@@ -5,8 +5,9 @@
 //!   leaf collapse, validation, and closest/any-hit traversal.
 //! - [`scene`]: the TOML scene format and its loader.
 //! - [`render`]: film, materials (BSDFs) and sampling; the integrator comes next.
-//! - [`image_io`]: EXR and PNG output, written atomically.
+//! - [`image_io`]: EXR and PNG output; [`atomic_file`]: every file output, written atomically.
 
+pub mod atomic_file;
 pub mod bvh;
 pub mod geometry;
 pub mod image_io;

@@ -74,7 +74,7 @@ fn errors_are_clear_and_leave_nothing_behind() {
         assert!(!out.exists(), "{args:?} wrote an image");
     }
     let o = render().arg(scene("furnace.toml")).arg("-o").arg(dir.join("out.jpg")).output().unwrap();
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains(".exr or .png"));
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("supported: .exr, .png"));
 }
 
 #[test]

@@ -6,6 +6,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use arbor::atomic_file::{self, AtomicWriteError};
 use arbor::bvh::bench::{self, BenchConfig, Report};
 use arbor::bvh::builders::Builder;
 use arbor::bvh::prbvh::PrbvhConfig;
@@ -221,27 +222,18 @@ fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {
     Ok(())
 }
 
-/// Writes through a temporary file in the same folder, renamed into place only when complete.
+/// Writes `path` atomically (see `arbor::atomic_file`).
 fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
-    let tmp = temp_path(path);
-    let result = (|| -> Result<()> {
-        let mut f = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
-        write(&mut f)?;
-        f.flush()?;
-        f.into_inner().map_err(|e| e.into_error())?.sync_all()?;
-        std::fs::rename(&tmp, path)?;
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("writing {}", path.display()))
+    atomic_file::write_atomic(path, |f| write(f))
+        .map_err(atomic_error)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
-fn temp_path(path: &Path) -> PathBuf {
-    let mut name = path.file_name().unwrap_or_default().to_os_string();
-    name.push(format!(".tmp{}", std::process::id()));
-    path.with_file_name(name)
+fn atomic_error(e: AtomicWriteError<anyhow::Error>) -> anyhow::Error {
+    match e {
+        AtomicWriteError::Io { what, source } => anyhow::Error::new(source).context(what),
+        AtomicWriteError::Write(e) => e,
+    }
 }
 
 #[derive(Clone, Copy, PartialEq)]
@@ -274,16 +266,17 @@ fn write_plot(path: &Path, title: &str, report: &Report) -> Result<()> {
     // plotters keeps registered fonts for the whole process.
     plotters::style::register_font("sans-serif", FontStyle::Normal, Box::leak(font.into_boxed_slice()))
         .map_err(|_| anyhow::anyhow!("DejaVu Sans could not be read as a font"))?;
-    let tmp = temp_path(path).with_extension(path.extension().unwrap_or_default());
-    let result = match plot_format(path)? {
-        PlotFormat::Svg => draw_chart(SVGBackend::new(&tmp, (900, 600)).into_drawing_area(), title, report),
-        PlotFormat::Png => draw_chart(BitMapBackend::new(&tmp, (900, 600)).into_drawing_area(), title, report),
-    }
-    .and_then(|()| Ok(std::fs::rename(&tmp, path)?));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("writing {}", path.display()))
+    // plotters creates the file itself and picks PNG by the extension, which the temporary keeps.
+    let format = plot_format(path)?;
+    atomic_file::replace_via_temp(path, |tmp| {
+        match format {
+            PlotFormat::Svg => draw_chart(SVGBackend::new(tmp, (900, 600)).into_drawing_area(), title, report),
+            PlotFormat::Png => draw_chart(BitMapBackend::new(tmp, (900, 600)).into_drawing_area(), title, report),
+        }
+        .map_err(AtomicWriteError::Write)
+    })
+    .map_err(atomic_error)
+    .with_context(|| format!("writing {}", path.display()))
 }
 
 /// SAH against time, one curve per builder.

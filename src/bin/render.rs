@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use arbor::bvh::builders::Builder;
-use arbor::image_io::write_image;
+use arbor::image_io::{check_output_path, write_image};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
 use arbor::scene::Scene;
@@ -91,10 +91,7 @@ fn run() -> Result<()> {
         bail!("--time must be a number of seconds > 0");
     }
     // Fail on a bad output name before spending time rendering.
-    let ext = args.output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    if !matches!(ext.as_deref(), Some("exr" | "png")) {
-        bail!("{}: the output name must end in .exr or .png", args.output.display());
-    }
+    check_output_path(&args.output)?;
 
     let (render_scene, build) = match &builder {
         Some(b) => RenderScene::build(&scene, b),
