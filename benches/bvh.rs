@@ -75,10 +75,6 @@ fn refit(c: &mut Criterion) {
     g.finish();
 }
 
-fn to_obvhs(tris: &[Triangle]) -> Vec<obvhs::triangle::Triangle> {
-    tris.iter().map(|t| obvhs::triangle::Triangle { v0: t.v0.into(), v1: t.v1.into(), v2: t.v2.into() }).collect()
-}
-
 fn obvhs_build(tris: &[obvhs::triangle::Triangle], params: obvhs::BvhBuildParams) -> obvhs::bvh2::Bvh2 {
     let mut core_time = std::time::Duration::ZERO;
     obvhs::bvh2::builder::build_bvh2_from_tris(tris, params, &mut core_time)
@@ -100,7 +96,7 @@ fn build_vs_obvhs(c: &mut Criterion) {
     }
     for (name, tris) in inputs {
         let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
-        let theirs = to_obvhs(&tris);
+        let theirs = arbor::bvh::peers::to_obvhs_triangles(&tris);
         let mut g = c.benchmark_group(format!("build_vs_obvhs/{name}"));
         g.sample_size(10);
         g.throughput(Throughput::Elements(tris.len() as u64));
@@ -153,7 +149,7 @@ fn trace_dragon(c: &mut Criterion) {
         ("lbvh-ordered", MeshBvh::new(trees[0].1.clone(), &tris)),
         ("binned-sah-ordered", MeshBvh::new(trees[1].1.clone(), &tris)),
     ];
-    let theirs = to_obvhs(&tris);
+    let theirs = arbor::bvh::peers::to_obvhs_triangles(&tris);
     let theirs_bvh = obvhs_build(&theirs, obvhs::BvhBuildParams::very_fast_build());
     for (kind, rays) in [("primary", &primary), ("diffuse", &diffuse)] {
         let mut g = c.benchmark_group(format!("trace_dragon/{kind}"));

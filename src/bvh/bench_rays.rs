@@ -1,14 +1,16 @@
 //! The ray sets trace speed is measured with, as in Meister & Bittner 2018, Table 1: primary rays
 //! from a camera that frames the mesh, and diffuse rays bounced once off the primary hits.
 //!
-//! Deterministic (a hash of the ray index, not a thread-dependent RNG), so every builder and
-//! every run traces the same rays.
+//! Deterministic (one random stream per ray index, not a thread-dependent RNG), so every builder
+//! and every run traces the same rays.
 
 use glam::Vec3;
 use rayon::prelude::*;
 
 use super::{Bvh, hit_point_and_normal};
 use crate::geometry::{Aabb, Ray, Triangle, spawn_ray};
+use crate::render::rng::Rng;
+use crate::render::sampling::{Frame, cosine_hemisphere};
 
 /// Pinhole camera rays through pixel centres, `width * height` of them, looking at the centre
 /// of `bounds` from the front (+z), a little right and above, with the field of view narrowed until the
@@ -52,8 +54,8 @@ pub fn diffuse_rays(bvh: &Bvh, triangles: &[Triangle], primary: &[Ray]) -> Vec<R
             let hit = bvh.closest_hit_triangles(triangles, ray, f32::INFINITY)?;
             let (p, n) = hit_point_and_normal(triangles, &hit);
             let n = if n.dot(ray.dir) > 0.0 { -n } else { n };
-            let (u1, u2) = hash2(i as u32);
-            Some(spawn_ray(p, n, cosine_direction(n, u1, u2)))
+            let u = Rng::for_sample(0, i as u64, 0).next_vec2();
+            Some(spawn_ray(p, n, Frame::from_normal(n).to_world(cosine_hemisphere(u)).normalize()))
         })
         .collect()
 }
@@ -76,24 +78,4 @@ pub fn shadow_rays(bvh: &Bvh, triangles: &[Triangle], primary: &[Ray], light: Ve
             Some(Ray::new(from, light - from))
         })
         .collect()
-}
-
-/// A direction around unit `n` with density cos θ / π.
-fn cosine_direction(n: Vec3, u1: f32, u2: f32) -> Vec3 {
-    let r = u1.sqrt();
-    let phi = std::f32::consts::TAU * u2;
-    let (t, b) = n.any_orthonormal_pair();
-    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()).normalize()
-}
-
-/// Two uniform numbers in [0, 1) from an index (PCG output permutation of an LCG step).
-fn hash2(i: u32) -> (f32, f32) {
-    let pcg = |v: u32| {
-        let state = v.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
-        let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277_803_737);
-        (word >> 22) ^ word
-    };
-    let a = pcg(i);
-    let b = pcg(a);
-    ((a >> 8) as f32 / (1u32 << 24) as f32, (b >> 8) as f32 / (1u32 << 24) as f32)
 }

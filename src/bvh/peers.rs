@@ -37,6 +37,11 @@ pub fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) ->
     bvh
 }
 
+/// Triangles in obvhs's type.
+pub fn to_obvhs_triangles(triangles: &[Triangle]) -> Vec<obvhs::triangle::Triangle> {
+    triangles.iter().map(|t| obvhs::triangle::Triangle { v0: t.v0.into(), v1: t.v1.into(), v2: t.v2.into() }).collect()
+}
+
 /// obvhs's `Bvh2` in Arbor's layout. Both keep the root at 0 and sibling pairs adjacent, and
 /// obvhs packs its pairs from index 1; shifting every other index up by one opens Arbor's
 /// padding slot and puts every pair at an even index.

@@ -229,18 +229,19 @@ fn iterate(
     locks.par_iter_mut().for_each(|l| *l.get_mut() = 0);
     locks.resize_with(len, || AtomicU64::new(0));
     let key = |&(input, _, d): &(u32, u32, f32)| ((d.to_bits() as u64) << 32) | input as u64;
-    let claimed = |m: &(u32, u32, f32)| locked_nodes(bvh, m.0, m.1, strategy);
-    moves.par_iter().for_each(|m| {
+    let claims: Vec<Vec<u32>> = moves.par_iter().map(|m| locked_nodes(bvh, m.0, m.1, strategy)).collect();
+    moves.par_iter().zip(&claims).for_each(|(m, nodes)| {
         let k = key(m);
-        for n in claimed(m) {
+        for &n in nodes {
             locks[n as usize].fetch_max(k, Ordering::Relaxed);
         }
     });
     // Check: a reinsertion goes ahead only if it holds every lock it asked for.
     let winners: Vec<(u32, u32)> = moves
         .par_iter()
-        .filter(|m| claimed(m).into_iter().all(|n| locks[n as usize].load(Ordering::Relaxed) == key(m)))
-        .map(|&(i, o, _)| (i, o))
+        .zip(&claims)
+        .filter(|(m, nodes)| nodes.iter().all(|&n| locks[n as usize].load(Ordering::Relaxed) == key(m)))
+        .map(|(&(i, o, _), _)| (i, o))
         .collect();
     // Reinsert the winners in parallel.
     let Bvh { nodes, parents, .. } = bvh;

@@ -83,8 +83,7 @@ impl Lights {
         let k = self.cdf.partition_point(|&c| c <= u_select).min(self.lights.len() - 1);
         let l = &self.lights[k];
         let b = uniform_triangle(u);
-        let t = &l.triangle;
-        let point = t.v0 * b.x + t.v1 * b.y + t.v2 * b.z;
+        let point = l.triangle.point(b.y, b.z);
         let p_select = self.cdf[k] - if k == 0 { 0.0 } else { self.cdf[k - 1] };
         Some(LightPoint {
             point,
