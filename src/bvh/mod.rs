@@ -4,6 +4,7 @@ pub mod bench;
 pub mod bench_rays;
 pub mod binned_sah;
 pub mod builders;
+pub mod dynamic;
 mod layout;
 pub mod lbvh;
 mod mesh_bvh;

@@ -208,26 +208,66 @@ fn iterate(
 ) -> (usize, usize, usize) {
     let len = bvh.nodes.len();
     let phase = (iteration % mu) as usize;
-    // Search: (input, output, decrease) for every searching node with a positive decrease.
-    let moves: Vec<(u32, u32, f32)> = (2..len)
-        .into_par_iter()
-        .with_min_len(256)
-        .filter(|&i| i % mu as usize == phase)
+    let moves = search(bvh, (2..len).into_par_iter().with_min_len(256).filter(|&i| i % mu as usize == phase));
+    // Nodes i in 2..len with i ≡ phase (mod μ).
+    let count_below = |end: usize| end / mu as usize + usize::from(end % mu as usize > phase);
+    let searched = count_below(len) - count_below(2);
+    let applied = lock_and_apply(bvh, &moves, strategy, locks);
+    (searched, moves.len(), applied.len())
+}
+
+/// A reinsertion that was applied: `input` became the sibling of `output`. `parent` was
+/// `input`'s parent before the move, and `parent_box` its box; that slot now holds the input's
+/// old sibling. The slots whose contents changed are `parent`, the pair `input & !1` (the output's
+/// old content and the input), and the new internal node, in `output`'s slot (or in `parent`'s
+/// when the output was the input's sibling).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reinsertion {
+    pub input: u32,
+    pub output: u32,
+    pub parent: u32,
+    pub parent_box: Aabb,
+}
+
+/// One round restricted to `candidates` (distinct nodes, none the root or the padding): each
+/// searches (Algorithm 1), the locks pick winners as in [`optimize`], and the winners are applied.
+/// Boxes above the moved nodes are left stale; the caller refits them. Returns what was applied.
+pub fn reinsert_candidates(
+    bvh: &mut Bvh,
+    candidates: &[u32],
+    strategy: LockStrategy,
+    locks: &mut Vec<AtomicU64>,
+) -> Vec<Reinsertion> {
+    if bvh.nodes.len() <= 3 {
+        return Vec::new();
+    }
+    let moves = search(bvh, candidates.par_iter().map(|&c| c as usize));
+    lock_and_apply(bvh, &moves, strategy, locks)
+}
+
+/// (input, output, decrease) for every searching node with a positive decrease.
+fn search(bvh: &Bvh, inputs: impl ParallelIterator<Item = usize>) -> Vec<(u32, u32, f32)> {
+    inputs
         .filter_map(|i| {
             let (out, d) = find_best_output(bvh, i as u32);
             (d > 0.0).then_some((i as u32, out, d))
         })
-        .collect();
-    // Nodes i in 2..len with i ≡ phase (mod μ).
-    let count_below = |end: usize| end / mu as usize + usize::from(end % mu as usize > phase);
-    let searched = count_below(len) - count_below(2);
+        .collect()
+}
+
+/// Locks, checks and applies `moves`; returns the winners.
+fn lock_and_apply(
+    bvh: &mut Bvh,
+    moves: &[(u32, u32, f32)],
+    strategy: LockStrategy,
+    locks: &mut Vec<AtomicU64>,
+) -> Vec<Reinsertion> {
     if moves.is_empty() {
-        return (searched, 0, 0);
+        return Vec::new();
     }
-    // Lock: the highest (decrease, index) wins each node.
-    locks.truncate(len);
-    locks.par_iter_mut().for_each(|l| *l.get_mut() = 0);
-    locks.resize_with(len, || AtomicU64::new(0));
+    // Lock: the highest (decrease, index) wins each node. The locks are all zero between calls
+    // (reset below, claim by claim), so a round costs what its moves claim, not the tree's size.
+    locks.resize_with(locks.len().max(bvh.nodes.len()), || AtomicU64::new(0));
     let key = |&(input, _, d): &(u32, u32, f32)| ((d.to_bits() as u64) << 32) | input as u64;
     let claims: Vec<Vec<u32>> = moves.par_iter().map(|m| locked_nodes(bvh, m.0, m.1, strategy)).collect();
     moves.par_iter().zip(&claims).for_each(|(m, nodes)| {
@@ -237,22 +277,26 @@ fn iterate(
         }
     });
     // Check: a reinsertion goes ahead only if it holds every lock it asked for.
-    let winners: Vec<(u32, u32)> = moves
+    let winners: Vec<Reinsertion> = moves
         .par_iter()
         .zip(&claims)
         .filter(|(m, nodes)| nodes.iter().all(|&n| locks[n as usize].load(Ordering::Relaxed) == key(m)))
-        .map(|(&(i, o, _), _)| (i, o))
+        .map(|(&(input, output, _), _)| {
+            let parent = bvh.parents[input as usize];
+            Reinsertion { input, output, parent, parent_box: bvh.nodes[parent as usize].aabb() }
+        })
         .collect();
+    claims.par_iter().flatten().for_each(|&n| locks[n as usize].store(0, Ordering::Relaxed));
     // Reinsert the winners in parallel.
     let Bvh { nodes, parents, .. } = bvh;
     let (nodes, parents) = (SharedSlice::new(nodes), SharedSlice::new(parents));
-    winners.par_iter().for_each(|&(input, output)| {
+    winners.par_iter().for_each(|r| {
         // SAFETY: winners hold disjoint lock sets, and a reinsertion reads and writes only its
         // locked nodes and the parent links of their children, which no other winner touches
         // (a child's parent is one of the locked nodes, locked by one winner only).
-        unsafe { reinsert_shared(&nodes, &parents, input, output) };
+        unsafe { reinsert_shared(&nodes, &parents, r.input, r.output) };
     });
-    (searched, moves.len(), winners.len())
+    winners
 }
 
 /// The nodes a reinsertion of `input` next to `output` locks.
