@@ -1,14 +1,15 @@
 //! The scene loader: the example scenes load, the Cornell box matches the reference's geometry,
-//! MTL materials map as documented, and every kind of bad input is an error naming the file,
-//! the line and the key.
+//! MTL materials map as documented, objects share meshes, keyframes and orbits move objects as
+//! documented, scatter makes its instances by the documented rule, and every kind of bad input is
+//! an error naming the file, the line and the key.
 
 mod common;
 
 use std::path::{Path, PathBuf};
 
 use arbor::geometry::TriangleMesh;
-use arbor::scene::{ConductorFresnel, Scattering, Scene};
-use glam::Vec3;
+use arbor::scene::{Animation, ConductorFresnel, Scattering, Scene};
+use glam::{Mat4, Quat, Vec3};
 
 fn scenes_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes")
@@ -112,6 +113,276 @@ fn mtl_materials_map_as_documented() {
     assert_eq!((tris.len(), mats.len()), (4, 4));
 }
 
+/// `BASE` plus an `[animation]` clock of 24 fps.
+fn animated(objects: &str) -> Scene {
+    let text = format!("{BASE}{ANIMATION}{objects}");
+    Scene::parse(&text, "anim.toml").unwrap_or_else(|e| panic!("{e}\n{text}"))
+}
+
+const ANIMATION: &str = "\n[animation]\nfps = 24\nframes = [0, 96]\n";
+
+fn close(a: Vec3, b: Vec3) -> bool {
+    (a - b).length() < 1e-5
+}
+
+#[test]
+fn keyframes_interpolate_and_clamp() {
+    let scene = animated(
+        "
+[[objects]]
+shape = \"sphere\"
+material = \"white\"
+scale = 0.5
+translate = [1, 0, 0]
+[[objects.keyframes]]
+time = 1.0
+[[objects.keyframes]]
+time = 3.0
+translate = [2, 4, 0]
+rotate = [0, 90, 0]
+scale = [3, 1, 1]
+",
+    );
+    assert!(scene.is_animated() && scene.objects[0].is_animated());
+    assert_eq!(scene.frame_time(12), 0.5);
+    let anim = scene.objects[0].animation.as_ref().unwrap();
+    let Animation::Keyframes(keys) = anim else { panic!("{anim:?}") };
+    assert_eq!(keys.len(), 2);
+
+    let (scale, rotation, translation) = anim.transform_at(2.0).to_scale_rotation_translation();
+    assert!(close(translation, Vec3::new(1.0, 2.0, 0.0)), "{translation}");
+    assert!(close(scale, Vec3::new(2.0, 1.0, 1.0)), "{scale}");
+    let yaw_45 = Quat::from_rotation_y(45f32.to_radians());
+    assert!(rotation.angle_between(yaw_45) < 1e-3, "{rotation}");
+    // A quarter of the way: 22.5° by slerp (normalised lerp would give 21.6°).
+    let (_, quarter, _) = anim.transform_at(1.5).to_scale_rotation_translation();
+    assert!(quarter.angle_between(Quat::from_rotation_y(22.5f32.to_radians())) < 1e-3, "{quarter}");
+
+    // Clamped: before the first key it holds the first, after the last the last.
+    assert_eq!(anim.transform_at(-5.0), anim.transform_at(1.0));
+    assert_eq!(anim.transform_at(1.0), Mat4::IDENTITY);
+    assert_eq!(anim.transform_at(50.0), keys[1].matrix());
+    let (s3, r3, t3) = anim.transform_at(3.0).to_scale_rotation_translation();
+    assert!(close(s3, Vec3::new(3.0, 1.0, 1.0)) && close(t3, Vec3::new(2.0, 4.0, 0.0)));
+    assert!(r3.angle_between(Quat::from_rotation_y(90f32.to_radians())) < 1e-3);
+
+    // The static placement first: (0, 0, 1) -> scale 0.5, +x -> (1, 0, 0.5); then the key at
+    // t = 2: scale (2, 1, 1) -> (2, 0, 0.5), yaw 45° -> c (2.5, 0, -1.5), + (1, 2, 0).
+    let c = std::f32::consts::FRAC_1_SQRT_2;
+    let p = scene.objects[0].world_from_object_at(2.0).transform_point3(Vec3::Z);
+    assert!((p - Vec3::new(1.0 + 2.5 * c, 2.0, -1.5 * c)).length() < 1e-4, "{p}");
+}
+
+#[test]
+fn slerp_takes_the_short_way() {
+    let scene = animated(
+        "
+[[objects]]
+shape = \"box\"
+material = \"white\"
+[[objects.keyframes]]
+time = 0
+rotate = [0, -80, 0]
+[[objects.keyframes]]
+time = 1
+rotate = [0, 250, 0]
+",
+    );
+    // -80° to 250° (= -110°) is 30° the short way: the midpoint is -95°, not 85°.
+    let (_, r, _) = scene.objects[0].animation.as_ref().unwrap().transform_at(0.5).to_scale_rotation_translation();
+    assert!(r.angle_between(Quat::from_rotation_y((-95f32).to_radians())) < 1e-3, "{r}");
+}
+
+#[test]
+fn orbit_leaves_and_returns_to_rest() {
+    let (radius, period) = (0.5, 4.0);
+    let offset =
+        |phase: f32, t: f32| Animation::Orbit { radius, period, phase }.transform_at(t).transform_point3(Vec3::ZERO);
+    assert!(close(offset(0.0, 0.0), Vec3::ZERO));
+    // Phase 0 starts at θ = 0; half a period later θ = π, the far side: (-2r, 0, 0).
+    assert!(close(offset(0.0, period / 2.0), Vec3::new(-2.0 * radius, 0.0, 0.0)), "{}", offset(0.0, 2.0));
+    assert!(close(offset(0.0, period), Vec3::ZERO));
+    // Phase π/2: a quarter period later θ = π, so cos θ − cos phase = −1, sin θ − sin phase = −1.
+    let half_pi = std::f32::consts::FRAC_PI_2;
+    assert!(close(offset(half_pi, 0.0), Vec3::ZERO));
+    assert!(close(offset(half_pi, period / 4.0), Vec3::new(-radius, 0.0, -radius)));
+    assert!(close(offset(half_pi, period / 2.0), Vec3::new(0.0, 0.0, -2.0 * radius)));
+    assert!(close(offset(half_pi, period), Vec3::ZERO));
+}
+
+fn scatter_scene(seed: u64, count: u32, extra: &str) -> Scene {
+    animated(&format!(
+        "
+[[objects]]
+shape = \"sphere\"
+material = \"white\"
+scale = 0.1
+[objects.scatter]
+count = {count}
+seed = {seed}
+min = [-10, 0, -10]
+max = [10, 1, 10]
+{extra}"
+    ))
+}
+
+#[test]
+fn scatter_makes_seeded_instances_of_one_mesh() {
+    let scene = scatter_scene(7, 1000, "moving = 0.25\nradius = 0.5\nperiod = 2\n");
+    assert_eq!(scene.objects.len(), 1000);
+    assert_eq!(scene.meshes.len(), 1);
+    assert!(scene.objects.iter().all(|o| o.mesh == 0 && o.material == Some(0)));
+    let (min, max) = (Vec3::new(-10.0, 0.0, -10.0), Vec3::new(10.0, 1.0, 10.0));
+    let mut lo = Vec3::INFINITY;
+    let mut hi = Vec3::NEG_INFINITY;
+    for o in &scene.objects {
+        let (scale, _, at) = o.world_from_object.to_scale_rotation_translation();
+        assert!(at.cmpge(min).all() && at.cmple(max).all(), "{at}");
+        assert!(close(scale, Vec3::splat(0.1)), "{scale}");
+        (lo, hi) = (lo.min(at), hi.max(at));
+    }
+    assert!(lo.cmplt(min + 0.1).all() && hi.cmpgt(max - 0.1).all(), "positions span {lo}..{hi}");
+    // round(0.25 · 1000) move, each on an orbit with the scatter's radius and period.
+    let moving: Vec<_> = scene.objects.iter().filter_map(|o| o.animation.as_ref()).collect();
+    assert_eq!(moving.len(), 250);
+    for a in moving {
+        let &Animation::Orbit { radius, period, phase } = a else { panic!("{a:?}") };
+        assert!(radius == 0.5 && period == 2.0 && (0.0..std::f32::consts::TAU).contains(&phase));
+    }
+    assert_eq!(scatter_scene(7, 1000, "moving = 0.25\nradius = 0.5\nperiod = 2\n"), scene);
+    let other = scatter_scene(8, 1000, "moving = 0.25\nradius = 0.5\nperiod = 2\n");
+    assert_ne!(other.objects[0].world_from_object, scene.objects[0].world_from_object);
+}
+
+#[test]
+fn scatter_moves_the_rounded_fraction() {
+    let animated_count = |s: Scene| s.objects.iter().filter(|o| o.is_animated()).count();
+    // round(0.25 · 10) = round(2.5) = 3: halves round away from zero.
+    assert_eq!(animated_count(scatter_scene(1, 10, "moving = 0.25\nradius = 1\n")), 3);
+    assert_eq!(animated_count(scatter_scene(1, 10, "moving = 0.24\nradius = 1\n")), 2);
+    // `moving` defaults to 1 with a radius, and nothing moves without one.
+    assert_eq!(animated_count(scatter_scene(1, 10, "radius = 1\n")), 10);
+    assert_eq!(animated_count(scatter_scene(1, 10, "moving = 1\n")), 0);
+    // Which ones move changes nothing else: the placements are the same.
+    let (a, b) = (scatter_scene(3, 50, "radius = 1\n"), scatter_scene(3, 50, ""));
+    assert!(a.objects.iter().zip(&b.objects).all(|(a, b)| a.world_from_object == b.world_from_object));
+    // A scatter that does not move needs no [animation].
+    let text = format!(
+        "{BASE}\n[[objects]]\nshape = \"box\"\nmaterial = \"white\"\n[objects.scatter]\ncount = 3\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n"
+    );
+    let scene = Scene::parse(&text, "s.toml").unwrap();
+    assert!(!scene.is_animated() && scene.objects.len() == 3 && scene.animation.is_none());
+    assert_eq!(scene.frame_time(10), 0.0);
+}
+
+#[test]
+fn objects_share_a_mesh_per_shape_and_obj_file() {
+    let scene = animated(
+        "
+[[objects]]
+shape = \"sphere\"
+material = \"white\"
+[[objects]]
+shape = \"sphere\"
+subdivisions = 3
+material = \"white\"
+translate = [2, 0, 0]
+[[objects]]
+shape = \"sphere\"
+subdivisions = 2
+material = \"white\"
+[[objects]]
+shape = \"box\"
+material = \"white\"
+[[objects]]
+shape = \"box\"
+material = \"white\"
+",
+    );
+    let meshes: Vec<usize> = scene.objects.iter().map(|o| o.mesh).collect();
+    assert_eq!(meshes, [0, 0, 1, 2, 2]);
+    assert_eq!(scene.meshes.len(), 3);
+    assert_ne!(scene.meshes[0].mesh.triangle_count(), scene.meshes[1].mesh.triangle_count());
+
+    let dir = temp_dir("dedup");
+    std::fs::create_dir_all(dir.join("models")).unwrap();
+    std::fs::write(dir.join("models/m.mtl"), "newmtl red\nKd 1 0 0\n").unwrap();
+    std::fs::write(dir.join("models/m.obj"), "mtllib m.mtl\nusemtl red\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    std::fs::write(dir.join("models/bare.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let obj = |mesh: &str, material: &str| format!("\n[[objects]]\nmesh = \"{mesh}\"\n{material}");
+    let text = format!(
+        "{BASE}{}{}{}{}",
+        obj("models/m.obj", ""),
+        obj("./models/../models/m.obj", "material = \"white\"\n"),
+        obj("models/bare.obj", "material = \"white\"\n"),
+        obj("models/bare.obj", "material = \"white\"\n"),
+    );
+    let scene = Scene::parse(&text, dir.join("s.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let meshes: Vec<usize> = scene.objects.iter().map(|o| o.mesh).collect();
+    assert_eq!(meshes, [0, 0, 1, 1]);
+    // `white`, then m.mtl's `red` once.
+    let names: Vec<&str> = scene.materials.iter().map(|m| m.name.as_str()).collect();
+    assert_eq!(names, ["white", "m/red"]);
+    // A shared mesh without MTL materials still needs each object's own material.
+    let text = format!("{text}{}", obj("models/bare.obj", ""));
+    let err = Scene::parse(&text, dir.join("s.toml")).unwrap_err().to_string();
+    assert!(err.contains(":27: objects[4].mesh") && err.contains("no MTL material"), "{err}");
+}
+
+/// The animated example in docs/scene-format.md loads and does what its comments say.
+#[test]
+fn the_documented_animation_example_loads() {
+    let doc = std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/scene-format.md")).unwrap();
+    let example =
+        doc.split("```toml\n").find(|block| block.starts_with("[animation]")).expect("an [animation] example");
+    let example = &example[..example.find("```").unwrap()];
+    let scene = Scene::parse(&format!("{BASE}{example}"), "doc.toml").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.animation.as_ref().map(|a| (a.fps, a.frames.clone())), Some((24.0, 0..120)));
+    assert_eq!(scene.objects.len(), 1 + 10_000);
+    assert_eq!(scene.meshes.len(), 1);
+    assert_eq!(scene.objects.iter().filter(|o| o.is_animated()).count(), 1 + 2000);
+    let start = scene.objects[0].world_from_object_at(-1.0).transform_point3(Vec3::ZERO);
+    assert!(close(start, Vec3::new(0.0, -0.7, 0.0)), "{start}");
+}
+
+#[test]
+fn at_time_bakes_the_animation() {
+    let scene = animated(
+        "
+[[objects]]
+shape = \"box\"
+material = \"white\"
+rotate = [10, 0, 0]
+[[objects.keyframes]]
+time = 0
+[[objects.keyframes]]
+time = 2
+translate = [1, 1, 0]
+rotate = [0, 60, 0]
+scale = 2
+
+[[objects]]
+shape = \"sphere\"
+subdivisions = 1
+material = \"white\"
+[objects.scatter]
+count = 20
+min = [-1, -1, -1]
+max = [1, 1, 1]
+moving = 0.5
+radius = 0.3
+",
+    );
+    let t = scene.frame_time(31);
+    let baked = scene.at_time(t);
+    assert!(!baked.is_animated() && baked.animation.is_none());
+    assert_eq!(baked.objects.len(), scene.objects.len());
+    assert_eq!(baked.world_triangles(), scene.world_triangles_at(t));
+    assert_ne!(scene.world_triangles_at(t), scene.world_triangles_at(0.0));
+    assert_eq!(scene.world_triangles(), scene.world_triangles_at(0.0));
+    assert_eq!(scene.at_time(0.0).world_triangles(), scene.world_triangles());
+}
+
 const BASE: &str = "[camera]
 position = [0, 0, 5]
 look_at = [0, 0, 0]
@@ -186,8 +457,100 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
         ),
         (format!("{BASE}{obj}[render]\nmax_depth = 0\n"), 15, "render.max_depth", "at least 1"),
         (format!("{BASE}{obj}[environment]\nradiance = [1, 1]\n"), 15, "environment.radiance:", "length 3"),
+        // [animation]
+        (format!("{BASE}{obj}{ANIMATION}").replace("fps = 24", "fps = 0"), 16, "animation.fps", "> 0"),
+        (format!("{BASE}{obj}{ANIMATION}").replace("fps = 24", "fps = -inf"), 16, "animation.fps", "inf"),
+        (format!("{BASE}{obj}{ANIMATION}").replace("fps = 24\n", ""), 15, "animation.fps", "needs"),
+        (format!("{BASE}{obj}{ANIMATION}").replace("[0, 96]", "[10, 10]"), 17, "animation.frames", "after the start"),
+        (format!("{BASE}{obj}{ANIMATION}").replace("[0, 96]", "[10, -1]"), 17, "animation.frames[1]", "-1"),
+        (format!("{BASE}{obj}{ANIMATION}speed = 2\n"), 18, "animation", "speed"),
+        // keyframes
+        (format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\n"), 14, "objects[0].keyframes", "[animation]"),
+        (format!("{BASE}{obj}keyframes = []\n{ANIMATION}"), 14, "objects[0].keyframes", "empty"),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = nan\n{ANIMATION}"),
+            15,
+            "objects[0].keyframes[0].time",
+            "NaN",
+        ),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntranslate = [0, 1, 0]\n{ANIMATION}"),
+            14,
+            "objects[0].keyframes[0].time",
+            "needs a `time`",
+        ),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = 2\n[[objects.keyframes]]\ntime = 1\n{ANIMATION}"),
+            17,
+            "objects[0].keyframes[1].time",
+            "keyframe times must increase (previous 2, this 1)",
+        ),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = 2\n[[objects.keyframes]]\ntime = 2\n{ANIMATION}"),
+            17,
+            "objects[0].keyframes[1].time",
+            "(previous 2, this 2)",
+        ),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\nscale = [1, 0, 1]\n{ANIMATION}"),
+            16,
+            "objects[0].keyframes[0].scale",
+            "> 0",
+        ),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\nscale = 0\n{ANIMATION}"),
+            16,
+            "objects[0].keyframes[0].scale",
+            "> 0",
+        ),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\ntranslate = [0, inf, 0]\n{ANIMATION}"),
+            16,
+            "objects[0].keyframes[0].translate",
+            "finite",
+        ),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\nrotate = [nan, 0, 0]\n{ANIMATION}"),
+            16,
+            "objects[0].keyframes[0].rotate",
+            "finite",
+        ),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\nspin = 1\n{ANIMATION}"),
+            16,
+            "objects[0].keyframes[0]",
+            "spin",
+        ),
+        // scatter
+        (scatter("count = 0\n"), 15, "objects[0].scatter.count", "1 to 10000000"),
+        (scatter("count = 10000001\n"), 15, "objects[0].scatter.count", "1 to 10000000"),
+        (scatter("count = -3\n"), 15, "objects[0].scatter.count", "-3"),
+        (scatter("count = 5\nmax = [1, 1, 1]\n"), 14, "objects[0].scatter.min", "needs `min`"),
+        (scatter("count = 5\nmin = [0, 2, 0]\nmax = [1, 1, 1]\n"), 16, "objects[0].scatter.min", "above max"),
+        (scatter("count = 5\nmin = [0, nan, 0]\nmax = [1, 1, 1]\n"), 16, "objects[0].scatter.min", "finite"),
+        (scatter(&format!("{SCATTER_BOX}moving = 1.5\n{ANIMATION}")), 18, "objects[0].scatter.moving", "[0, 1]"),
+        (scatter(&format!("{SCATTER_BOX}moving = -0.1\n{ANIMATION}")), 18, "objects[0].scatter.moving", "[0, 1]"),
+        (scatter(&format!("{SCATTER_BOX}period = 0\n{ANIMATION}")), 18, "objects[0].scatter.period", "> 0"),
+        (scatter(&format!("{SCATTER_BOX}radius = -1\n{ANIMATION}")), 18, "objects[0].scatter.radius", ">= 0"),
+        (scatter(&format!("{SCATTER_BOX}radius = inf\n{ANIMATION}")), 18, "objects[0].scatter.radius", "inf"),
+        (scatter(&format!("{SCATTER_BOX}radius = 0.5\n")), 18, "objects[0].scatter.radius", "[animation]"),
+        (scatter(&format!("{SCATTER_BOX}spread = 2\n")), 18, "objects[0].scatter", "spread"),
+        (
+            format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\n[objects.scatter]\ncount = 2\n{ANIMATION}"),
+            16,
+            "objects[0].scatter",
+            "either `keyframes` or `scatter`",
+        ),
     ]
 }
+
+/// `BASE`, a box, and its `[objects.scatter]` table (line 14) holding `keys` from line 15.
+fn scatter(keys: &str) -> String {
+    format!("{BASE}\n[[objects]]\nshape = \"box\"\nmaterial = \"white\"\n[objects.scatter]\n{keys}")
+}
+
+/// Scatter keys for lines 15 to 17.
+const SCATTER_BOX: &str = "count = 5\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n";
 
 #[test]
 fn bad_input_names_file_line_and_key() {

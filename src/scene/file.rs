@@ -18,6 +18,7 @@ pub(super) struct SceneFile {
     pub materials: BTreeMap<String, S<MaterialFile>>,
     #[serde(default)]
     pub objects: Vec<S<ObjectFile>>,
+    pub animation: Option<S<AnimationFile>>,
 }
 
 #[derive(Deserialize)]
@@ -74,6 +75,8 @@ pub(super) struct ObjectFile {
     pub rotate: Option<S<[f32; 3]>>,
     pub scale: Option<S<ScaleFile>>,
     pub matrix: Option<S<[[f32; 4]; 4]>>,
+    pub keyframes: Option<S<Vec<S<KeyframeFile>>>>,
+    pub scatter: Option<S<ScatterFile>>,
 }
 
 #[derive(Deserialize)]
@@ -81,4 +84,33 @@ pub(super) struct ObjectFile {
 pub(super) enum ScaleFile {
     Uniform(f32),
     PerAxis([f32; 3]),
+}
+
+/// Required keys are `Option` here so that a missing one is reported at its table's line.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct AnimationFile {
+    pub fps: Option<S<f32>>,
+    pub frames: Option<S<[u32; 2]>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct KeyframeFile {
+    pub time: Option<S<f32>>,
+    pub translate: Option<S<[f32; 3]>>,
+    pub rotate: Option<S<[f32; 3]>>,
+    pub scale: Option<S<ScaleFile>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ScatterFile {
+    pub count: Option<S<u64>>,
+    pub seed: Option<S<u64>>,
+    pub min: Option<S<[f32; 3]>>,
+    pub max: Option<S<[f32; 3]>>,
+    pub moving: Option<S<f32>>,
+    pub radius: Option<S<f32>>,
+    pub period: Option<S<f32>>,
 }

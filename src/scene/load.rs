@@ -1,20 +1,34 @@
 //! Turning a parsed scene file into a checked [`Scene`]: value checks, materials (from the TOML
-//! and from MTL files), meshes and transforms. Every error names file, line and key.
+//! and from MTL files), meshes (one per OBJ file or built-in shape, shared by the objects naming
+//! it), transforms, keyframes and scattered instances. Every error names file, line and key.
+//!
+//! Scattered instances draw from a local SplitMix64 (Steele, Lea and Flood 2014, "Fast splittable
+//! pseudorandom number generators"), not the renderer's PCG32 streams: a scene's layout must not
+//! move when the renderer changes how it samples.
 
 use std::collections::HashMap;
+use std::collections::hash_map::Entry;
+use std::f32::consts::TAU;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use glam::{EulerRot, Mat4, Quat, Vec3};
 
-use super::file::{MaterialFile, ObjectFile, S, ScaleFile, SceneFile};
-use super::{Camera, ConductorFresnel, Material, Object, RenderSettings, Scattering, Scene, SceneError, SceneMesh};
+use super::file::{KeyframeFile, MaterialFile, ObjectFile, S, ScaleFile, ScatterFile, SceneFile};
+use super::{
+    Animation, AnimationSettings, Camera, ConductorFresnel, Keyframe, Material, Object, RenderSettings, Scattering,
+    Scene, SceneError, SceneMesh,
+};
 use crate::geometry::TriangleMesh;
 
 /// Most subdivisions of a built-in sphere: 20 · 4^8 ≈ 1.3 M triangles.
 const MAX_SUBDIVISIONS: u32 = 8;
 /// Largest image side.
 const MAX_RESOLUTION: u32 = 65_536;
+/// Most instances one `scatter` makes (each object is about 100 bytes).
+const MAX_SCATTER: u64 = 10_000_000;
+/// A scatter's orbit period when none is given, seconds.
+const DEFAULT_PERIOD: f32 = 4.0;
 
 pub(super) fn load(path: PathBuf) -> Result<Scene, SceneError> {
     let text = std::fs::read_to_string(&path).map_err(|source| SceneError::Read { file: path.clone(), source })?;
@@ -95,13 +109,33 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
         by_name.insert(name.clone(), materials.len() as u32);
         materials.push(material(&ctx, name, m)?);
     }
-    let base = file.parent().unwrap_or(Path::new("."));
-    let mut meshes = Vec::new();
-    let mut objects = Vec::new();
+    let animation = animation(&ctx, &parsed)?;
+    let env = ObjectEnv { base: file.parent().unwrap_or(Path::new(".")), by_name, clock: animation.is_some() };
+    let mut out = Built { materials, meshes: Vec::new(), known: HashMap::new(), objects: Vec::new() };
     for (i, o) in parsed.objects.iter().enumerate() {
-        objects.push(object(&ctx, i, o, base, &by_name, &mut materials, &mut meshes)?);
+        object(&ctx, i, o, &env, &mut out)?;
     }
-    Ok(Scene { path: file.clone(), camera, render, environment, materials, meshes, objects })
+    let Built { materials, meshes, objects, .. } = out;
+    Ok(Scene { path: file.clone(), camera, render, environment, materials, meshes, objects, animation })
+}
+
+fn animation(ctx: &Ctx, f: &SceneFile) -> Result<Option<AnimationSettings>, SceneError> {
+    let Some(a) = &f.animation else { return Ok(None) };
+    let t = a.get_ref();
+    let fps = t.fps.as_ref().ok_or_else(|| ctx.err(a.span(), "animation.fps", "[animation] needs `fps`"))?;
+    let fps = ctx.number(fps, "animation.fps", |x| x > 0.0, "a rate > 0 frames per second")?;
+    let frames = t.frames.as_ref().ok_or_else(|| {
+        ctx.err(a.span(), "animation.frames", "[animation] needs `frames = [first, one past the last]`")
+    })?;
+    let [start, end] = *frames.get_ref();
+    if end <= start {
+        return Err(ctx.err(
+            frames.span(),
+            "animation.frames",
+            format!("[{start}, {end}] is empty: the end (one past the last frame) must be after the start"),
+        ));
+    }
+    Ok(Some(AnimationSettings { fps, frames: start..end }))
 }
 
 fn camera(ctx: &Ctx, f: &SceneFile) -> Result<Camera, SceneError> {
@@ -263,17 +297,46 @@ fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, Scen
     Ok(out)
 }
 
-fn object(
-    ctx: &Ctx,
+/// What every object is built against.
+struct ObjectEnv<'a> {
+    /// The scene file's folder, where OBJ paths start.
+    base: &'a Path,
+    by_name: HashMap<String, u32>,
+    /// Whether the scene has an `[animation]` table, which anything that moves needs.
+    clock: bool,
+}
+
+/// What building objects accumulates.
+struct Built {
+    /// The scene's materials, then each OBJ file's MTL materials, appended once per file.
+    materials: Vec<Material>,
+    meshes: Vec<SceneMesh>,
+    /// The mesh already made for an OBJ file or a built-in shape.
+    known: HashMap<MeshKey, KnownMesh>,
+    objects: Vec<Object>,
+}
+
+/// What makes two objects' meshes the same.
+#[derive(PartialEq, Eq, Hash)]
+enum MeshKey {
+    /// The OBJ file's canonical path (the joined path when it has none).
+    Obj(PathBuf),
+    /// A built-in shape and its subdivision level (0 for shapes without one).
+    Shape(&'static str, u32),
+}
+
+struct KnownMesh {
     index: usize,
-    o: &S<ObjectFile>,
-    base: &Path,
-    by_name: &HashMap<String, u32>,
-    materials: &mut Vec<Material>,
-    meshes: &mut Vec<SceneMesh>,
-) -> Result<Object, SceneError> {
+    /// Why an object using this mesh needs its own `material` (a triangle without an MTL
+    /// material), if it does.
+    needs_material: Option<String>,
+}
+
+/// Builds object `index` (or, with `scatter`, its instances) into `out`.
+fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut Built) -> Result<(), SceneError> {
     let f = o.get_ref();
     let key = |k: &str| format!("objects[{index}].{k}");
+    let by_name = &env.by_name;
     let material = match &f.material {
         Some(name) => Some(*by_name.get(name.get_ref()).ok_or_else(|| {
             let mut known: Vec<_> = by_name.keys().map(String::as_str).collect();
@@ -286,32 +349,75 @@ fn object(
         })?),
         None => None,
     };
-    let scene_mesh = match (&f.mesh, &f.shape) {
+    let mesh = match (&f.mesh, &f.shape) {
         (Some(path), None) => {
             if let Some(s) = &f.subdivisions {
                 return Err(ctx.err(s.span(), key("subdivisions"), "only a built-in sphere takes subdivisions"));
             }
-            obj_mesh(ctx, &key("mesh"), path, base, material.is_some(), materials)?
+            let known = shared_obj_mesh(ctx, &key("mesh"), path, env.base, out)?;
+            if let (None, Some(why)) = (material, &known.needs_material) {
+                return Err(ctx.err(path.span(), key("mesh"), why.clone()));
+            }
+            known.index
         }
         (None, Some(shape)) => {
             let m = material.ok_or_else(|| ctx.err(o.span(), key("material"), "a built-in shape needs a material"))?;
-            builtin_shape(ctx, &key("shape"), shape, f.subdivisions.as_ref(), m)?
+            let (name, level) = builtin_shape(ctx, &key("shape"), shape, f.subdivisions.as_ref())?;
+            let meshes = &mut out.meshes;
+            let known = out.known.entry(MeshKey::Shape(name, level)).or_insert_with(|| {
+                meshes.push(shape_mesh(name, level, m));
+                KnownMesh { index: meshes.len() - 1, needs_material: None }
+            });
+            known.index
         }
         (Some(p), Some(_)) => return Err(ctx.err(p.span(), key("mesh"), "give either `mesh` or `shape`, not both")),
         (None, None) => return Err(ctx.err(o.span(), key("mesh"), "an object needs `mesh` (an OBJ file) or `shape`")),
     };
-    meshes.push(scene_mesh);
     let world_from_object = transform(ctx, index, f)?;
-    Ok(Object { mesh: meshes.len() - 1, world_from_object, material })
+    let animation = match (&f.keyframes, &f.scatter) {
+        (Some(_), Some(s)) => {
+            return Err(ctx.err(s.span(), key("scatter"), "give either `keyframes` or `scatter`, not both"));
+        }
+        (Some(k), None) => Some(keyframes(ctx, index, k, env.clock)?),
+        (None, Some(s)) => {
+            let placed = Object { mesh, world_from_object, material, animation: None };
+            return scatter(ctx, index, s, env.clock, &placed, &mut out.objects);
+        }
+        (None, None) => None,
+    };
+    out.objects.push(Object { mesh, world_from_object, material, animation });
+    Ok(())
 }
 
+/// The mesh of the OBJ file `rel` names, loaded (with its MTL materials) the first time.
+fn shared_obj_mesh<'a>(
+    ctx: &Ctx,
+    key: &str,
+    rel: &S<String>,
+    base: &Path,
+    out: &'a mut Built,
+) -> Result<&'a KnownMesh, SceneError> {
+    let path = base.join(rel.get_ref());
+    // Canonical, so `a.obj` and `./models/../a.obj` are one mesh; a file that is not there keeps
+    // its joined path, and loading it reports the error.
+    let id = MeshKey::Obj(std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone()));
+    match out.known.entry(id) {
+        Entry::Occupied(e) => Ok(e.into_mut()),
+        Entry::Vacant(e) => {
+            let (mesh, needs_material) = obj_mesh(ctx, key, rel, &path, &mut out.materials)?;
+            out.meshes.push(mesh);
+            Ok(e.insert(KnownMesh { index: out.meshes.len() - 1, needs_material }))
+        }
+    }
+}
+
+/// The checked built-in shape name and its subdivision level (0 for shapes without one).
 fn builtin_shape(
     ctx: &Ctx,
     key: &str,
     shape: &S<String>,
     subdivisions: Option<&S<u32>>,
-    material: u32,
-) -> Result<SceneMesh, SceneError> {
+) -> Result<(&'static str, u32), SceneError> {
     let name = shape.get_ref().as_str();
     if let Some(s) = subdivisions.filter(|_| name != "sphere") {
         return Err(ctx.err(
@@ -320,9 +426,9 @@ fn builtin_shape(
             "only a built-in sphere takes subdivisions",
         ));
     }
-    let mesh = match name {
-        "quad" => TriangleMesh::quad(),
-        "box" => TriangleMesh::cube(),
+    Ok(match name {
+        "quad" => ("quad", 0),
+        "box" => ("box", 0),
         "sphere" => {
             let level = subdivisions.map_or(Ok(3), |s| {
                 let l = *s.get_ref();
@@ -336,35 +442,42 @@ fn builtin_shape(
                     Ok(l)
                 }
             })?;
-            TriangleMesh::icosphere(level)
+            ("sphere", level)
         }
         other => return Err(ctx.err(shape.span(), key, format!("unknown shape `{other}`; known: quad, box, sphere"))),
-    };
-    let material_ids = vec![material; mesh.triangle_count()];
-    Ok(SceneMesh { source: name.to_owned(), mesh, material_ids })
+    })
 }
 
-/// An OBJ mesh relative to the scene file, its MTL materials appended to `materials`.
+/// A shape [`builtin_shape`] accepted, every triangle of `material`.
+fn shape_mesh(name: &'static str, level: u32, material: u32) -> SceneMesh {
+    let mesh = match name {
+        "quad" => TriangleMesh::quad(),
+        "box" => TriangleMesh::cube(),
+        _ => TriangleMesh::icosphere(level),
+    };
+    let material_ids = vec![material; mesh.triangle_count()];
+    SceneMesh { source: name.to_owned(), mesh, material_ids }
+}
+
+/// The OBJ mesh at `path` (`rel` as written), its MTL materials appended to `materials`. A
+/// triangle without an MTL material gets id `u32::MAX`, and the second value says why: an object
+/// using the mesh then needs its own `material`.
 fn obj_mesh(
     ctx: &Ctx,
     key: &str,
     rel: &S<String>,
-    base: &Path,
-    overridden: bool,
+    path: &Path,
     materials: &mut Vec<Material>,
-) -> Result<SceneMesh, SceneError> {
-    let path = base.join(rel.get_ref());
+) -> Result<(SceneMesh, Option<String>), SceneError> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-    let (models, mtl) = tobj::load_obj(&path, &opts)
+    let (models, mtl) = tobj::load_obj(path, &opts)
         .map_err(|e| ctx.err(rel.span(), key, format!("cannot load {}: {e}", path.display())))?;
     let mtl_base = materials.len() as u32;
-    let mtl_materials = match mtl {
-        Ok(m) => m,
-        Err(_) if overridden => Vec::new(),
-        Err(e) => {
-            return Err(ctx.err(rel.span(), key, format!("{}: cannot load its MTL materials: {e}", path.display())));
-        }
-    };
+    let mut needs_material = None;
+    let mtl_materials = mtl.unwrap_or_else(|e| {
+        needs_material = Some(format!("{}: cannot load its MTL materials: {e}", path.display()));
+        Vec::new()
+    });
     let stem = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
     for m in &mtl_materials {
         materials.push(from_mtl(&format!("{stem}/{}", m.name), m));
@@ -374,14 +487,15 @@ fn obj_mesh(
     for model in &models {
         let id = match model.mesh.material_id {
             Some(i) if i < mtl_materials.len() => mtl_base + i as u32,
-            _ if overridden => u32::MAX,
             _ => {
-                let msg = format!(
-                    "{}: object `{}` has no MTL material; give the object a `material`",
-                    path.display(),
-                    model.name
-                );
-                return Err(ctx.err(rel.span(), key, msg));
+                needs_material.get_or_insert_with(|| {
+                    format!(
+                        "{}: object `{}` has no MTL material; give the object a `material`",
+                        path.display(),
+                        model.name
+                    )
+                });
+                u32::MAX
             }
         };
         let part = TriangleMesh {
@@ -395,7 +509,7 @@ fn obj_mesh(
         material_ids.extend(std::iter::repeat_n(id, part.indices.len()));
         mesh.append(&part);
     }
-    Ok(SceneMesh { source: path.display().to_string(), mesh, material_ids })
+    Ok((SceneMesh { source: path.display().to_string(), mesh, material_ids }, needs_material))
 }
 
 /// MTL to Arbor, documented in `docs/scene-format.md`: `Ke` makes an emitter (which also
@@ -440,15 +554,30 @@ fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError
         }
         return Ok(mat);
     }
-    let translate = f.translate.as_ref().map(|t| ctx.vec3(t, &key("translate"))).transpose()?.unwrap_or(Vec3::ZERO);
-    let rotate = f.rotate.as_ref().map(|r| ctx.vec3(r, &key("rotate"))).transpose()?.unwrap_or(Vec3::ZERO);
-    let scale = match &f.scale {
+    let (scale, rotation, translation) = trs(ctx, &key, &f.scale, &f.rotate, &f.translate)?;
+    Ok(Mat4::from_scale_rotation_translation(scale, rotation, translation))
+}
+
+/// Checked `scale`, `rotate` and `translate` keys (defaults 1, 0, 0), as scale, rotation and
+/// translation; `key` names a key of the table holding them.
+fn trs(
+    ctx: &Ctx,
+    key: &dyn Fn(&str) -> String,
+    scale: &Option<S<ScaleFile>>,
+    rotate: &Option<S<[f32; 3]>>,
+    translate: &Option<S<[f32; 3]>>,
+) -> Result<(Vec3, Quat, Vec3), SceneError> {
+    let translation = translate.as_ref().map(|t| ctx.vec3(t, &key("translate"))).transpose()?.unwrap_or(Vec3::ZERO);
+    let rotate = rotate.as_ref().map(|r| ctx.vec3(r, &key("rotate"))).transpose()?.unwrap_or(Vec3::ZERO);
+    let scale = match scale {
         None => Vec3::ONE,
         Some(s) => {
             let v = match s.get_ref() {
                 ScaleFile::Uniform(x) => Vec3::splat(*x),
                 ScaleFile::PerAxis(a) => Vec3::from(*a),
             };
+            // Keyframe scales must be > 0 as well: a key of each sign would interpolate through
+            // zero (flat triangles), and a mirror flips which face of an emitter emits.
             if !v.is_finite() || v.min_element() <= 0.0 {
                 return Err(ctx.err(s.span(), key("scale"), format!("{v} must be finite and > 0")));
             }
@@ -458,5 +587,122 @@ fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError
     let r = rotate * (std::f32::consts::PI / 180.0);
     // Rotations about x, then y, then z (extrinsic), in degrees.
     let rotation = Quat::from_euler(EulerRot::ZYX, r.z, r.y, r.x);
-    Ok(Mat4::from_scale_rotation_translation(scale, rotation, translate))
+    Ok((scale, rotation, translation))
+}
+
+/// An object's `[[objects.keyframes]]`, which need the `[animation]` clock.
+fn keyframes(ctx: &Ctx, index: usize, list: &S<Vec<S<KeyframeFile>>>, clock: bool) -> Result<Animation, SceneError> {
+    let list_key = format!("objects[{index}].keyframes");
+    if !clock {
+        return Err(ctx.err(list.span(), list_key, "keyframes need an [animation] table (fps and frames)"));
+    }
+    if list.get_ref().is_empty() {
+        return Err(ctx.err(list.span(), list_key, "is empty; give at least one keyframe"));
+    }
+    let mut keys: Vec<Keyframe> = Vec::with_capacity(list.get_ref().len());
+    for (j, k) in list.get_ref().iter().enumerate() {
+        let key = |name: &str| format!("objects[{index}].keyframes[{j}].{name}");
+        let f = k.get_ref();
+        let time = f.time.as_ref().ok_or_else(|| ctx.err(k.span(), key("time"), "a keyframe needs a `time`"))?;
+        let t = ctx.number(time, &key("time"), |_| true, "a finite time in seconds")?;
+        if let Some(prev) = keys.last().filter(|p| t <= p.time) {
+            return Err(ctx.err(
+                time.span(),
+                key("time"),
+                format!("keyframe times must increase (previous {}, this {t})", prev.time),
+            ));
+        }
+        let (scale, rotation, translation) = trs(ctx, &key, &f.scale, &f.rotate, &f.translate)?;
+        keys.push(Keyframe { time: t, translation, rotation, scale });
+    }
+    Ok(Animation::Keyframes(keys))
+}
+
+/// An object's `[objects.scatter]`: `count` copies of `placed` at seeded random points of the box
+/// [min, max], each turned by a random angle about y, `round(moving · count)` of them orbiting.
+fn scatter(
+    ctx: &Ctx,
+    index: usize,
+    s: &S<ScatterFile>,
+    clock: bool,
+    placed: &Object,
+    objects: &mut Vec<Object>,
+) -> Result<(), SceneError> {
+    let f = s.get_ref();
+    let key = |k: &str| format!("objects[{index}].scatter.{k}");
+    let missing = |k: &str| ctx.err(s.span(), key(k), format!("a scatter needs `{k}`"));
+    let count_s = f.count.as_ref().ok_or_else(|| missing("count"))?;
+    let count = *count_s.get_ref();
+    if !(1..=MAX_SCATTER).contains(&count) {
+        return Err(ctx.err(count_s.span(), key("count"), format!("{count} is not 1 to {MAX_SCATTER}")));
+    }
+    let seed = f.seed.as_ref().map_or(0, |s| *s.get_ref());
+    let min_s = f.min.as_ref().ok_or_else(|| missing("min"))?;
+    let min = ctx.vec3(min_s, &key("min"))?;
+    let max = ctx.vec3(f.max.as_ref().ok_or_else(|| missing("max"))?, &key("max"))?;
+    if min.cmpgt(max).any() {
+        return Err(ctx.err(min_s.span(), key("min"), format!("{min} is above max {max} on some axis")));
+    }
+    let radius = match &f.radius {
+        Some(r) => ctx.number(r, &key("radius"), |x| x >= 0.0, "a radius >= 0")?,
+        None => 0.0,
+    };
+    let moving = match &f.moving {
+        Some(m) => ctx.number(m, &key("moving"), |x| (0.0..=1.0).contains(&x), "a fraction in [0, 1]")?,
+        None if radius > 0.0 => 1.0,
+        None => 0.0,
+    };
+    let period = match &f.period {
+        Some(p) => ctx.number(p, &key("period"), |x| x > 0.0, "a period > 0 seconds")?,
+        None => DEFAULT_PERIOD,
+    };
+    if let Some(r) = f.radius.as_ref().filter(|_| radius > 0.0 && !clock) {
+        return Err(ctx.err(r.span(), key("radius"), "moving instances need an [animation] table (fps and frames)"));
+    }
+    // Radius 0: nothing moves, so no instance carries an animation.
+    let mut left = if radius > 0.0 { (f64::from(moving) * count as f64).round() as u64 } else { 0 };
+    let mut rng = SplitMix64(seed);
+    objects.reserve(count as usize);
+    for i in 0..count {
+        let u = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        // Clamped: min + (max - min) · u can round one ulp past max.
+        let at = (min + (max - min) * u).clamp(min, max);
+        let yaw = TAU * rng.next_f32();
+        let phase = TAU * rng.next_f32();
+        // Selection sampling (Knuth, TAOCP vol. 2, 3.4.2, Algorithm S): exactly the rounded
+        // count moves, and every subset of that size is equally likely.
+        let moves = rng.below(count - i) < left;
+        left -= u64::from(moves);
+        objects.push(Object {
+            mesh: placed.mesh,
+            world_from_object: Mat4::from_translation(at) * Mat4::from_rotation_y(yaw) * placed.world_from_object,
+            material: placed.material,
+            animation: moves.then_some(Animation::Orbit { radius, period, phase }),
+        });
+    }
+    Ok(())
+}
+
+/// SplitMix64 (Steele, Lea and Flood 2014): one 64-bit state, every output a mix of it.
+struct SplitMix64(u64);
+
+impl SplitMix64 {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1): 24 random bits.
+    fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 * (1.0 / (1u32 << 24) as f32)
+    }
+
+    /// Uniform in [0, n) by a 128-bit multiply (Lemire 2019) without the rejection step: the
+    /// bias is below n / 2^64, nothing at the counts a scatter allows.
+    fn below(&mut self, n: u64) -> u64 {
+        ((u128::from(self.next_u64()) * u128::from(n)) >> 64) as u64
+    }
 }

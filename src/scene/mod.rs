@@ -2,11 +2,14 @@
 //!
 //! [`Scene::load`] reads a scene file and the OBJ/MTL meshes it names, checks every value, and
 //! returns plain data: a camera, render settings, materials by index, meshes and the objects
-//! placing them. Any error names the scene file, the line and the key at fault
-//! ([`SceneError`]); nothing panics on bad input.
+//! placing them, some of them animated ([`Animation`]). Any error names the scene file, the line
+//! and the key at fault ([`SceneError`]); nothing panics on bad input.
 
+mod animation;
 mod file;
 mod load;
+
+pub use animation::{Animation, AnimationSettings, Keyframe};
 
 use std::path::PathBuf;
 
@@ -76,7 +79,9 @@ pub struct Material {
     pub two_sided: bool,
 }
 
-/// A mesh with one material per triangle (indices into [`Scene::materials`]).
+/// A mesh with one material per triangle (indices into [`Scene::materials`]). Objects naming the
+/// same OBJ file or the same built-in shape share one; a built-in shape's `material_ids` hold the
+/// first such object's material, and every object using it overrides them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneMesh {
     /// Where it came from: the OBJ path, or the built-in shape's name.
@@ -90,9 +95,12 @@ pub struct SceneMesh {
 pub struct Object {
     /// Index into [`Scene::meshes`].
     pub mesh: usize,
+    /// The static placement; an animation moves the object from there.
     pub world_from_object: Mat4,
     /// Overrides every triangle's material.
     pub material: Option<u32>,
+    /// Applied after `world_from_object` ([`Object::world_from_object_at`]).
+    pub animation: Option<Animation>,
 }
 
 /// A loaded, checked scene.
@@ -106,6 +114,8 @@ pub struct Scene {
     pub materials: Vec<Material>,
     pub meshes: Vec<SceneMesh>,
     pub objects: Vec<Object>,
+    /// The `[animation]` table: the frame clock. Present whenever an object is animated.
+    pub animation: Option<AnimationSettings>,
 }
 
 /// What went wrong loading a scene. Each names the file, and where it can the line and key.
@@ -128,14 +138,21 @@ impl Scene {
         load::parse(text, path.into())
     }
 
-    /// Every object's triangles in world space, with their material ids.
+    /// Every object's triangles in world space at time 0, with their material ids: the same as
+    /// `world_triangles_at(0.0)`.
     pub fn world_triangles(&self) -> (Vec<Triangle>, Vec<u32>) {
+        self.world_triangles_at(0.0)
+    }
+
+    /// Every object's triangles in world space at `time` seconds, with their material ids.
+    pub fn world_triangles_at(&self, time: f32) -> (Vec<Triangle>, Vec<u32>) {
         let mut tris = Vec::new();
         let mut mats = Vec::new();
         for o in &self.objects {
             let m = &self.meshes[o.mesh];
+            let world_from_object = o.world_from_object_at(time);
             for (i, t) in m.mesh.indices.iter().enumerate() {
-                let p = |k: usize| o.world_from_object.transform_point3(m.mesh.positions[t[k] as usize]);
+                let p = |k: usize| world_from_object.transform_point3(m.mesh.positions[t[k] as usize]);
                 tris.push(Triangle::new(p(0), p(1), p(2)));
                 mats.push(o.material.unwrap_or(m.material_ids[i]));
             }
