@@ -148,6 +148,36 @@ pub fn check_output_path(path: impl AsRef<Path>) -> Result<(), ImageError> {
     Format::of(path.as_ref()).map(|_| ())
 }
 
+/// Whether `path` holds a frame-number pattern: `%d`, or `%0Nd` with N from 1 to 9.
+pub fn has_frame_pattern(path: impl AsRef<Path>) -> bool {
+    find_frame_pattern(&path.as_ref().to_string_lossy()).is_some()
+}
+
+/// `path` with its first frame-number pattern (`%d` or `%0Nd`, as in printf) replaced by
+/// `frame`, zero-padded to N digits; `path` itself when it has none.
+pub fn frame_path(path: impl AsRef<Path>, frame: u32) -> PathBuf {
+    let text = path.as_ref().to_string_lossy();
+    match find_frame_pattern(&text) {
+        Some((range, width)) => {
+            PathBuf::from(format!("{}{frame:0width$}{}", &text[..range.start], &text[range.end..]))
+        }
+        None => path.as_ref().to_path_buf(),
+    }
+}
+
+/// The byte range and zero-padding width of the first `%d` or `%0Nd` in `s`.
+fn find_frame_pattern(s: &str) -> Option<(std::ops::Range<usize>, usize)> {
+    let bytes = s.as_bytes();
+    for (i, _) in s.match_indices('%') {
+        match bytes.get(i + 1..) {
+            Some([b'd', ..]) => return Some((i..i + 2, 0)),
+            Some([b'0', w @ b'1'..=b'9', b'd', ..]) => return Some((i..i + 4, (w - b'0') as usize)),
+            _ => {}
+        }
+    }
+    None
+}
+
 fn io_error(path: &Path, what: &'static str, source: std::io::Error) -> ImageError {
     ImageError::Io { path: path.to_path_buf(), what, source }
 }

@@ -3,13 +3,15 @@
 //! Argument parsing and reporting only; the work is `arbor::scene` and `arbor::render`.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use arbor::bvh::builders::Builder;
-use arbor::image_io::{check_output_path, write_image};
+use arbor::bvh::instances::TopLevelUpdate;
+use arbor::image_io::{check_output_path, frame_path, has_frame_pattern, write_image};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
 use arbor::scene::Scene;
@@ -17,14 +19,26 @@ use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// Render a scene (TOML) to a linear EXR image, or an 8-bit sRGB PNG when OUT ends in .png.
+///
+/// Animated scenes: `--frames 0..120 -o out_%04d.exr` renders a sequence (`%04d` becomes the
+/// frame number), `--frame N` one frame. Without either, an output name with a frame pattern
+/// renders the scene's whole frame range, and one without renders its first frame.
 #[derive(Parser, Debug)]
 #[command(name = "render", version, allow_negative_numbers = true)]
 struct Args {
     /// The scene file (see docs/scene-format.md).
     scene: PathBuf,
-    /// Output image: .exr (linear float RGB) or .png (8-bit sRGB).
+    /// Output image: .exr (linear float RGB) or .png (8-bit sRGB); `%04d` (or `%d`, `%0Nd`) in
+    /// the name becomes the frame number.
     #[arg(short, long)]
     output: PathBuf,
+    /// Frames to render, first..one-past-last, as `0..120` (an animated scene's frames run at
+    /// its `animation.fps`).
+    #[arg(long, value_parser = parse_frames, conflicts_with = "frame")]
+    frames: Option<Range<u32>>,
+    /// One frame to render.
+    #[arg(long)]
+    frame: Option<u32>,
     /// Samples per pixel (overrides the scene's render.spp).
     #[arg(long)]
     spp: Option<u32>,
@@ -92,51 +106,103 @@ fn run() -> Result<()> {
     }
     // Fail on a bad output name before spending time rendering.
     check_output_path(&args.output)?;
+    let frames: Option<Range<u32>> = match (&args.frames, args.frame) {
+        (Some(r), _) => Some(r.clone()),
+        (None, Some(n)) => Some(n..n + 1),
+        (None, None) if has_frame_pattern(&args.output) => {
+            Some(scene.animation.as_ref().map_or(0..1, |a| a.frames.clone()))
+        }
+        (None, None) => None,
+    };
+    if frames.as_ref().is_some_and(|f| f.len() > 1) && !has_frame_pattern(&args.output) {
+        bail!(
+            "{} frames would all go to {}: put a frame pattern such as %04d in the output name",
+            frames.as_ref().map_or(0, |f| f.len()),
+            args.output.display()
+        );
+    }
 
-    let (render_scene, build) = match &builder {
+    let (mut render_scene, build) = match &builder {
         Some(b) => RenderScene::build(&scene, b),
         None => {
             // Rays of the whole render: each path segment traces one ray, plus a shadow ray when
             // the scene has emitters; paths rarely run past five segments (Russian roulette).
             let per_path = max_depth.min(5) as f64 * if scene.has_emitters() { 2.0 } else { 1.0 };
             let pixels = scene.camera.width as f64 * scene.camera.height as f64;
-            RenderScene::build_auto(&scene, pixels * spp as f64 * per_path)
+            let frame_count = frames.as_ref().map_or(1, |f| f.len()) as f64;
+            RenderScene::build_auto(&scene, pixels * spp as f64 * per_path * frame_count)
         }
     };
+    if !args.quiet {
+        println!(
+            "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}",
+            args.scene.display(),
+            build.triangles,
+            build.builder,
+            build.build_ms,
+            build.sah
+        );
+    }
+    let settings = FrameSettings { spp, max_depth, seed, time, quiet: args.quiet };
+    let update = TopLevelUpdate::Dynamic(Default::default());
+    match frames {
+        None => render_frame(&render_scene, &settings, &args.output, None)?,
+        Some(frames) => {
+            for f in frames {
+                let t = Instant::now();
+                let stats = render_scene.set_time(&scene, scene.frame_time(f), &update);
+                let update_ms = stats.map(|_| t.elapsed().as_secs_f64() * 1e3);
+                render_frame(&render_scene, &settings, &frame_path(&args.output, f), update_ms)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+struct FrameSettings {
+    spp: u32,
+    max_depth: u32,
+    seed: u64,
+    time: Option<f64>,
+    quiet: bool,
+}
+
+/// Renders the scene as it stands to `output`.
+fn render_frame(render_scene: &RenderScene, s: &FrameSettings, output: &Path, update_ms: Option<f64>) -> Result<()> {
     let mut film = Film::new(render_scene.width, render_scene.height);
-    let show_progress = !args.quiet && std::io::stderr().is_terminal();
-    let bar = progress_bar(show_progress, spp as u64 * render_scene.height as u64);
+    let show_progress = !s.quiet && std::io::stderr().is_terminal();
+    let bar = progress_bar(show_progress, s.spp as u64 * render_scene.height as u64);
     let rays = AtomicU64::new(0);
     let start = Instant::now();
     // Passes of a few samples each, so that a time budget can stop between passes; the image
     // depends only on the samples taken, not on where the passes fall.
-    let pass = if time.is_some() { 4.min(spp) } else { spp };
+    let pass = if s.time.is_some() { 4.min(s.spp) } else { s.spp };
     let mut done = 0;
-    while done < spp {
-        let n = pass.min(spp - done);
-        render_scene.render(&mut film, seed, max_depth, done..done + n, &|r| {
+    while done < s.spp {
+        let n = pass.min(s.spp - done);
+        render_scene.render(&mut film, s.seed, s.max_depth, done..done + n, &|r| {
             let total = rays.fetch_add(r, Ordering::Relaxed) + r;
             bar.inc(n as u64);
             let secs = start.elapsed().as_secs_f64().max(1e-9);
             bar.set_message(format!("{:.1} Mrays/s", total as f64 / secs / 1e6));
         });
         done += n;
-        if time.is_some_and(|t| start.elapsed() >= Duration::from_secs_f64(t)) {
+        if s.time.is_some_and(|t| start.elapsed() >= Duration::from_secs_f64(t)) {
             break;
         }
     }
     bar.finish_and_clear();
     let render_secs = start.elapsed().as_secs_f64();
-    write_image(&args.output, &film.mean())?;
-    if !args.quiet {
+    if let Some(dir) = output.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    write_image(output, &film.mean())?;
+    if !s.quiet {
         let rays = rays.load(Ordering::Relaxed) as f64;
         println!(
-            "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}; render {:.2} s, {:.2} Mrays/s, {done} spp{}",
-            args.output.display(),
-            build.triangles,
-            build.builder,
-            build.build_ms,
-            build.sah,
+            "{}: {}render {:.2} s, {:.2} Mrays/s, {done} spp{}",
+            output.display(),
+            update_ms.map_or(String::new(), |ms| format!("BVH update {ms:.2} ms, ")),
             render_secs,
             rays / render_secs.max(1e-9) / 1e6,
             match film.non_finite_count() {
@@ -146,6 +212,17 @@ fn run() -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// `A..B` with `A < B`.
+fn parse_frames(s: &str) -> Result<Range<u32>, String> {
+    let (a, b) = s.split_once("..").ok_or_else(|| format!("expected FIRST..END, as 0..120, not {s:?}"))?;
+    let a: u32 = a.trim().parse().map_err(|e| format!("first frame {a:?}: {e}"))?;
+    let b: u32 = b.trim().parse().map_err(|e| format!("end frame {b:?}: {e}"))?;
+    if b <= a {
+        return Err(format!("{s}: the end ({b}) must be after the first frame ({a})"));
+    }
+    Ok(a..b)
 }
 
 fn progress_bar(show: bool, rows: u64) -> ProgressBar {

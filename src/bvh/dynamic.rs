@@ -175,7 +175,7 @@ impl DynamicBvh {
     }
 
     /// Primitives in the tree.
-    pub fn len(&self) -> usize {
+    pub fn prim_count(&self) -> usize {
         self.leaf_of.iter().filter(|&&l| l != INVALID_INDEX).count()
     }
 
@@ -257,6 +257,18 @@ impl DynamicBvh {
             self.mark_dirty_from(self.bvh.parents[slot as usize]);
         }
         true
+    }
+
+    /// Gives primitive `prim`'s leaf the box `b` and marks its ancestors dirty, keeping the
+    /// topology: the next clean refits exactly the boxes above the changed leaves.
+    pub fn refit_leaf(&mut self, prim: u32, b: Aabb) {
+        assert!(self.contains(prim), "primitive {prim} is not in the tree");
+        let slot = self.leaf_of[prim as usize] as usize;
+        let mut n = self.bvh.nodes[slot];
+        n.set_aabb(b);
+        self.set(slot, n);
+        let parent = self.bvh.parents[slot];
+        self.mark_dirty_from(parent);
     }
 
     /// Marks `node` and its ancestors dirty, stopping at the first that already is.
@@ -555,7 +567,7 @@ impl DynamicBvh {
             }
         }
         if nodes.is_empty() {
-            return if self.len() == 0 { Ok(()) } else { Err("empty tree with primitives".into()) };
+            return if self.prim_count() == 0 { Ok(()) } else { Err("empty tree with primitives".into()) };
         }
         if nodes.len() > 1 && (nodes[1] != BvhNode::zeroed() || parents[1] != INVALID_INDEX || self.dirty[1]) {
             return Err("padding node is not zeroed".into());
@@ -614,8 +626,8 @@ impl DynamicBvh {
         if let Some(i) = (0..nodes.len()).find(|&i| i != PAD_INDEX as usize && !seen[i]) {
             return Err(format!("node {i} is not reachable"));
         }
-        if leaves != self.len() {
-            return Err(format!("{leaves} leaves for {} primitives", self.len()));
+        if leaves != self.prim_count() {
+            return Err(format!("{leaves} leaves for {} primitives", self.prim_count()));
         }
         let (internal, leaf) = self.exact_areas();
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1e-30);
@@ -625,7 +637,7 @@ impl DynamicBvh {
                 self.area_internal, self.area_leaves
             ));
         }
-        if !self.is_dirty() && self.len() == self.leaf_of.len() {
+        if !self.is_dirty() && self.prim_count() == self.leaf_of.len() {
             super::validate(&self.bvh, boxes).map_err(|e| e.to_string())?;
         }
         Ok(())

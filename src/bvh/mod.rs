@@ -5,6 +5,7 @@ pub mod bench_rays;
 pub mod binned_sah;
 pub mod builders;
 pub mod dynamic;
+pub mod instances;
 mod layout;
 pub mod lbvh;
 mod mesh_bvh;

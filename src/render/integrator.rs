@@ -18,11 +18,13 @@ use rayon::prelude::*;
 use super::bsdf::{Bsdf, ConductorFresnel as BsdfFresnel};
 use super::camera::CameraModel;
 use super::film::Film;
+use super::geometry::{Flat, Geometry, Instanced, flat_lights, wants_instancing};
 use super::lights::Lights;
 use super::rng::Rng;
 use super::sampling::{Frame, power_heuristic};
 use crate::bvh::builders::Builder;
 use crate::bvh::prbvh::{self, PrbvhConfig};
+use crate::bvh::instances::TopLevelUpdate;
 use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh, sah_cost};
 use crate::geometry::{Ray, Triangle, offset_ray_origin, spawn_ray};
 use crate::scene::{ConductorFresnel, Scattering, Scene};
@@ -41,10 +43,7 @@ pub struct RenderMaterial {
 
 /// Everything a render reads: geometry and its BVH, materials, lights, camera.
 pub struct RenderScene {
-    pub mesh: MeshBvh,
-    /// World-space triangles by primitive id.
-    pub triangles: Vec<Triangle>,
-    pub material_of: Vec<u32>,
+    pub geometry: Geometry,
     pub materials: Vec<RenderMaterial>,
     pub lights: Lights,
     pub environment: Option<Vec3>,
@@ -78,6 +77,11 @@ fn probe_trace_speed(bvh: &crate::bvh::Bvh, triangles: &[Triangle], camera: &cra
     rays.len() as f64 / t.elapsed().as_secs_f64().max(1e-9)
 }
 
+/// The time of a scene's first frame (0 for a static scene).
+pub fn first_frame_time(scene: &Scene) -> f32 {
+    scene.animation.as_ref().map_or(0.0, |a| scene.frame_time(a.frames.start))
+}
+
 impl RenderMaterial {
     pub fn from_scene(m: &crate::scene::Material) -> Self {
         let bsdf = match &m.scattering {
@@ -97,9 +101,16 @@ impl RenderMaterial {
 }
 
 impl RenderScene {
-    /// Flattens `scene` to world-space triangles and builds their BVH with `builder`, then the
-    /// default leaf collapse.
+    /// Builds the scene's geometry as it is at its first frame (static scenes: as it is).
+    ///
+    /// A static scene is flattened to world-space triangles under one BVH built with `builder`,
+    /// then the default leaf collapse. An animated or heavily instanced scene
+    /// ([`wants_instancing`]) gets one such BVH per distinct mesh, in object space, under a
+    /// top-level tree of its objects.
     pub fn build(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
+        if wants_instancing(scene) {
+            return Self::build_instanced(scene, builder);
+        }
         let t = Instant::now();
         let (triangles, material_of) = scene.world_triangles();
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
@@ -114,7 +125,13 @@ impl RenderScene {
     /// camera rays. Trace cost is taken as proportional to the SAH, so an iteration that lowers
     /// the SAH by a fraction `f` saves `f` of the estimated render time; optimisation stops after
     /// the first iteration whose saving is less than the time it took.
+    ///
+    /// An instanced scene builds its meshes' BVHs with `lbvh+prbvh`: they are built once and
+    /// serve every frame.
     pub fn build_auto(scene: &Scene, rays: f64) -> (Self, BuildReport) {
+        if wants_instancing(scene) {
+            return Self::build_instanced(scene, &"lbvh+prbvh".parse().expect("a builder name"));
+        }
         let t = Instant::now();
         let (triangles, material_of) = scene.world_triangles();
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
@@ -131,7 +148,34 @@ impl RenderScene {
         Self::assemble(scene, triangles, material_of, &bvh, t, label)
     }
 
-    /// The rest of a build: leaf collapse, materials, lights, camera.
+    /// The two-level build (see [`RenderScene::build`]).
+    fn build_instanced(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
+        let t = Instant::now();
+        let meshes: Vec<MeshBvh> = scene
+            .meshes
+            .iter()
+            .map(|m| {
+                let triangles = m.mesh.triangles();
+                let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
+                let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
+                MeshBvh::new(collapse_leaves(&built.bvh, &CollapseConfig::default()), &triangles)
+            })
+            .collect();
+        let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
+        let mut instanced = Instanced::new(scene, meshes, first_frame_time(scene));
+        let lights = instanced.lights(&materials);
+        let geometry = Geometry::Instanced(instanced);
+        let Geometry::Instanced(g) = &geometry else { unreachable!() };
+        let report = BuildReport {
+            build_ms: t.elapsed().as_secs_f64() * 1e3,
+            sah: g.two_level.top_level().sah_estimate(&Default::default()),
+            triangles: geometry.world_triangle_count(),
+            builder: format!("two levels: {builder} per mesh, binned-sah over {} objects", scene.objects.len()),
+        };
+        (Self::with_geometry(scene, geometry, materials, lights), report)
+    }
+
+    /// The rest of a flat build: leaf collapse, materials, lights, camera.
     fn assemble(
         scene: &Scene,
         triangles: Vec<Triangle>,
@@ -144,24 +188,35 @@ impl RenderScene {
         let sah = sah_cost(&bvh);
         let mesh = MeshBvh::new(bvh, &triangles);
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
-        let lights = Lights::new(&triangles, |i| {
-            let m = &materials[material_of[i] as usize];
-            m.emission.map(|e| (e, m.two_sided))
-        });
+        let lights = flat_lights(&triangles, &material_of, &materials);
         let report =
             BuildReport { build_ms: start.elapsed().as_secs_f64() * 1e3, sah, triangles: triangles.len(), builder };
-        let s = Self {
-            mesh,
-            triangles,
-            material_of,
+        let geometry = Geometry::Flat(Flat { mesh, triangles, material_of });
+        (Self::with_geometry(scene, geometry, materials, lights), report)
+    }
+
+    fn with_geometry(scene: &Scene, geometry: Geometry, materials: Vec<RenderMaterial>, lights: Lights) -> Self {
+        Self {
+            geometry,
             materials,
             lights,
             environment: scene.environment.filter(|e| e.max_element() > 0.0),
             camera: CameraModel::new(&scene.camera),
             width: scene.camera.width,
             height: scene.camera.height,
-        };
-        (s, report)
+        }
+    }
+
+    /// Moves an animated scene's objects to where they are at `time`, updating the top-level
+    /// tree by `how`, and the lights. Returns what the update cost. A flat (static) scene does
+    /// not change.
+    pub fn set_time(&mut self, scene: &Scene, time: f32, how: &TopLevelUpdate) -> Option<crate::bvh::dynamic::UpdateStats> {
+        let Geometry::Instanced(g) = &mut self.geometry else { return None };
+        let stats = g.set_time(scene, time, how);
+        if scene.has_emitters() {
+            self.lights = g.lights(&self.materials);
+        }
+        Some(stats)
     }
 
     /// Radiance along `ray` (unit direction) for a path of at most `max_depth` segments;
@@ -172,13 +227,13 @@ impl RenderScene {
         let mut rays = 0;
         for depth in 1..=max_depth {
             rays += 1;
-            let Some(hit) = self.mesh.closest_hit(&ray, f32::INFINITY) else {
+            let Some(hit) = self.geometry.intersect(&ray) else {
                 if let Some(env) = self.environment {
                     l += beta * env;
                 }
                 break;
             };
-            let tri = &self.triangles[hit.prim_id as usize];
+            let tri = &hit.triangle;
             let ng = tri.normal().normalize_or_zero();
             if ng == Vec3::ZERO {
                 break;
@@ -186,13 +241,13 @@ impl RenderScene {
             let p = tri.point(hit.u, hit.v);
             let wo_world = -ray.dir;
             let front = ng.dot(wo_world) > 0.0;
-            let material = &self.materials[self.material_of[hit.prim_id as usize] as usize];
+            let material = &self.materials[hit.material as usize];
             if let Some(le) = material.emission.filter(|_| front || material.two_sided) {
                 if prev_delta {
                     l += beta * le;
                 } else {
                     let dist2 = (p - ray.origin).length_squared();
-                    let p_light = self.lights.pdf_area(hit.prim_id) * dist2 / ng.dot(wo_world).abs();
+                    let p_light = self.lights.pdf_area(hit.light) * dist2 / ng.dot(wo_world).abs();
                     l += beta * le * power_heuristic(prev_pdf, p_light);
                 }
             }
@@ -263,7 +318,7 @@ impl RenderScene {
         // Both ends offset off their surfaces, towards each other; the light sits at t = 1.
         let from = offset_ray_origin(p, if ng.dot(wi_world) > 0.0 { ng } else { -ng });
         let to_light = offset_ray_origin(lp.point, if cos_light > 0.0 { lp.normal } else { -lp.normal });
-        if self.mesh.any_hit(&Ray::new(from, to_light - from), 1.0) {
+        if self.geometry.occluded(&Ray::new(from, to_light - from), 1.0) {
             return 1;
         }
         let p_light = lp.pdf_area * dist2 / cos_light.abs();

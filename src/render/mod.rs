@@ -3,6 +3,7 @@
 pub mod bsdf;
 pub mod camera;
 pub mod film;
+pub mod geometry;
 pub mod integrator;
 pub mod lights;
 pub mod rng;

@@ -1,0 +1,206 @@
+//! What the integrator traces rays against.
+//!
+//! - [`Geometry::Flat`]: every triangle in world space under one BVH. Static scenes take this
+//!   path, so they pay nothing for instancing or animation.
+//! - [`Geometry::Instanced`]: one BVH per distinct mesh, in object space, and a top-level
+//!   [`TwoLevel`] tree over the objects. Animated scenes take it, and so do static scenes that
+//!   place meshes more than once, when flattening would more than double the triangles stored.
+//!
+//! Both answer with a [`SurfaceHit`] carrying the hit triangle in world space, so shading is the
+//! same code either way.
+
+use glam::{Affine3A, Vec3};
+use rayon::prelude::*;
+
+use super::integrator::RenderMaterial;
+use super::lights::Lights;
+use crate::bvh::dynamic::UpdateStats;
+use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
+use crate::bvh::{INVALID_INDEX, MeshBvh};
+use crate::geometry::{Ray, Triangle};
+use crate::scene::Scene;
+
+/// A hit, resolved to what shading needs.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceHit {
+    pub t: f32,
+    /// The hit triangle in world space.
+    pub triangle: Triangle,
+    pub u: f32,
+    pub v: f32,
+    pub material: u32,
+    /// The triangle's id in [`Lights`] (meaningful when its material emits).
+    pub light: u32,
+}
+
+/// Flat world-space triangles.
+#[derive(Debug)]
+pub struct Flat {
+    pub mesh: MeshBvh,
+    /// World-space triangles by primitive id.
+    pub triangles: Vec<Triangle>,
+    pub material_of: Vec<u32>,
+}
+
+/// Meshes in object space under a top-level tree of instances (one per scene object).
+#[derive(Debug)]
+pub struct Instanced {
+    pub two_level: TwoLevel,
+    /// Each mesh's triangles (object space) and materials, by triangle id.
+    mesh_triangles: Vec<Vec<Triangle>>,
+    mesh_materials: Vec<Vec<u32>>,
+    /// Each object's material override.
+    instance_material: Vec<Option<u32>>,
+    /// Each object's first light id, or `INVALID_INDEX` when none of its triangles emits.
+    light_base: Vec<u32>,
+}
+
+/// The scene's geometry, flat or instanced (module docs).
+#[derive(Debug)]
+pub enum Geometry {
+    Flat(Flat),
+    Instanced(Instanced),
+}
+
+/// Whether `scene` is rendered with two levels: when it is animated, or when flattening would
+/// store more than twice the triangles its distinct meshes hold.
+pub fn wants_instancing(scene: &Scene) -> bool {
+    if scene.is_animated() {
+        return true;
+    }
+    let world: usize = scene.objects.iter().map(|o| scene.meshes[o.mesh].mesh.indices.len()).sum();
+    let distinct: usize = scene.meshes.iter().map(|m| m.mesh.indices.len()).sum();
+    world > 2 * distinct
+}
+
+impl Instanced {
+    /// Instances of `meshes` (BVHs built over each scene mesh's object-space triangles, in
+    /// scene order) placed as the scene's objects are at `time`.
+    pub fn new(scene: &Scene, meshes: Vec<MeshBvh>, time: f32) -> Self {
+        let instances = scene
+            .objects
+            .iter()
+            .map(|o| Instance::new(o.mesh as u32, Affine3A::from_mat4(o.world_from_object_at(time))))
+            .collect();
+        let mesh_triangles: Vec<Vec<Triangle>> = scene.meshes.iter().map(|m| m.mesh.triangles()).collect();
+        let mesh_materials = scene.meshes.iter().map(|m| m.material_ids.clone()).collect();
+        let instance_material = scene.objects.iter().map(|o| o.material).collect();
+        Self {
+            two_level: TwoLevel::new(meshes, instances),
+            mesh_triangles,
+            mesh_materials,
+            instance_material,
+            light_base: Vec::new(),
+        }
+    }
+
+    fn material(&self, instance: usize, prim: u32) -> u32 {
+        let mesh = self.two_level.instances()[instance].mesh as usize;
+        self.instance_material[instance].unwrap_or(self.mesh_materials[mesh][prim as usize])
+    }
+
+    /// The lights: the world-space triangles of every object with an emissive triangle.
+    pub fn lights(&mut self, materials: &[RenderMaterial]) -> Lights {
+        let mut world = Vec::new();
+        let mut emission = Vec::new();
+        let mut light_base = vec![INVALID_INDEX; self.instance_material.len()];
+        for (i, inst) in self.two_level.instances().iter().enumerate() {
+            let tris = &self.mesh_triangles[inst.mesh as usize];
+            let emits = |p: usize| {
+                let m = &materials[self.material(i, p as u32) as usize];
+                m.emission.map(|e| (e, m.two_sided))
+            };
+            if !(0..tris.len()).any(|p| emits(p).is_some()) {
+                continue;
+            }
+            light_base[i] = world.len() as u32;
+            for (p, t) in tris.iter().enumerate() {
+                world.push(transform_triangle(&inst.world_from_object, t));
+                emission.push(emits(p));
+            }
+        }
+        self.light_base = light_base;
+        Lights::new(&world, |k| emission[k])
+    }
+
+    /// Moves the animated objects to their places at `time`.
+    pub fn set_time(&mut self, scene: &Scene, time: f32, how: &TopLevelUpdate) -> UpdateStats {
+        let changes: Vec<(u32, Affine3A)> = scene
+            .objects
+            .par_iter()
+            .enumerate()
+            .filter(|(_, o)| o.is_animated())
+            .map(|(i, o)| (i as u32, Affine3A::from_mat4(o.world_from_object_at(time))))
+            .collect();
+        self.two_level.set_transforms(&changes, how)
+    }
+}
+
+fn transform_triangle(m: &Affine3A, t: &Triangle) -> Triangle {
+    Triangle::new(m.transform_point3(t.v0), m.transform_point3(t.v1), m.transform_point3(t.v2))
+}
+
+impl Geometry {
+    /// The closest hit along `ray`.
+    #[inline]
+    pub fn intersect(&self, ray: &Ray) -> Option<SurfaceHit> {
+        match self {
+            Geometry::Flat(f) => f.mesh.closest_hit(ray, f32::INFINITY).map(|h| SurfaceHit {
+                t: h.t,
+                triangle: f.triangles[h.prim_id as usize],
+                u: h.u,
+                v: h.v,
+                material: f.material_of[h.prim_id as usize],
+                light: h.prim_id,
+            }),
+            Geometry::Instanced(g) => g.two_level.closest_hit(ray, f32::INFINITY).map(|h| {
+                let inst = &g.two_level.instances()[h.instance as usize];
+                let local = &g.mesh_triangles[inst.mesh as usize][h.prim_id as usize];
+                let base = g.light_base.get(h.instance as usize).copied().unwrap_or(INVALID_INDEX);
+                SurfaceHit {
+                    t: h.t,
+                    triangle: transform_triangle(&inst.world_from_object, local),
+                    u: h.u,
+                    v: h.v,
+                    material: g.material(h.instance as usize, h.prim_id),
+                    light: if base == INVALID_INDEX { INVALID_INDEX } else { base + h.prim_id },
+                }
+            }),
+        }
+    }
+
+    /// Whether anything blocks `ray` with `0 < t <= t_max`.
+    #[inline]
+    pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
+        match self {
+            Geometry::Flat(f) => f.mesh.any_hit(ray, t_max),
+            Geometry::Instanced(g) => g.two_level.any_hit(ray, t_max),
+        }
+    }
+
+    /// Triangles in the world (instances counted as many times as they are placed).
+    pub fn world_triangle_count(&self) -> usize {
+        match self {
+            Geometry::Flat(f) => f.triangles.len(),
+            Geometry::Instanced(g) => {
+                g.two_level.instances().iter().map(|i| g.mesh_triangles[i.mesh as usize].len()).sum()
+            }
+        }
+    }
+
+    /// Bounds of the whole scene.
+    pub fn bounds(&self) -> crate::geometry::Aabb {
+        match self {
+            Geometry::Flat(f) => f.mesh.bvh.bounds(),
+            Geometry::Instanced(g) => g.two_level.top_level().bvh().bounds(),
+        }
+    }
+}
+
+/// A light's emission in a form [`Lights::new`] takes, for the flat path.
+pub(crate) fn flat_lights(triangles: &[Triangle], material_of: &[u32], materials: &[RenderMaterial]) -> Lights {
+    Lights::new(triangles, |i| {
+        let m = &materials[material_of[i] as usize];
+        m.emission.map(|e: Vec3| (e, m.two_sided))
+    })
+}
