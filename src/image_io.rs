@@ -158,9 +158,7 @@ pub fn has_frame_pattern(path: impl AsRef<Path>) -> bool {
 pub fn frame_path(path: impl AsRef<Path>, frame: u32) -> PathBuf {
     let text = path.as_ref().to_string_lossy();
     match find_frame_pattern(&text) {
-        Some((range, width)) => {
-            PathBuf::from(format!("{}{frame:0width$}{}", &text[..range.start], &text[range.end..]))
-        }
+        Some((range, width)) => PathBuf::from(format!("{}{frame:0width$}{}", &text[..range.start], &text[range.end..])),
         None => path.as_ref().to_path_buf(),
     }
 }

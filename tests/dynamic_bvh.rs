@@ -65,7 +65,7 @@ fn random_interleaved_operations_keep_the_tree_valid() {
         }
         tree.clean();
         tree.validate(&boxes).unwrap();
-        assert_eq!(tree.len(), n);
+        assert_eq!(tree.prim_count(), n);
         arbor::bvh::validate(tree.bvh(), &boxes).unwrap();
     }
 }
@@ -142,7 +142,7 @@ fn update_frames_keep_the_tree_valid_and_traversable() {
         let stats = tree.update(&moves, &boxes, &config);
         checks += usize::from(stats.fresh_sah.is_some());
         tree.validate(&boxes).unwrap_or_else(|e| panic!("frame {frame}: {e}"));
-        assert_eq!(tree.len(), n);
+        assert_eq!(tree.prim_count(), n);
         let exact = sah_cost(tree.bvh());
         assert!((stats.sah_estimate - exact).abs() <= 1e-4 * exact, "estimate {} vs {exact}", stats.sah_estimate);
     }

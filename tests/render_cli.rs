@@ -121,3 +121,49 @@ fn auto_builder_scales_optimisation_with_the_ray_budget() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains("BVH (auto: lbvh+prbvh, "));
 }
+
+/// `--frames` renders a numbered sequence, `--frame` one frame, and a sequence needs a pattern.
+#[test]
+fn frames_render_numbered_sequences() {
+    let dir = temp_dir("frames");
+    let run = |args: &[&str], out: &str| {
+        render()
+            .arg(scene("cornell-animated.toml"))
+            .arg("-o")
+            .arg(dir.join(out))
+            .args(["--spp", "1", "--max-depth", "2", "--threads", "2"])
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let o = run(&["--frames", "5..8"], "seq/f_%04d.exr");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(stdout.matches("BVH update").count(), 3, "{stdout}");
+    let mut written: Vec<String> =
+        std::fs::read_dir(dir.join("seq")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into()).collect();
+    written.sort();
+    assert_eq!(written, ["f_0005.exr", "f_0006.exr", "f_0007.exr"]);
+    // Frames differ where something moves.
+    let a = arbor::image_io::read_exr(dir.join("seq/f_0005.exr")).unwrap();
+    let b = arbor::image_io::read_exr(dir.join("seq/f_0007.exr")).unwrap();
+    assert_ne!(a.pixels, b.pixels);
+
+    let o = run(&["--frame", "7"], "one.exr");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The same seed, the same frame: the single frame equals the sequence's.
+    let one = arbor::image_io::read_exr(dir.join("one.exr")).unwrap();
+    assert_eq!(one.pixels, b.pixels);
+
+    for (args, out, expected) in [
+        (vec!["--frames", "0..3"], "nopattern.exr", "put a frame pattern"),
+        (vec!["--frames", "3..1"], "x_%d.exr", "must be after"),
+        (vec!["--frames", "3"], "x_%d.exr", "FIRST..END"),
+        (vec!["--frames", "0..2", "--frame", "1"], "x_%d.exr", "cannot be used with"),
+    ] {
+        let o = run(&args, out);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && stderr.contains(expected), "{args:?}: {stderr}");
+    }
+    assert!(!dir.join("nopattern.exr").exists());
+}

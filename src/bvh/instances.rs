@@ -156,10 +156,7 @@ impl TwoLevel {
 }
 
 fn to_object(inst: &Instance, ray: &Ray) -> Ray {
-    Ray::new(
-        inst.object_from_world.transform_point3(ray.origin),
-        inst.object_from_world.transform_vector3(ray.dir),
-    )
+    Ray::new(inst.object_from_world.transform_point3(ray.origin), inst.object_from_world.transform_vector3(ray.dir))
 }
 
 /// The world box of an instance: its mesh's root box with the eight corners transformed, grown

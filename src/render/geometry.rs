@@ -4,7 +4,9 @@
 //!   path, so they pay nothing for instancing or animation.
 //! - [`Geometry::Instanced`]: one BVH per distinct mesh, in object space, and a top-level
 //!   [`TwoLevel`] tree over the objects. Animated scenes take it, and so do static scenes that
-//!   place meshes more than once, when flattening would more than double the triangles stored.
+//!   place meshes many times, when flattening would store over a million triangles and more than
+//!   twice what the distinct meshes hold: a flat tree traces faster, so it is given up only
+//!   where memory matters.
 //!
 //! Both answer with a [`SurfaceHit`] carrying the hit triangle in world space, so shading is the
 //! same code either way.
@@ -63,14 +65,14 @@ pub enum Geometry {
 }
 
 /// Whether `scene` is rendered with two levels: when it is animated, or when flattening would
-/// store more than twice the triangles its distinct meshes hold.
+/// store over 2^20 triangles and more than twice the triangles its distinct meshes hold.
 pub fn wants_instancing(scene: &Scene) -> bool {
     if scene.is_animated() {
         return true;
     }
     let world: usize = scene.objects.iter().map(|o| scene.meshes[o.mesh].mesh.indices.len()).sum();
     let distinct: usize = scene.meshes.iter().map(|m| m.mesh.indices.len()).sum();
-    world > 2 * distinct
+    world > 1 << 20 && world > 2 * distinct
 }
 
 impl Instanced {

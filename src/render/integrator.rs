@@ -23,8 +23,8 @@ use super::lights::Lights;
 use super::rng::Rng;
 use super::sampling::{Frame, power_heuristic};
 use crate::bvh::builders::Builder;
-use crate::bvh::prbvh::{self, PrbvhConfig};
 use crate::bvh::instances::TopLevelUpdate;
+use crate::bvh::prbvh::{self, PrbvhConfig};
 use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh, sah_cost};
 use crate::geometry::{Ray, Triangle, offset_ray_origin, spawn_ray};
 use crate::scene::{ConductorFresnel, Scattering, Scene};
@@ -210,7 +210,12 @@ impl RenderScene {
     /// Moves an animated scene's objects to where they are at `time`, updating the top-level
     /// tree by `how`, and the lights. Returns what the update cost. A flat (static) scene does
     /// not change.
-    pub fn set_time(&mut self, scene: &Scene, time: f32, how: &TopLevelUpdate) -> Option<crate::bvh::dynamic::UpdateStats> {
+    pub fn set_time(
+        &mut self,
+        scene: &Scene,
+        time: f32,
+        how: &TopLevelUpdate,
+    ) -> Option<crate::bvh::dynamic::UpdateStats> {
         let Geometry::Instanced(g) = &mut self.geometry else { return None };
         let stats = g.set_time(scene, time, how);
         if scene.has_emitters() {
