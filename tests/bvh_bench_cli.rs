@@ -131,3 +131,64 @@ fn bad_input_is_a_clear_error() {
         assert!(!json.exists(), "{args:?} wrote output");
     }
 }
+
+/// `--procedural-animated` and `--animated`: every strategy reported with the documented JSON
+/// fields, the two-level strategies agreeing on every hit, refit drifting while rebuild stays at
+/// the fresh build, and clear errors.
+#[test]
+fn animation_benchmark_reports_every_strategy() {
+    let dir = temp_dir("animated");
+    let (json, csv, svg) = (dir.join("a.json"), dir.join("a.csv"), dir.join("a.svg"));
+    let out = bench()
+        .args(["--procedural-animated", "2000", "--moving", "25", "--frames", "40", "--resolution", "64"])
+        .arg("--json")
+        .arg(&json)
+        .arg("--csv")
+        .arg(&csv)
+        .arg("--plot")
+        .arg(&svg)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(
+        (v["instances"].as_u64(), v["moving"].as_u64(), v["frames"].as_u64()),
+        (Some(2000), Some(500), Some(40))
+    );
+    assert_eq!(v["mismatches"].as_array().unwrap().len(), 0);
+    let strategies = v["strategies"].as_array().unwrap();
+    let names: Vec<&str> = strategies.iter().map(|s| s["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["reinsert+prbvh", "reinsert", "rebuild", "refit", "single-level"]);
+    let get = |name: &str, key: &str| {
+        strategies.iter().find(|s| s["name"] == name).unwrap()[key].as_f64().unwrap_or_else(|| panic!("{name}.{key}"))
+    };
+    for name in &names {
+        for key in ["update_ms", "sah_ratio_final", "sah_ratio_max", "diffuse_mrays_final"] {
+            assert!(get(name, key) > 0.0, "{name}.{key}");
+        }
+    }
+    assert_eq!(get("rebuild", "sah_ratio_max"), 1.0);
+    assert!(get("refit", "sah_ratio_final") > get("reinsert+prbvh", "sah_ratio_final"));
+    assert!(std::fs::read_to_string(&csv).unwrap().lines().count() == 6);
+    assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
+
+    let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-animated.toml");
+    let out = bench().arg("--animated").arg(&scene).args(["--frames", "6", "--resolution", "32"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("11 instances, 3 moving"));
+
+    let furnace = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/furnace.toml");
+    for (args, expected) in [
+        (
+            vec!["--animated".to_string(), scene.display().to_string(), "--moving".into(), "5".into()],
+            "--moving applies",
+        ),
+        (vec!["--procedural-animated".into(), "100".into(), "--moving".into(), "150".into()], "percentage"),
+        (vec!["--procedural-animated".into(), "100".into(), "--frames".into(), "0".into()], "--frames"),
+        (vec!["--animated".into(), furnace.display().to_string()], "nothing in the scene moves"),
+    ] {
+        let out = bench().args(&args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && stderr.contains(expected), "{args:?}: {stderr}");
+    }
+}

@@ -1,12 +1,16 @@
-//! `bvh-bench`: compares BVH builders on one mesh by build time, SAH and trace speed.
+//! `bvh-bench`: compares BVH builders on one mesh by build time, SAH and trace speed; with
+//! `--animated` or `--procedural-animated`, compares ways of keeping a top-level BVH up to date
+//! through an animation.
 //!
-//! Argument parsing and reporting only; the measuring is `arbor::bvh::bench`.
+//! Argument parsing and reporting only; the measuring is `arbor::bvh::bench` and
+//! `arbor::bvh::anim_bench`.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use arbor::atomic_file::{self, AtomicWriteError};
+use arbor::bvh::anim_bench::{self, AnimBenchConfig, AnimatedInstances};
 use arbor::bvh::bench::{self, BenchConfig, Report};
 use arbor::bvh::builders::Builder;
 use arbor::bvh::prbvh::PrbvhConfig;
@@ -49,9 +53,22 @@ struct Args {
     /// Write the table as CSV.
     #[arg(long, value_name = "OUT")]
     csv: Option<PathBuf>,
-    /// Plot SAH against build + optimisation time, iteration by iteration (.svg or .png).
+    /// Plot SAH against build + optimisation time, iteration by iteration (.svg or .png); with
+    /// an animation, the SAH ratio to a fresh build against the frame.
     #[arg(long, value_name = "OUT")]
     plot: Option<PathBuf>,
+    /// Animation benchmark on a scene's own animation (objects with keyframes or orbits move).
+    #[arg(long, value_name = "SCENE.toml", conflicts_with_all = ["input", "procedural", "procedural_animated"])]
+    animated: Option<PathBuf>,
+    /// Animation benchmark on N procedural instances (spheres and tori on a field); k/M suffixes.
+    #[arg(long, value_name = "N", conflicts_with_all = ["input", "procedural"])]
+    procedural_animated: Option<String>,
+    /// Frames of the animation benchmark.
+    #[arg(long, default_value_t = 300)]
+    frames: u32,
+    /// Percentage of the procedural instances that move.
+    #[arg(long, value_name = "PERCENT")]
+    moving: Option<f64>,
 }
 
 fn default_builders() -> Vec<String> {
@@ -71,6 +88,12 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = Args::parse();
+    if args.animated.is_some() || args.procedural_animated.is_some() {
+        return run_animated(&args);
+    }
+    if args.moving.is_some() {
+        bail!("--moving applies to --procedural-animated");
+    }
     let builders = args
         .builders
         .iter()
@@ -108,10 +131,128 @@ fn run() -> Result<()> {
         write_atomic(path, |f| write_csv(f, &report))?;
     }
     if let Some(path) = &args.plot {
-        write_plot(path, &name, &report)?;
+        let series: Vec<Series> = report
+            .builders
+            .iter()
+            .map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect()))
+            .collect();
+        let labels = ("build + optimisation time (ms)", "SAH, one primitive per leaf");
+        write_plot(path, &format!("SAH against time: {name}"), labels, &series)?;
     }
     if !report.mismatches.is_empty() {
         bail!("builders disagree on hits:\n  {}", report.mismatches.join("\n  "));
+    }
+    Ok(())
+}
+
+/// `--animated` / `--procedural-animated`.
+fn run_animated(args: &Args) -> Result<()> {
+    if args.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    if let Some(plot) = &args.plot {
+        plot_format(plot)?;
+    }
+    let (name, anim) = match (&args.animated, &args.procedural_animated) {
+        (Some(path), _) => {
+            if args.moving.is_some() {
+                bail!("--moving applies to --procedural-animated; a scene's own animation decides what moves");
+            }
+            let scene = arbor::scene::Scene::load(path)?;
+            if !scene.is_animated() {
+                bail!("{}: nothing in the scene moves (no keyframes or orbiting scatter)", path.display());
+            }
+            (path.display().to_string(), AnimatedInstances::from_scene(&scene))
+        }
+        (None, Some(n)) => {
+            let n = parse_count(n).with_context(|| format!("--procedural-animated: bad instance count `{n}`"))?;
+            let moving = args.moving.unwrap_or(10.0);
+            if !(0.0..=100.0).contains(&moving) {
+                bail!("--moving must be a percentage from 0 to 100, not {moving}");
+            }
+            (format!("{n} instances, {moving}% moving"), AnimatedInstances::procedural(n, moving / 100.0, args.seed))
+        }
+        (None, None) => unreachable!("checked by the caller"),
+    };
+    eprintln!(
+        "{name}: {} instances ({} moving), {} triangles, {} frames, {} threads",
+        anim.instances.len(),
+        anim.moving.len(),
+        anim.world_triangle_count(),
+        args.frames,
+        rayon::current_num_threads()
+    );
+    let config = AnimBenchConfig { frames: args.frames, resolution: args.resolution.min(256), ..Default::default() };
+    let report = anim_bench::run(&anim, &config);
+    println!(
+        "{} instances, {} moving, {} triangles, {} frames, {} threads",
+        report.instances, report.moving, report.triangles, report.frames, report.threads
+    );
+    println!(
+        "{:<16} {:>10} {:>10} {:>10} {:>10} {:>10} {:>9} {:>9} {:>9}",
+        "strategy", "update ms", "mean ms", "max ms", "SAH final", "SAH max", "rebuilds", "primary", "diffuse"
+    );
+    for s in &report.strategies {
+        println!(
+            "{:<16} {:>10.3} {:>10.3} {:>10.3} {:>10.3} {:>10.3} {:>9} {:>9.2} {:>9.2}",
+            s.name,
+            s.update_ms,
+            s.update_ms_mean,
+            s.update_ms_max,
+            s.sah_ratio_final,
+            s.sah_ratio_max,
+            s.rebuilds,
+            s.primary_mrays_final,
+            s.diffuse_mrays_final
+        );
+    }
+    println!(
+        "(update: median per frame; SAH as a ratio to a fresh binned-SAH build; trace speeds in Mrays/s at the last frame)"
+    );
+    if report.single_level_differences > 0 {
+        println!(
+            "({} rays hit another triangle through the single-level tree's world-space copies: rounding at shared edges)",
+            report.single_level_differences
+        );
+    }
+    if let Some(path) = &args.json {
+        write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, &report)?))?;
+    }
+    if let Some(path) = &args.csv {
+        write_atomic(path, |f| {
+            writeln!(
+                f,
+                "name,update_ms,update_ms_mean,update_ms_max,sah_ratio_final,sah_ratio_max,rebuilds,primary_mrays_final,diffuse_mrays_final"
+            )?;
+            for s in &report.strategies {
+                writeln!(
+                    f,
+                    "{},{},{},{},{},{},{},{},{}",
+                    s.name,
+                    s.update_ms,
+                    s.update_ms_mean,
+                    s.update_ms_max,
+                    s.sah_ratio_final,
+                    s.sah_ratio_max,
+                    s.rebuilds,
+                    s.primary_mrays_final,
+                    s.diffuse_mrays_final
+                )?;
+            }
+            Ok(())
+        })?;
+    }
+    if let Some(path) = &args.plot {
+        let series: Vec<Series> = report
+            .strategies
+            .iter()
+            .map(|s| (s.name.clone(), s.sah_ratio_curve.iter().map(|p| (p[0], p[1])).collect()))
+            .collect();
+        let labels = ("frame", "SAH / fresh build's SAH");
+        write_plot(path, &format!("SAH ratio over the animation: {name}"), labels, &series)?;
+    }
+    if !report.mismatches.is_empty() {
+        bail!("strategies disagree on hits:\n  {}", report.mismatches.join("\n  "));
     }
     Ok(())
 }
@@ -257,7 +398,10 @@ const FONT_PATHS: [&str; 3] = [
     "/usr/share/fonts/dejavu/DejaVuSans.ttf",
 ];
 
-fn write_plot(path: &Path, title: &str, report: &Report) -> Result<()> {
+/// A named curve of (x, y) points.
+type Series = (String, Vec<(f64, f64)>);
+
+fn write_plot(path: &Path, title: &str, labels: (&str, &str), series: &[Series]) -> Result<()> {
     use plotters::prelude::*;
     let font = FONT_PATHS
         .iter()
@@ -270,8 +414,10 @@ fn write_plot(path: &Path, title: &str, report: &Report) -> Result<()> {
     let format = plot_format(path)?;
     atomic_file::replace_via_temp(path, |tmp| {
         match format {
-            PlotFormat::Svg => draw_chart(SVGBackend::new(tmp, (900, 600)).into_drawing_area(), title, report),
-            PlotFormat::Png => draw_chart(BitMapBackend::new(tmp, (900, 600)).into_drawing_area(), title, report),
+            PlotFormat::Svg => draw_chart(SVGBackend::new(tmp, (900, 600)).into_drawing_area(), title, labels, series),
+            PlotFormat::Png => {
+                draw_chart(BitMapBackend::new(tmp, (900, 600)).into_drawing_area(), title, labels, series)
+            }
         }
         .map_err(AtomicWriteError::Write)
     })
@@ -279,44 +425,41 @@ fn write_plot(path: &Path, title: &str, report: &Report) -> Result<()> {
     .with_context(|| format!("writing {}", path.display()))
 }
 
-/// SAH against time, one curve per builder.
+/// One curve per series, with points marked.
 fn draw_chart<DB: plotters::prelude::DrawingBackend>(
     root: plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
     title: &str,
-    report: &Report,
+    (x_desc, y_desc): (&str, &str),
+    series: &[Series],
 ) -> Result<()>
 where
     DB::ErrorType: 'static,
 {
     use plotters::prelude::*;
-    let points: Vec<&[f64; 2]> = report.builders.iter().flat_map(|b| &b.sah_curve).collect();
-    let x_max = points.iter().map(|p| p[0]).fold(1.0, f64::max) * 1.05;
-    let y_min = points.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min) * 0.97;
-    let y_max = points.iter().map(|p| p[1]).fold(0.0, f64::max) * 1.03;
+    let points: Vec<&(f64, f64)> = series.iter().flat_map(|s| &s.1).collect();
+    let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max) * 1.05;
+    let y_min = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min) * 0.97;
+    let y_max = points.iter().map(|p| p.1).fold(0.0, f64::max) * 1.03;
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
     let mut chart = ChartBuilder::on(&root)
-        .caption(format!("SAH against time: {title}"), ("sans-serif", 22))
+        .caption(title, ("sans-serif", 22))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d(0.0..x_max, y_min..y_max)
         .map_err(|e| anyhow::anyhow!("{e}"))?;
-    chart
-        .configure_mesh()
-        .x_desc("build + optimisation time (ms)")
-        .y_desc("SAH, one primitive per leaf")
-        .draw()
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    for (k, b) in report.builders.iter().enumerate() {
+    chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(|e| anyhow::anyhow!("{e}"))?;
+    for (k, (name, pts)) in series.iter().enumerate() {
         let color = Palette99::pick(k).to_rgba();
-        let pts: Vec<(f64, f64)> = b.sah_curve.iter().map(|p| (p[0], p[1])).collect();
+        // Markers only where the curve is sparse enough to show them.
+        let marks = if pts.len() <= 60 { pts.clone() } else { Vec::new() };
         chart
             .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
             .map_err(|e| anyhow::anyhow!("{e}"))?
-            .label(b.name.clone())
+            .label(name.clone())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2)));
         chart
-            .draw_series(pts.iter().map(|&p| Circle::new(p, 3, color.filled())))
+            .draw_series(marks.iter().map(|&p| Circle::new(p, 3, color.filled())))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     chart

@@ -1,5 +1,6 @@
 //! The bounding volume hierarchy: layout, builders, cost, validation and traversal.
 
+pub mod anim_bench;
 pub mod bench;
 pub mod bench_rays;
 pub mod binned_sah;
