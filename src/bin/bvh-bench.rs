@@ -124,23 +124,32 @@ fn run() -> Result<()> {
     };
     let report = bench::run(&triangles, &config).map_err(anyhow::Error::msg)?;
     print_table(&report);
-    if let Some(path) = &args.json {
-        write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, &report)?))?;
-    }
-    if let Some(path) = &args.csv {
-        write_atomic(path, |f| write_csv(f, &report))?;
-    }
-    if let Some(path) = &args.plot {
-        let series: Vec<Series> = report
-            .builders
-            .iter()
-            .map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect()))
-            .collect();
-        let labels = ("build + optimisation time (ms)", "SAH, one primitive per leaf");
-        write_plot(path, &format!("SAH against time: {name}"), labels, &series)?;
-    }
+    let series: Vec<Series> =
+        report.builders.iter().map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect())).collect();
+    let plot = (format!("SAH against time: {name}"), ("build + optimisation time (ms)", "SAH, one primitive per leaf"));
+    write_outputs(&args, &report, |f| write_csv(f, &report), plot, &series)?;
     if !report.mismatches.is_empty() {
         bail!("builders disagree on hits:\n  {}", report.mismatches.join("\n  "));
+    }
+    Ok(())
+}
+
+/// Writes the report as JSON, the table as CSV and the plot, for each option given.
+fn write_outputs(
+    args: &Args,
+    report: &impl serde::Serialize,
+    csv: impl FnOnce(&mut dyn Write) -> Result<()>,
+    (title, labels): (String, (&str, &str)),
+    series: &[Series],
+) -> Result<()> {
+    if let Some(path) = &args.json {
+        write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, report)?))?;
+    }
+    if let Some(path) = &args.csv {
+        write_atomic(path, csv)?;
+    }
+    if let Some(path) = &args.plot {
+        write_plot(path, &title, labels, series)?;
     }
     Ok(())
 }
@@ -193,17 +202,10 @@ fn run_animated(args: &Args) -> Result<()> {
         "strategy", "update ms", "mean ms", "max ms", "SAH final", "SAH max", "rebuilds", "primary", "diffuse"
     );
     for s in &report.strategies {
+        let v = strategy_values(s);
         println!(
             "{:<16} {:>10.3} {:>10.3} {:>10.3} {:>10.3} {:>10.3} {:>9} {:>9.2} {:>9.2}",
-            s.name,
-            s.update_ms,
-            s.update_ms_mean,
-            s.update_ms_max,
-            s.sah_ratio_final,
-            s.sah_ratio_max,
-            s.rebuilds,
-            s.primary_mrays_final,
-            s.diffuse_mrays_final
+            s.name, v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]
         );
     }
     println!(
@@ -215,46 +217,55 @@ fn run_animated(args: &Args) -> Result<()> {
             report.single_level_differences
         );
     }
-    if let Some(path) = &args.json {
-        write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, &report)?))?;
-    }
-    if let Some(path) = &args.csv {
-        write_atomic(path, |f| {
-            writeln!(
-                f,
-                "name,update_ms,update_ms_mean,update_ms_max,sah_ratio_final,sah_ratio_max,rebuilds,primary_mrays_final,diffuse_mrays_final"
-            )?;
+    let series: Vec<Series> = report
+        .strategies
+        .iter()
+        .map(|s| (s.name.clone(), s.sah_ratio_curve.iter().map(|p| (p[0], p[1])).collect()))
+        .collect();
+    let plot = (format!("SAH ratio over the animation: {name}"), ("frame", "SAH / fresh build's SAH"));
+    write_outputs(
+        args,
+        &report,
+        |f| {
+            writeln!(f, "name,{}", STRATEGY_COLUMNS.join(","))?;
             for s in &report.strategies {
-                writeln!(
-                    f,
-                    "{},{},{},{},{},{},{},{},{}",
-                    s.name,
-                    s.update_ms,
-                    s.update_ms_mean,
-                    s.update_ms_max,
-                    s.sah_ratio_final,
-                    s.sah_ratio_max,
-                    s.rebuilds,
-                    s.primary_mrays_final,
-                    s.diffuse_mrays_final
-                )?;
+                let v = strategy_values(s).map(|x| x.to_string());
+                writeln!(f, "{},{}", s.name, v.join(","))?;
             }
             Ok(())
-        })?;
-    }
-    if let Some(path) = &args.plot {
-        let series: Vec<Series> = report
-            .strategies
-            .iter()
-            .map(|s| (s.name.clone(), s.sah_ratio_curve.iter().map(|p| (p[0], p[1])).collect()))
-            .collect();
-        let labels = ("frame", "SAH / fresh build's SAH");
-        write_plot(path, &format!("SAH ratio over the animation: {name}"), labels, &series)?;
-    }
+        },
+        plot,
+        &series,
+    )?;
     if !report.mismatches.is_empty() {
         bail!("strategies disagree on hits:\n  {}", report.mismatches.join("\n  "));
     }
     Ok(())
+}
+
+/// The numeric columns of a strategy, in the table's and the CSV's order.
+const STRATEGY_COLUMNS: [&str; 8] = [
+    "update_ms",
+    "update_ms_mean",
+    "update_ms_max",
+    "sah_ratio_final",
+    "sah_ratio_max",
+    "rebuilds",
+    "primary_mrays_final",
+    "diffuse_mrays_final",
+];
+
+fn strategy_values(s: &arbor::bvh::anim_bench::StrategyReport) -> [f64; 8] {
+    [
+        s.update_ms,
+        s.update_ms_mean,
+        s.update_ms_max,
+        s.sah_ratio_final,
+        s.sah_ratio_max,
+        s.rebuilds as f64,
+        s.primary_mrays_final,
+        s.diffuse_mrays_final,
+    ]
 }
 
 /// The mesh and a name for it.
