@@ -28,7 +28,10 @@
 //!   internal and leaf areas, so it costs nothing per frame). Every `check_every` updates, or as
 //!   soon as that estimate exceeds the last fresh build's SAH by `rebuild_threshold`, a fresh
 //!   binned-SAH tree is built over the current boxes; if the kept tree's exact SAH is more than
-//!   `rebuild_threshold` above the fresh one's, the fresh tree replaces it.
+//!   `rebuild_threshold` above the fresh one's, the fresh tree replaces it. A check that finds
+//!   the tree within half the threshold doubles the interval to the next (up to 8 times
+//!   `check_every`), and any other check resets it: the fresh build is the monitor's only real
+//!   cost, and a healthy tree need not pay it often.
 //!
 //! **Interleaving** (left open by Cozzi): deletions, cleans and insertions may come in any order.
 //! An insertion while the tree is dirty searches the boxes as they are (a dirty node's box still
@@ -116,9 +119,11 @@ pub struct DynamicBvh {
     area_internal: f64,
     area_leaves: f64,
     locks: Vec<AtomicU64>,
-    /// Quality monitor: updates since the last fresh build, and that build's SAH.
+    /// Quality monitor: updates since the last fresh build, that build's SAH, and the factor
+    /// (1 to 8) the check interval is stretched by while checks find the tree healthy.
     updates_since_check: u32,
     fresh_sah: f64,
+    interval_scale: u32,
 }
 
 impl DynamicBvh {
@@ -147,6 +152,7 @@ impl DynamicBvh {
             locks: Vec::new(),
             updates_since_check: 0,
             fresh_sah: 0.0,
+            interval_scale: 1,
         };
         s.resync_areas();
         s.fresh_sah = s.sah_estimate(&SahCosts::default());
@@ -488,16 +494,25 @@ impl DynamicBvh {
         }
         self.updates_since_check += 1;
         let estimate = self.sah_estimate(&config.costs);
-        if self.updates_since_check >= config.check_every
+        if self.updates_since_check >= config.check_every.saturating_mul(self.interval_scale)
             || estimate > self.fresh_sah * (1.0 + config.rebuild_threshold)
         {
             let fresh = fresh_build(boxes);
             let fresh_sah = super::sah_cost_with(&fresh, &config.costs);
             self.resync_areas();
-            if self.sah_estimate(&config.costs) > fresh_sah * (1.0 + config.rebuild_threshold) {
+            let kept = self.sah_estimate(&config.costs);
+            // A healthy tree is checked less often (up to 8 times the interval); the running
+            // estimate still triggers a check as soon as the SAH grows.
+            let scale = if kept <= fresh_sah * (1.0 + config.rebuild_threshold / 2.0) {
+                (self.interval_scale * 2).min(8)
+            } else {
+                1
+            };
+            if kept > fresh_sah * (1.0 + config.rebuild_threshold) {
                 *self = Self { locks: std::mem::take(&mut self.locks), ..Self::from_bvh(&fresh, boxes.len()) };
                 stats.rebuilt = true;
             }
+            self.interval_scale = scale;
             self.fresh_sah = fresh_sah;
             self.updates_since_check = 0;
             stats.fresh_sah = Some(fresh_sah);
