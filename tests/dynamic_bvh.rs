@@ -196,7 +196,13 @@ fn monitor_rebuilds_a_degraded_tree() {
     let mut r = rng(5);
     let n = 3000;
     let mut boxes: Vec<Aabb> = (0..n).map(|_| random_box(&mut r, 0.05)).collect();
-    let config = DynamicConfig { prbvh_rounds: 0, check_every: 5, rebuild_threshold: 0.0, ..Default::default() };
+    let config = DynamicConfig {
+        prbvh_rounds: 0,
+        check_every: 5,
+        rebuild_threshold: 0.0,
+        rebuild_fraction: 1.0,
+        ..Default::default()
+    };
     let mut tree = DynamicBvh::build(&boxes);
     let mut rebuilt = false;
     for _ in 0..20 {
@@ -236,4 +242,29 @@ fn empty_and_refill() {
     }
     tree.clean();
     arbor::bvh::validate(tree.bvh(), &boxes).unwrap();
+}
+
+/// When most primitives move, an update builds afresh rather than reinserting them one by one.
+#[test]
+fn a_mostly_moving_batch_is_rebuilt() {
+    let mut r = rng(13);
+    let n = 1000;
+    let mut boxes: Vec<Aabb> = (0..n).map(|_| random_box(&mut r, 0.1)).collect();
+    let mut tree = DynamicBvh::build(&boxes);
+    let config = DynamicConfig::default();
+    for (count, expect_rebuild) in [(100, false), (400, true)] {
+        let moves: Vec<(u32, Aabb)> = (0..count as u32)
+            .map(|p| {
+                boxes[p as usize] = random_box(&mut r, 0.1);
+                (p, boxes[p as usize])
+            })
+            .collect();
+        let stats = tree.update(
+            &moves,
+            &boxes,
+            &DynamicConfig { check_every: u32::MAX, rebuild_threshold: f64::INFINITY, ..config },
+        );
+        assert_eq!(stats.rebuilt, expect_rebuild, "{count} of {n} moved");
+        tree.validate(&boxes).unwrap();
+    }
 }
