@@ -96,8 +96,16 @@ struct Estimate {
     stderr: Image,
 }
 
+/// An animated scene is rendered at the middle of its frame range, reached frame by frame through
+/// the kept top-level tree, as a sequence render gets there.
 fn render(scene: &Scene, seed: u64) -> Estimate {
-    let (rs, _) = RenderScene::build(scene, &"lbvh".parse::<Builder>().unwrap());
+    let (mut rs, _) = RenderScene::build(scene, &"lbvh".parse::<Builder>().unwrap());
+    if let Some(a) = &scene.animation {
+        let update = arbor::bvh::instances::TopLevelUpdate::Dynamic(Default::default());
+        for f in a.frames.start + 1..=a.frames.start + a.frames.len() as u32 / 2 {
+            rs.set_time(scene, scene.frame_time(f), &update);
+        }
+    }
     let mut film = Film::new(rs.width, rs.height);
     rs.render(&mut film, seed, scene.render.max_depth, 0..SPP, &|_| {});
     assert_eq!(film.non_finite_count(), 0, "{}: non-finite samples", scene.path.display());
