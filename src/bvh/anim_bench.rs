@@ -2,7 +2,7 @@
 //! BVH up to date pays per frame, and what it does to the tree's quality.
 //!
 //! Strategies, all fed the same motion:
-//! - `reinsert+prbvh`: delete the moved instances, clean, reinsert, two rounds of local PRBVH,
+//! - `reinsert+prbvh`: delete the moved instances, clean, reinsert, one round of local PRBVH,
 //!   with the quality monitor ([`super::dynamic`]);
 //! - `reinsert`: the same without the local PRBVH;
 //! - `rebuild`: a binned-SAH build of the top level every frame; its SAH is the "fresh build"
