@@ -106,15 +106,18 @@ impl Instanced {
         let mut world = Vec::new();
         let mut emission = Vec::new();
         let mut light_base = vec![INVALID_INDEX; self.instance_material.len()];
+        let emissive = |m: u32| materials[m as usize].emission.is_some();
+        let mesh_emits: Vec<bool> = self.mesh_materials.iter().map(|ms| ms.iter().any(|&m| emissive(m))).collect();
         for (i, inst) in self.two_level.instances().iter().enumerate() {
+            let any = self.instance_material[i].map_or(mesh_emits[inst.mesh as usize], emissive);
+            if !any {
+                continue;
+            }
             let tris = &self.mesh_triangles[inst.mesh as usize];
             let emits = |p: usize| {
                 let m = &materials[self.material(i, p as u32) as usize];
                 m.emission.map(|e| (e, m.two_sided))
             };
-            if !(0..tris.len()).any(|p| emits(p).is_some()) {
-                continue;
-            }
             light_base[i] = world.len() as u32;
             for (p, t) in tris.iter().enumerate() {
                 world.push(transform_triangle(&inst.world_from_object, t));
