@@ -27,11 +27,9 @@ use serde::Serialize;
 use super::builders::Builder;
 use super::dynamic::{DynamicBvh, DynamicConfig};
 use super::instances::{Instance, TopLevelUpdate, TwoLevel};
-use super::prbvh::PrbvhConfig;
-use super::{CollapseConfig, MeshBvh, bench_rays, binned_sah, collapse_leaves, sah_cost};
-use crate::geometry::{Aabb, Ray, Triangle, TriangleMesh, spawn_ray};
+use super::{MeshBvh, bench_rays, binned_sah, sah_cost};
+use crate::geometry::{Aabb, Ray, Triangle, TriangleMesh};
 use crate::render::rng::Rng;
-use crate::render::sampling::{Frame, cosine_hemisphere};
 use crate::scene::Scene;
 
 /// Instances of a few meshes, some of which move.
@@ -239,16 +237,7 @@ impl Track {
 
 /// Runs every strategy over `frames` frames of `anim`.
 pub fn run(anim: &AnimatedInstances, config: &AnimBenchConfig) -> AnimReport {
-    let meshes: Vec<MeshBvh> = anim
-        .meshes
-        .iter()
-        .map(|m| {
-            let tris = m.triangles();
-            let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
-            let built = config.mesh_builder.build(&tris, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
-            MeshBvh::new(collapse_leaves(&built.bvh, &CollapseConfig::default()), &tris)
-        })
-        .collect();
+    let meshes: Vec<MeshBvh> = anim.meshes.iter().map(|m| config.mesh_builder.build_mesh(&m.triangles())).collect();
     let instances: Vec<Instance> = anim.instances.iter().map(|&(m, t)| Instance::new(m, t)).collect();
     let mut no_prbvh = config.dynamic;
     no_prbvh.prbvh_rounds = 0;
@@ -364,23 +353,14 @@ fn summarize(t: &Track, speeds: [f64; 2]) -> StrategyReport {
     }
 }
 
-/// One cosine-distributed bounce off each primary hit (as [`bench_rays::diffuse_rays`]).
+/// One cosine-distributed bounce off each primary hit ([`bench_rays::diffuse_rays_with`]).
 fn diffuse_rays(anim: &AnimatedInstances, level: &TwoLevel, primary: &[Ray]) -> Vec<Ray> {
-    primary
-        .par_iter()
-        .enumerate()
-        .filter_map(|(i, ray)| {
-            let h = level.closest_hit(ray, f32::INFINITY)?;
-            let inst = &level.instances()[h.instance as usize];
-            let t = anim.meshes[inst.mesh as usize].triangle(h.prim_id as usize);
-            let m = &inst.world_from_object;
-            let world = Triangle::new(m.transform_point3(t.v0), m.transform_point3(t.v1), m.transform_point3(t.v2));
-            let n = world.normal().normalize_or_zero();
-            let n = if n.dot(ray.dir) > 0.0 { -n } else { n };
-            let u = Rng::for_sample(0, i as u64, 0).next_vec2();
-            Some(spawn_ray(world.point(h.u, h.v), n, Frame::from_normal(n).to_world(cosine_hemisphere(u)).normalize()))
-        })
-        .collect()
+    bench_rays::diffuse_rays_with(primary, |ray| {
+        let h = level.closest_hit(ray, f32::INFINITY)?;
+        let inst = &level.instances()[h.instance as usize];
+        let world = anim.meshes[inst.mesh as usize].triangle(h.prim_id as usize).transformed(&inst.world_from_object);
+        Some((world.point(h.u, h.v), world.normal().normalize_or_zero()))
+    })
 }
 
 /// The single-level comparison: a dynamic BVH over every world-space triangle.
@@ -406,10 +386,7 @@ impl SingleLevel {
     }
 
     fn placed(mesh: &TriangleMesh, t: Affine3A) -> impl Iterator<Item = Triangle> + '_ {
-        (0..mesh.indices.len()).map(move |i| {
-            let tri = mesh.triangle(i);
-            Triangle::new(t.transform_point3(tri.v0), t.transform_point3(tri.v1), t.transform_point3(tri.v2))
-        })
+        (0..mesh.indices.len()).map(move |i| mesh.triangle(i).transformed(&t))
     }
 
     /// Deletes and reinserts every triangle of the moved instances; returns whether the monitor

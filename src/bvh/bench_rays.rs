@@ -27,7 +27,7 @@ pub fn primary_rays(bounds: &Aabb, width: u32, height: u32) -> Vec<Ray> {
     let aspect = width as f32 / height as f32;
     let mut half_h = f32::MIN_POSITIVE;
     for k in 0..8 {
-        let corner = Vec3::select(glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0), bounds.max, bounds.min);
+        let corner = bounds.corner(k);
         let d = corner - eye;
         let depth = d.dot(forward);
         half_h = half_h.max((d.dot(up) / depth).abs()).max((d.dot(right) / depth).abs() / aspect);
@@ -47,12 +47,20 @@ pub fn primary_rays(bounds: &Aabb, width: u32, height: u32) -> Vec<Ray> {
 /// One cosine-distributed bounce off each primary hit, on the side the primary ray came from,
 /// spawned with the robust offset. Primary rays that miss give no diffuse ray.
 pub fn diffuse_rays(bvh: &Bvh, triangles: &[Triangle], primary: &[Ray]) -> Vec<Ray> {
+    diffuse_rays_with(primary, |ray| {
+        let hit = bvh.closest_hit_triangles(triangles, ray, f32::INFINITY)?;
+        Some(hit_point_and_normal(triangles, &hit))
+    })
+}
+
+/// [`diffuse_rays`] for any geometry: `hit(ray)` gives the closest hit's point and unit
+/// geometric normal.
+pub fn diffuse_rays_with(primary: &[Ray], hit: impl Fn(&Ray) -> Option<(Vec3, Vec3)> + Sync) -> Vec<Ray> {
     primary
         .par_iter()
         .enumerate()
         .filter_map(|(i, ray)| {
-            let hit = bvh.closest_hit_triangles(triangles, ray, f32::INFINITY)?;
-            let (p, n) = hit_point_and_normal(triangles, &hit);
+            let (p, n) = hit(ray)?;
             let n = if n.dot(ray.dir) > 0.0 { -n } else { n };
             let u = Rng::for_sample(0, i as u64, 0).next_vec2();
             Some(spawn_ray(p, n, Frame::from_normal(n).to_world(cosine_hemisphere(u)).normalize()))

@@ -17,7 +17,9 @@ use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use super::prbvh::{self, LockStrategy, PrbvhConfig, PrbvhStats};
-use super::{Bvh, binned_sah, lbvh};
+use rayon::prelude::*;
+
+use super::{Bvh, CollapseConfig, MeshBvh, binned_sah, collapse_leaves, lbvh};
 use crate::geometry::{Aabb, Triangle};
 
 /// A builder, optionally followed by parallel reinsertion.
@@ -127,6 +129,14 @@ impl Builder {
         }
         built.bvh = bvh;
         built
+    }
+
+    /// A mesh's traceable BVH: built over `triangles` with the default PRBVH settings, then the
+    /// default leaf collapse, triangles stored in leaf order.
+    pub fn build_mesh(&self, triangles: &[Triangle]) -> MeshBvh {
+        let prims: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
+        let built = self.build(triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
+        MeshBvh::new(collapse_leaves(&built.bvh, &CollapseConfig::default()), triangles)
     }
 }
 

@@ -167,10 +167,7 @@ pub fn world_box(mesh: &Bvh, inst: &Instance) -> Aabb {
     if b.is_empty() {
         return Aabb::from_point(inst.world_from_object.translation.into());
     }
-    let w = (0..8).fold(Aabb::EMPTY, |acc, k| {
-        let corner = Vec3::select(glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0), b.max, b.min);
-        acc.grow(inst.world_from_object.transform_point3(corner))
-    });
+    let w = (0..8).fold(Aabb::EMPTY, |acc, k| acc.grow(inst.world_from_object.transform_point3(b.corner(k))));
     let pad = Vec3::splat(w.min.abs().max(w.max.abs()).max_element() * 8.0 * f32::EPSILON);
     Aabb::new(w.min - pad, w.max + pad)
 }

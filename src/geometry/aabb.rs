@@ -86,6 +86,11 @@ impl Aabb {
         e.x * e.y + e.y * e.z + e.z * e.x
     }
 
+    /// Corner `k` in 0..8: bit 0 picks max x, bit 1 max y, bit 2 max z.
+    pub fn corner(&self, k: usize) -> Vec3 {
+        Vec3::select(glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0), self.max, self.min)
+    }
+
     pub fn contains_box(&self, other: &Aabb) -> bool {
         self.min.cmple(other.min).all() && self.max.cmpge(other.max).all()
     }

@@ -41,6 +41,11 @@ impl Triangle {
         Self { v0, v1, v2 }
     }
 
+    /// The triangle with its vertices moved by `m`.
+    pub fn transformed(&self, m: &glam::Affine3A) -> Self {
+        Self::new(m.transform_point3(self.v0), m.transform_point3(self.v1), m.transform_point3(self.v2))
+    }
+
     pub fn aabb(&self) -> Aabb {
         Aabb::from_point(self.v0).grow(self.v1).grow(self.v2)
     }

@@ -120,7 +120,7 @@ impl Instanced {
             };
             light_base[i] = world.len() as u32;
             for (p, t) in tris.iter().enumerate() {
-                world.push(transform_triangle(&inst.world_from_object, t));
+                world.push(t.transformed(&inst.world_from_object));
                 emission.push(emits(p));
             }
         }
@@ -139,10 +139,12 @@ impl Instanced {
             .collect();
         self.two_level.set_transforms(&changes, how)
     }
-}
 
-fn transform_triangle(m: &Affine3A, t: &Triangle) -> Triangle {
-    Triangle::new(m.transform_point3(t.v0), m.transform_point3(t.v1), m.transform_point3(t.v2))
+    /// Whether any animated object has an emissive triangle (its lights move with it). Known
+    /// once [`Instanced::lights`] has run.
+    pub fn moves_lights(&self, scene: &Scene) -> bool {
+        scene.objects.iter().zip(&self.light_base).any(|(o, &base)| o.is_animated() && base != INVALID_INDEX)
+    }
 }
 
 impl Geometry {
@@ -164,7 +166,7 @@ impl Geometry {
                 let base = g.light_base.get(h.instance as usize).copied().unwrap_or(INVALID_INDEX);
                 SurfaceHit {
                     t: h.t,
-                    triangle: transform_triangle(&inst.world_from_object, local),
+                    triangle: local.transformed(&inst.world_from_object),
                     u: h.u,
                     v: h.v,
                     material: g.material(h.instance as usize, h.prim_id),

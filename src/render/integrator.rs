@@ -151,16 +151,7 @@ impl RenderScene {
     /// The two-level build (see [`RenderScene::build`]).
     fn build_instanced(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
         let t = Instant::now();
-        let meshes: Vec<MeshBvh> = scene
-            .meshes
-            .iter()
-            .map(|m| {
-                let triangles = m.mesh.triangles();
-                let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
-                let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
-                MeshBvh::new(collapse_leaves(&built.bvh, &CollapseConfig::default()), &triangles)
-            })
-            .collect();
+        let meshes: Vec<MeshBvh> = scene.meshes.iter().map(|m| builder.build_mesh(&m.mesh.triangles())).collect();
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
         let mut instanced = Instanced::new(scene, meshes, first_frame_time(scene));
         let lights = instanced.lights(&materials);
@@ -218,7 +209,7 @@ impl RenderScene {
     ) -> Option<crate::bvh::dynamic::UpdateStats> {
         let Geometry::Instanced(g) = &mut self.geometry else { return None };
         let stats = g.set_time(scene, time, how);
-        if scene.has_emitters() {
+        if g.moves_lights(scene) {
             self.lights = g.lights(&self.materials);
         }
         Some(stats)
