@@ -4,12 +4,15 @@
 //! - [`bvh`]: the tree layout shared with the GPU, the LBVH and binned-SAH builders, SAH cost and
 //!   leaf collapse, validation, and closest/any-hit traversal.
 //! - [`scene`]: the TOML scene format and its loader.
-//! - [`render`]: film, materials (BSDFs) and sampling; the integrator comes next.
-//! - [`image_io`]: EXR and PNG output; [`atomic_file`]: every file output, written atomically.
+//! - [`render`]: camera, film, materials (BSDFs), sampling, lights, the path tracer, and the
+//!   time-against-error benchmark.
+//! - [`image_io`]: EXR and PNG output; [`atomic_file`]: every file output, written atomically;
+//!   [`memory`]: peak resident memory for reports.
 
 pub mod atomic_file;
 pub mod bvh;
 pub mod geometry;
 pub mod image_io;
+pub mod memory;
 pub mod render;
 pub mod scene;

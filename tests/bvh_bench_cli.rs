@@ -192,3 +192,127 @@ fn animation_benchmark_reports_every_strategy() {
         assert!(!out.status.success() && stderr.contains(expected), "{args:?}: {stderr}");
     }
 }
+
+fn run_ok(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    stdout
+}
+
+fn manifest(rel: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+/// `--converge`: one curve per builder (auto included), errors falling with the samples, the
+/// auto comparison, and the outputs.
+#[test]
+fn convergence_benchmark_reports_error_against_time() {
+    let dir = temp_dir("converge");
+    let (json, csv, svg) = (dir.join("c.json"), dir.join("c.csv"), dir.join("c.svg"));
+    let stdout = run_ok(
+        bench()
+            .arg("--converge")
+            .arg(manifest("scenes/cornell-box.toml"))
+            .args(["--image-size", "24x24", "--max-spp", "16", "--reference-spp", "256", "--runs", "2"])
+            .arg("--json")
+            .arg(&json)
+            .arg("--csv")
+            .arg(&csv)
+            .arg("--plot")
+            .arg(&svg),
+    );
+    assert!(stdout.contains("auto against the best fixed builder"), "{stdout}");
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!((report["width"].as_u64(), report["height"].as_u64()), (Some(24), Some(24)));
+    assert_eq!(report["reference"]["source"], "rendered");
+    let curves = report["curves"].as_array().unwrap();
+    let names: Vec<&str> = curves.iter().map(|c| c["builder"].as_str().unwrap()).collect();
+    assert_eq!(names, ["lbvh", "lbvh+prbvh", "binned-sah", "auto"]);
+    for c in curves {
+        assert_eq!(c["device"], "cpu");
+        let points = c["points"].as_array().unwrap();
+        let spp: Vec<u64> = points.iter().map(|p| p["spp"].as_u64().unwrap()).collect();
+        assert_eq!(spp, [1, 2, 4, 8, 16]);
+        let field = |p: &serde_json::Value, k: &str| p[k].as_f64().unwrap_or_else(|| panic!("{k} missing in {p}"));
+        for w in points.windows(2) {
+            assert!(field(&w[1], "time_s") > field(&w[0], "time_s"), "time must grow with spp: {c}");
+        }
+        // 16 samples against 1: the mean absolute error falls by about 4; noise can't undo half.
+        let (first, last) = (&points[0], &points[points.len() - 1]);
+        assert!(field(last, "mae") < 0.5 * field(first, "mae"), "{c}");
+        assert!(field(last, "rel_mse") < field(first, "rel_mse"), "{c}");
+        assert!(points.iter().all(|p| p["non_finite"] == 0 && field(p, "build_s") <= field(p, "time_s")));
+    }
+    let auto = &report["auto"];
+    assert!(auto["worst_ratio_rel_mse"].as_f64().unwrap() > 0.0, "{auto}");
+    let csv_text = std::fs::read_to_string(&csv).unwrap();
+    assert_eq!(csv_text.lines().count(), 1 + 4 * 5, "{csv_text}");
+    assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
+}
+
+/// `--reference REF.exr`: the error is measured against the given image, which must match the
+/// render's size; a GPU device is refused until the GPU backend lands.
+#[test]
+fn convergence_against_a_given_reference() {
+    let dir = temp_dir("converge-ref");
+    let reference = dir.join("ref.exr");
+    let scene = manifest("scenes/furnace.toml");
+    let render = Command::new(env!("CARGO_BIN_EXE_render"))
+        .arg(&scene)
+        .arg("-o")
+        .arg(&reference)
+        .args(["--spp", "4", "--quiet"])
+        .status()
+        .unwrap();
+    assert!(render.success());
+    let json = dir.join("r.json");
+    run_ok(
+        bench()
+            .arg("--converge")
+            .arg(&scene)
+            .arg("--reference")
+            .arg(&reference)
+            .args(["--builders", "lbvh,auto", "--max-spp", "2", "--runs", "1", "--json"])
+            .arg(&json),
+    );
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(report["reference"]["source"], "file");
+    assert_eq!(report["curves"].as_array().unwrap().len(), 2);
+
+    let out = bench()
+        .arg("--converge")
+        .arg(&scene)
+        .arg("--reference")
+        .arg(&reference)
+        .args(["--image-size", "8x8", "--max-spp", "1"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("ref.exr") && stderr.contains("8x8"), "{stderr}");
+
+    let out = bench().arg("--converge").arg(&scene).args(["--devices", "cpu,gpu"]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("--devices gpu"), "{stderr}");
+}
+
+/// `--memory`: one process per builder, with kept and peak bytes per triangle.
+#[test]
+fn memory_report_per_builder() {
+    let dir = temp_dir("memory");
+    let json = dir.join("m.json");
+    let stdout = run_ok(
+        bench().args(["--memory", "--procedural", "city:20k", "--builders", "lbvh,obvhs-fastest", "--json"]).arg(&json),
+    );
+    assert!(stdout.contains("peak B/tri"), "{stdout}");
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let builders = report["builders"].as_array().unwrap();
+    assert_eq!(builders.len(), 2);
+    for b in builders {
+        let kept = b["kept_bytes_per_triangle"].as_f64().unwrap();
+        // At least the triangles themselves (36 bytes in ours, 48 in obvhs's), and sane.
+        assert!((36.0..1000.0).contains(&kept), "{b}");
+        assert!(b["peak_bytes"].as_u64().unwrap() >= b["kept_bytes"].as_u64().unwrap(), "{b}");
+        assert_eq!(b["triangles"], report["triangles"]);
+    }
+}

@@ -330,6 +330,30 @@ material = \"white\"
 }
 
 /// The animated example in docs/scene-format.md loads and does what its comments say.
+/// `city` and `hairball` make at least the triangles asked for, the same for the same seed, and
+/// objects asking for the same one share it.
+#[test]
+fn procedural_shapes_are_seeded_and_shared() {
+    let dir = temp_dir("procedural");
+    let path = dir.join("p.toml");
+    let text = |seed: u64| {
+        format!(
+            "{BASE}\n[[objects]]\nshape = \"city\"\ntriangles = 1000\nseed = {seed}\nmaterial = \"white\"\n\
+             \n[[objects]]\nshape = \"city\"\ntriangles = 1000\nseed = {seed}\nmaterial = \"white\"\ntranslate = [50, 0, 0]\n\
+             \n[[objects]]\nshape = \"hairball\"\ntriangles = 500\nmaterial = \"white\"\n"
+        )
+    };
+    std::fs::write(&path, text(7)).unwrap();
+    let a = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(a.meshes.len(), 2, "the two identical cities share a mesh");
+    assert!(a.meshes[0].mesh.triangle_count() >= 1000 && a.meshes[1].mesh.triangle_count() == 500);
+    let again = Scene::load(&path).unwrap();
+    assert_eq!(a.meshes[0].mesh.positions, again.meshes[0].mesh.positions);
+    std::fs::write(&path, text(8)).unwrap();
+    let other = Scene::load(&path).unwrap();
+    assert_ne!(a.meshes[0].mesh.positions, other.meshes[0].mesh.positions, "another seed, another city");
+}
+
 #[test]
 fn the_documented_animation_example_loads() {
     let doc = std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/scene-format.md")).unwrap();
@@ -413,6 +437,21 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
         (format!("{BASE}\n[[objects]]\nshape = \"box\"\nmaterial = \"chalk\"\n"), 13, "objects[0].material", "chalk"),
         (format!("{BASE}\n[[objects]]\nshape = \"cone\"\nmaterial = \"white\"\n"), 12, "objects[0].shape", "cone"),
         (format!("{BASE}\n[[objects]]\nshape = \"box\"\n"), 11, "objects[0].material", "needs a material"),
+        (format!("{BASE}\n[[objects]]\nshape = \"city\"\nmaterial = \"white\"\n"), 12, "objects[0].triangles", "needs"),
+        (
+            format!("{BASE}\n[[objects]]\nshape = \"hairball\"\ntriangles = 0\nmaterial = \"white\"\n"),
+            13,
+            "objects[0].triangles",
+            "1 to",
+        ),
+        (
+            format!("{BASE}\n[[objects]]\nshape = \"city\"\ntriangles = 100000001\nmaterial = \"white\"\n"),
+            13,
+            "objects[0].triangles",
+            "100000001",
+        ),
+        (format!("{BASE}{obj}triangles = 10\n"), 14, "objects[0].triangles", "procedural"),
+        (format!("{BASE}{obj}seed = 3\n"), 14, "objects[0].seed", "procedural"),
         (
             format!("{BASE}\n[[objects]]\nshape = \"sphere\"\nsubdivisions = 20\nmaterial = \"white\"\n"),
             13,

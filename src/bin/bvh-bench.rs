@@ -1,9 +1,10 @@
 //! `bvh-bench`: compares BVH builders on one mesh by build time, SAH and trace speed; with
 //! `--animated` or `--procedural-animated`, compares ways of keeping a top-level BVH up to date
-//! through an animation.
+//! through an animation; with `--converge`, compares the image error each builder's renders
+//! reach against wall time.
 //!
-//! Argument parsing and reporting only; the measuring is `arbor::bvh::bench` and
-//! `arbor::bvh::anim_bench`.
+//! Argument parsing and reporting only; the measuring is `arbor::bvh::bench`,
+//! `arbor::bvh::anim_bench` and `arbor::render::converge`.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -29,10 +30,11 @@ struct Args {
     /// has at least N triangles). N may use k/M suffixes (e.g. city:2M).
     #[arg(long, value_name = "KIND:N")]
     procedural: Option<String>,
-    /// Builders to compare, comma-separated.
-    #[arg(long, value_delimiter = ',', default_values_t = default_builders())]
-    builders: Vec<String>,
-    /// Builds and traces per builder; medians are reported.
+    /// Builders to compare, comma-separated [default: lbvh,lbvh+prbvh,binned-sah and, with the
+    /// peers feature, obvhs-medium; with --converge: lbvh,lbvh+prbvh,binned-sah,auto].
+    #[arg(long, value_delimiter = ',')]
+    builders: Option<Vec<String>>,
+    /// Builds and traces per builder (with --converge: whole curves); medians are reported.
     #[arg(long, default_value_t = 3)]
     runs: usize,
     /// Primary rays: RESOLUTION x RESOLUTION.
@@ -69,6 +71,33 @@ struct Args {
     /// Percentage of the procedural instances that move.
     #[arg(long, value_name = "PERCENT")]
     moving: Option<f64>,
+    /// Time against error: render the scene at doubling spp with each builder (`auto` too) and
+    /// measure the error against a reference, counting the BVH build in the time.
+    #[arg(long, value_name = "SCENE.toml", conflicts_with_all = ["input", "procedural", "animated", "procedural_animated"])]
+    converge: Option<PathBuf>,
+    /// Devices to render on with --converge, comma-separated: cpu (gpu comes with the GPU backend).
+    #[arg(long, value_delimiter = ',', default_value = "cpu")]
+    devices: Vec<String>,
+    /// --converge: the reference image (.exr, linear), e.g. an independent renderer's; without
+    /// it, the scene is rendered at --reference-spp with another seed.
+    #[arg(long, value_name = "REF.exr")]
+    reference: Option<PathBuf>,
+    /// --converge: samples per pixel of the rendered reference [default: 8 x --max-spp].
+    #[arg(long)]
+    reference_spp: Option<u32>,
+    /// --converge: the largest sample count; curves run 1, 2, 4, ... up to it.
+    #[arg(long, default_value_t = 64)]
+    max_spp: u32,
+    /// Peak memory instead of speed: each builder builds in a fresh process, and the table gives
+    /// the bytes per triangle it keeps to trace (triangles included) and the process's peak.
+    #[arg(long, conflicts_with_all = ["converge", "animated", "procedural_animated"])]
+    memory: bool,
+    /// (internal) The process --memory runs for one builder.
+    #[arg(long, hide = true)]
+    memory_child: Option<String>,
+    /// --converge: render at WIDTHxHEIGHT instead of the scene's resolution.
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    image_size: Option<(u32, u32)>,
 }
 
 fn default_builders() -> Vec<String> {
@@ -88,6 +117,15 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = Args::parse();
+    if args.converge.is_some() {
+        return run_converge(&args);
+    }
+    if let Some(builder) = &args.memory_child {
+        return memory_child(&args, builder);
+    }
+    if args.memory {
+        return run_memory(&args);
+    }
     if args.animated.is_some() || args.procedural_animated.is_some() {
         return run_animated(&args);
     }
@@ -96,6 +134,8 @@ fn run() -> Result<()> {
     }
     let builders = args
         .builders
+        .clone()
+        .unwrap_or_else(default_builders)
         .iter()
         .map(|b| b.trim().parse::<Builder>())
         .collect::<Result<Vec<_>, _>>()
@@ -127,7 +167,7 @@ fn run() -> Result<()> {
     let series: Vec<Series> =
         report.builders.iter().map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect())).collect();
     let plot = (format!("SAH against time: {name}"), ("build + optimisation time (ms)", "SAH, one primitive per leaf"));
-    write_outputs(&args, &report, |f| write_csv(f, &report), plot, &series)?;
+    write_outputs(&args, &report, |f| write_csv(f, &report), plot, &series, false)?;
     if !report.mismatches.is_empty() {
         bail!("builders disagree on hits:\n  {}", report.mismatches.join("\n  "));
     }
@@ -141,6 +181,7 @@ fn write_outputs(
     csv: impl FnOnce(&mut dyn Write) -> Result<()>,
     (title, labels): (String, (&str, &str)),
     series: &[Series],
+    log: bool,
 ) -> Result<()> {
     if let Some(path) = &args.json {
         write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, report)?))?;
@@ -149,7 +190,7 @@ fn write_outputs(
         write_atomic(path, csv)?;
     }
     if let Some(path) = &args.plot {
-        write_plot(path, &title, labels, series)?;
+        write_plot(path, &title, labels, series, log)?;
     }
     Ok(())
 }
@@ -236,6 +277,7 @@ fn run_animated(args: &Args) -> Result<()> {
         },
         plot,
         &series,
+        false,
     )?;
     if !report.mismatches.is_empty() {
         bail!("strategies disagree on hits:\n  {}", report.mismatches.join("\n  "));
@@ -266,6 +308,261 @@ fn strategy_values(s: &arbor::bvh::anim_bench::StrategyReport) -> [f64; 8] {
         s.primary_mrays_final,
         s.diffuse_mrays_final,
     ]
+}
+
+/// `--converge`.
+fn run_converge(args: &Args) -> Result<()> {
+    use arbor::render::converge::{self, BuilderChoice, ConvergeConfig};
+    let path = args.converge.as_ref().expect("checked by the caller");
+    if let Some(d) = args.devices.iter().find(|d| d.as_str() != "cpu") {
+        match d.as_str() {
+            "gpu" => bail!("--devices gpu: the GPU backend is not built yet; use --devices cpu"),
+            other => bail!("--devices: unknown device `{other}`; known: cpu, gpu"),
+        }
+    }
+    let names = args
+        .builders
+        .clone()
+        .unwrap_or_else(|| ["lbvh", "lbvh+prbvh", "binned-sah", "auto"].map(String::from).to_vec());
+    let choices =
+        names.iter().map(|b| b.trim().parse::<BuilderChoice>()).collect::<Result<Vec<_>, _>>().context("--builders")?;
+    if args.max_spp == 0 || args.runs == 0 {
+        bail!("--max-spp and --runs must be at least 1");
+    }
+    if let Some(plot) = &args.plot {
+        plot_format(plot)?;
+    }
+    let mut scene = arbor::scene::Scene::load(path)?;
+    if let Some((w, h)) = args.image_size {
+        (scene.camera.width, scene.camera.height) = (w, h);
+    }
+    let config = ConvergeConfig {
+        max_spp: args.max_spp,
+        max_depth: scene.render.max_depth,
+        seed: scene.render.seed,
+        ..Default::default()
+    };
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let (reference, reference_info) = match &args.reference {
+        Some(file) => {
+            let image = arbor::image_io::read_exr(file)?;
+            if (image.width, image.height) != (w, h) {
+                bail!(
+                    "--reference {}: {}x{} pixels, but the render is {w}x{h} (see --image-size)",
+                    file.display(),
+                    image.width,
+                    image.height
+                );
+            }
+            (image, serde_json::json!({"source": "file", "path": file.display().to_string()}))
+        }
+        None => {
+            let spp = args.reference_spp.unwrap_or(args.max_spp.saturating_mul(8));
+            if spp == 0 {
+                bail!("--reference-spp must be at least 1");
+            }
+            let seed = config.seed ^ 0x5eed_0f5e;
+            eprintln!("rendering the reference: {w}x{h}, {spp} spp ...");
+            let (image, secs) = converge::render_reference(&scene, spp, config.max_depth, seed);
+            eprintln!("  {secs:.1} s");
+            (image, serde_json::json!({"source": "rendered", "spp": spp, "seed": seed, "time_s": secs}))
+        }
+    };
+    eprintln!("{}: {w}x{h}, max depth {}, {} threads", path.display(), config.max_depth, rayon::current_num_threads());
+    // Runs interleave the builders, so that a slow spell of a shared machine falls on all.
+    let mut runs = Vec::new();
+    for run in 0..args.runs {
+        let mut curves = Vec::new();
+        for choice in &choices {
+            let curve = converge::measure_curve(&scene, choice, &reference, &config, &mut |p| {
+                eprintln!("  run {}: {choice} {} spp: {:.3} s, rel MSE {:.4e}", run + 1, p.spp, p.time_s, p.rel_mse);
+            });
+            curves.push(curve);
+        }
+        runs.push(curves);
+    }
+    let curves = converge::median_of_runs(runs);
+    println!(
+        "{:<14} {:>6} {:>6} {:>10} {:>10} {:>12} {:>10}",
+        "builder", "device", "spp", "time s", "build s", "rel MSE", "MAE"
+    );
+    for c in &curves {
+        for p in &c.points {
+            println!(
+                "{:<14} {:>6} {:>6} {:>10.3} {:>10.3} {:>12.4e} {:>10.4e}",
+                c.builder, c.device, p.spp, p.time_s, p.build_s, p.rel_mse, p.mae
+            );
+        }
+    }
+    if args.runs > 1 {
+        println!("(times: the median of {} runs)", args.runs);
+    }
+    let auto = converge::compare_auto(&curves);
+    if let Some(a) = &auto {
+        println!(
+            "auto against the best fixed builder at equal time ({:.3} to {:.3} s): worst rel MSE ratio {:.3} at {:.3} s ({} best there), worst MAE ratio {:.3}",
+            a.compared_from_s,
+            a.compared_to_s,
+            a.worst_ratio_rel_mse,
+            a.worst_at_time_s,
+            a.best_fixed_there,
+            a.worst_ratio_mae
+        );
+    }
+    let non_finite: u64 = curves.iter().flat_map(|c| &c.points).map(|p| p.non_finite).sum();
+    let report = serde_json::json!({
+        "scene": path.display().to_string(),
+        "width": w,
+        "height": h,
+        "max_depth": config.max_depth,
+        "threads": rayon::current_num_threads(),
+        "reference": reference_info,
+        "curves": curves,
+        "auto": auto,
+    });
+    let series: Vec<Series> = curves
+        .iter()
+        .map(|c| (format!("{} ({})", c.builder, c.device), c.points.iter().map(|p| (p.time_s, p.rel_mse)).collect()))
+        .collect();
+    let name = path.file_name().map_or(path.display().to_string(), |n| n.to_string_lossy().into_owned());
+    let plot = (format!("Error against time: {name}"), ("wall time incl. BVH build (s)", "relative MSE"));
+    let csv = |f: &mut dyn Write| -> Result<()> {
+        writeln!(f, "builder,device,spp,time_s,build_s,rel_mse,mae,non_finite")?;
+        for c in &curves {
+            for p in &c.points {
+                writeln!(
+                    f,
+                    "{},{},{},{},{},{},{},{}",
+                    c.builder, c.device, p.spp, p.time_s, p.build_s, p.rel_mse, p.mae, p.non_finite
+                )?;
+            }
+        }
+        Ok(())
+    };
+    write_outputs(args, &report, csv, plot, &series, true)?;
+    if non_finite > 0 {
+        bail!("{non_finite} NaN or infinite samples were dropped: a bug");
+    }
+    Ok(())
+}
+
+/// What one builder's process reports to `--memory`.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct MemoryReport {
+    name: String,
+    triangles: usize,
+    build_ms: f64,
+    /// Bytes the built structure keeps to trace: nodes, indices and its copy of the triangles.
+    kept_bytes: u64,
+    /// The process's peak resident memory: the mesh, its triangles and the build.
+    peak_bytes: u64,
+    kept_bytes_per_triangle: f64,
+    peak_bytes_per_triangle: f64,
+}
+
+/// `--memory`: each builder in a fresh process, so that no peak hides another.
+fn run_memory(args: &Args) -> Result<()> {
+    let names = args.builders.clone().unwrap_or_else(default_builders);
+    for n in &names {
+        n.trim().parse::<Builder>().context("--builders")?;
+    }
+    let exe = std::env::current_exe().context("finding bvh-bench's own executable")?;
+    let mut reports = Vec::new();
+    for name in &names {
+        let mut cmd = std::process::Command::new(&exe);
+        cmd.args(args.input.iter()).args(["--seed", &args.seed.to_string(), "--memory-child", name.trim()]);
+        if let Some(p) = &args.procedural {
+            cmd.args(["--procedural", p]);
+        }
+        let out = cmd.stderr(std::process::Stdio::inherit()).output().context("running a --memory process")?;
+        if !out.status.success() {
+            bail!("--memory: the process building with {name} failed ({})", out.status);
+        }
+        let r: MemoryReport = serde_json::from_slice(&out.stdout).context("reading a --memory process's report")?;
+        reports.push(r);
+    }
+    let triangles = reports.first().map_or(0, |r| r.triangles);
+    println!("{triangles} triangles; each builder in its own process");
+    println!(
+        "{:<26} {:>10} {:>12} {:>12} {:>14} {:>14}",
+        "builder", "build ms", "kept MB", "peak MB", "kept B/tri", "peak B/tri"
+    );
+    for r in &reports {
+        println!(
+            "{:<26} {:>10.1} {:>12.1} {:>12.1} {:>14.1} {:>14.1}",
+            r.name,
+            r.build_ms,
+            r.kept_bytes as f64 / 1e6,
+            r.peak_bytes as f64 / 1e6,
+            r.kept_bytes_per_triangle,
+            r.peak_bytes_per_triangle
+        );
+    }
+    println!(
+        "(kept: what tracing needs, triangles included; peak: the whole process, mesh and input triangles included)"
+    );
+    let report = serde_json::json!({ "triangles": triangles, "builders": reports });
+    let csv = |f: &mut dyn Write| -> Result<()> {
+        writeln!(f, "name,build_ms,kept_bytes,peak_bytes,kept_bytes_per_triangle,peak_bytes_per_triangle")?;
+        for r in &reports {
+            writeln!(
+                f,
+                "{},{},{},{},{},{}",
+                r.name, r.build_ms, r.kept_bytes, r.peak_bytes, r.kept_bytes_per_triangle, r.peak_bytes_per_triangle
+            )?;
+        }
+        Ok(())
+    };
+    if args.plot.is_some() {
+        bail!("--memory has no plot");
+    }
+    write_outputs(args, &report, csv, (String::new(), ("", "")), &[], false)
+}
+
+/// One builder's `--memory` process: builds what tracing needs and prints a [`MemoryReport`].
+/// Ours: the leaf-collapsed BVH and its leaf-ordered triangles (the renderer's `MeshBvh`).
+/// obvhs: its `Bvh2` and triangles, built exactly as its preset ships.
+fn memory_child(args: &Args, name: &str) -> Result<()> {
+    let builder: Builder = name.parse().context("--memory-child")?;
+    let (_, mesh) = load_input(args)?;
+    let triangles = mesh.triangles();
+    drop(mesh);
+    let t = std::time::Instant::now();
+    let kept = match builder.to_string().strip_prefix("obvhs-") {
+        #[cfg(feature = "peers")]
+        Some(preset) => {
+            let (tris, bvh) = arbor::bvh::peers::obvhs_native_bytes(preset, &triangles);
+            tris + bvh
+        }
+        _ => {
+            let m = builder.build_mesh(&triangles);
+            m.bvh.memory_bytes() + size_of_val(m.triangles.as_slice())
+        }
+    } as u64;
+    let build_ms = t.elapsed().as_secs_f64() * 1e3;
+    let peak = arbor::memory::peak_rss_bytes().context("--memory needs /proc/self/status (Linux)")?;
+    let n = triangles.len().max(1) as f64;
+    let r = MemoryReport {
+        name: builder.to_string(),
+        triangles: triangles.len(),
+        build_ms,
+        kept_bytes: kept,
+        peak_bytes: peak,
+        kept_bytes_per_triangle: kept as f64 / n,
+        peak_bytes_per_triangle: peak as f64 / n,
+    };
+    println!("{}", serde_json::to_string(&r)?);
+    Ok(())
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, as 128x128, not {s:?}"))?;
+    let w: u32 = w.trim().parse().map_err(|e| format!("width {w:?}: {e}"))?;
+    let h: u32 = h.trim().parse().map_err(|e| format!("height {h:?}: {e}"))?;
+    if w == 0 || h == 0 || w > 65_536 || h > 65_536 {
+        return Err(format!("{s}: each side must be 1 to 65536 pixels"));
+    }
+    Ok((w, h))
 }
 
 /// The mesh and a name for it.
@@ -412,7 +709,7 @@ const FONT_PATHS: [&str; 3] = [
 /// A named curve of (x, y) points.
 type Series = (String, Vec<(f64, f64)>);
 
-fn write_plot(path: &Path, title: &str, labels: (&str, &str), series: &[Series]) -> Result<()> {
+fn write_plot(path: &Path, title: &str, labels: (&str, &str), series: &[Series], log: bool) -> Result<()> {
     use plotters::prelude::*;
     let font = FONT_PATHS
         .iter()
@@ -425,9 +722,11 @@ fn write_plot(path: &Path, title: &str, labels: (&str, &str), series: &[Series])
     let format = plot_format(path)?;
     atomic_file::replace_via_temp(path, |tmp| {
         match format {
-            PlotFormat::Svg => draw_chart(SVGBackend::new(tmp, (900, 600)).into_drawing_area(), title, labels, series),
+            PlotFormat::Svg => {
+                draw_chart(SVGBackend::new(tmp, (900, 600)).into_drawing_area(), title, labels, series, log)
+            }
             PlotFormat::Png => {
-                draw_chart(BitMapBackend::new(tmp, (900, 600)).into_drawing_area(), title, labels, series)
+                draw_chart(BitMapBackend::new(tmp, (900, 600)).into_drawing_area(), title, labels, series, log)
             }
         }
         .map_err(AtomicWriteError::Write)
@@ -436,49 +735,61 @@ fn write_plot(path: &Path, title: &str, labels: (&str, &str), series: &[Series])
     .with_context(|| format!("writing {}", path.display()))
 }
 
-/// One curve per series, with points marked.
+/// One curve per series, with points marked; log-log axes when every value is positive and
+/// `log` is asked for.
 fn draw_chart<DB: plotters::prelude::DrawingBackend>(
     root: plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
     title: &str,
     (x_desc, y_desc): (&str, &str),
     series: &[Series],
+    log: bool,
 ) -> Result<()>
 where
     DB::ErrorType: 'static,
 {
     use plotters::prelude::*;
+    let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("{e}");
     let points: Vec<&(f64, f64)> = series.iter().flat_map(|s| &s.1).collect();
-    let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max) * 1.05;
-    let y_min = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min) * 0.97;
-    let y_max = points.iter().map(|p| p.1).fold(0.0, f64::max) * 1.03;
-    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 22))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..x_max, y_min..y_max)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(|e| anyhow::anyhow!("{e}"))?;
-    for (k, (name, pts)) in series.iter().enumerate() {
-        let color = Palette99::pick(k).to_rgba();
-        // Markers only where the curve is sparse enough to show them.
-        let marks = if pts.len() <= 60 { pts.clone() } else { Vec::new() };
-        chart
-            .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
-            .map_err(|e| anyhow::anyhow!("{e}"))?
-            .label(name.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2)));
-        chart
-            .draw_series(marks.iter().map(|&p| Circle::new(p, 3, color.filled())))
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let mut builder = ChartBuilder::on(&root);
+    builder.caption(title, ("sans-serif", 22)).margin(12).x_label_area_size(40).y_label_area_size(70);
+    // The same drawing for both coordinate systems, whose chart types differ.
+    macro_rules! draw {
+        ($chart:expr) => {{
+            let mut chart = $chart.map_err(|e| err(&e))?;
+            chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(|e| err(&e))?;
+            for (k, (name, pts)) in series.iter().enumerate() {
+                let color = Palette99::pick(k).to_rgba();
+                // Markers only where the curve is sparse enough to show them.
+                let marks = if pts.len() <= 60 { pts.clone() } else { Vec::new() };
+                chart
+                    .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))
+                    .map_err(|e| err(&e))?
+                    .label(name.clone())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color.stroke_width(2)));
+                chart.draw_series(marks.iter().map(|&p| Circle::new(p, 3, color.filled()))).map_err(|e| err(&e))?;
+            }
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(|e| err(&e))?;
+        }};
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    if log && points.iter().all(|p| p.0 > 0.0 && p.1 > 0.0) && !points.is_empty() {
+        let (x_min, x_max) = points.iter().fold((f64::INFINITY, 0.0f64), |a, p| (a.0.min(p.0), a.1.max(p.0)));
+        let (y_min, y_max) = points.iter().fold((f64::INFINITY, 0.0f64), |a, p| (a.0.min(p.1), a.1.max(p.1)));
+        draw!(
+            builder
+                .build_cartesian_2d((x_min * 0.8..x_max * 1.25).log_scale(), (y_min * 0.8..y_max * 1.25).log_scale())
+        );
+    } else {
+        let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max) * 1.05;
+        let y_min = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min) * 0.97;
+        let y_max = points.iter().map(|p| p.1).fold(0.0, f64::max) * 1.03;
+        draw!(builder.build_cartesian_2d(0.0..x_max, y_min..y_max));
+    }
+    root.present().map_err(|e| err(&e))?;
     Ok(())
 }

@@ -125,22 +125,19 @@ fn run() -> Result<()> {
     let (mut render_scene, build) = match &builder {
         Some(b) => RenderScene::build(&scene, b),
         None => {
-            // Rays of the whole render: each path segment traces one ray, plus a shadow ray when
-            // the scene has emitters; paths rarely run past five segments (Russian roulette).
-            let per_path = max_depth.min(5) as f64 * if scene.has_emitters() { 2.0 } else { 1.0 };
-            let pixels = scene.camera.width as f64 * scene.camera.height as f64;
-            let frame_count = frames.as_ref().map_or(1, |f| f.len()) as f64;
-            RenderScene::build_auto(&scene, pixels * spp as f64 * per_path * frame_count)
+            let frame_count = frames.as_ref().map_or(1, |f| f.len());
+            RenderScene::build_auto(&scene, RenderScene::estimated_rays(&scene, spp, max_depth, frame_count))
         }
     };
     if !args.quiet {
         println!(
-            "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}",
+            "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}",
             args.scene.display(),
             build.triangles,
             build.builder,
             build.build_ms,
-            build.sah
+            build.sah,
+            peak_memory(build.triangles),
         );
     }
     let settings = FrameSettings { spp, max_depth, seed, time, quiet: args.quiet };
@@ -200,7 +197,7 @@ fn render_frame(render_scene: &RenderScene, s: &FrameSettings, output: &Path, up
     if !s.quiet {
         let rays = rays.load(Ordering::Relaxed) as f64;
         println!(
-            "{}: {}render {:.2} s, {:.2} Mrays/s, {done} spp{}",
+            "{}: {}render {:.2} s, {:.2} Mrays/s, {done} spp{}{}",
             output.display(),
             update_ms.map_or(String::new(), |ms| format!("BVH update {ms:.2} ms, ")),
             render_secs,
@@ -208,10 +205,24 @@ fn render_frame(render_scene: &RenderScene, s: &FrameSettings, output: &Path, up
             match film.non_finite_count() {
                 0 => String::new(),
                 n => format!(", {n} non-finite samples dropped"),
-            }
+            },
+            peak_memory(render_scene.geometry.world_triangle_count()),
         );
     }
     Ok(())
+}
+
+/// `, peak memory M MB (B bytes per triangle)` where the system reports it.
+fn peak_memory(triangles: usize) -> String {
+    match arbor::memory::peak_rss_bytes() {
+        Some(b) if triangles < 100_000 => format!(", peak memory {:.1} MB", b as f64 / 1e6),
+        Some(b) => format!(
+            ", peak memory {:.1} MB ({:.0} bytes per triangle)",
+            b as f64 / 1e6,
+            b as f64 / triangles.max(1) as f64
+        ),
+        None => String::new(),
+    }
 }
 
 /// `A..B` with `A < B`.

@@ -37,6 +37,31 @@ pub fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) ->
     bvh
 }
 
+/// Builds with obvhs's preset exactly as obvhs ships it (its own leaf size and pre-split
+/// setting, no conversion to Arbor's layout), for memory comparisons. Returns the bytes it keeps
+/// to trace: its copy of the triangles and every vector of its `Bvh2` (by capacity).
+pub fn obvhs_native_bytes(preset: &str, triangles: &[Triangle]) -> (usize, usize) {
+    let params = match preset {
+        "fastest" => BvhBuildParams::fastest_build(),
+        "very-fast" => BvhBuildParams::very_fast_build(),
+        "fast" => BvhBuildParams::fast_build(),
+        "medium" => BvhBuildParams::medium_build(),
+        "slow" => BvhBuildParams::slow_build(),
+        "very-slow" => BvhBuildParams::very_slow_build(),
+        other => panic!("unknown obvhs preset {other}"),
+    };
+    let tris = to_obvhs_triangles(triangles);
+    let mut core_time = std::time::Duration::ZERO;
+    let b = obvhs::bvh2::builder::build_bvh2_from_tris(&tris, params, &mut core_time);
+    let bytes = |cap: usize, size: usize| cap * size;
+    let bvh = bytes(b.nodes.capacity(), size_of::<obvhs::bvh2::node::Bvh2Node>())
+        + bytes(b.primitive_indices.capacity(), 4)
+        + bytes(b.primitive_indices_freelist.capacity(), 4)
+        + bytes(b.primitives_to_nodes.capacity(), 4)
+        + bytes(b.parents.capacity(), 4);
+    (bytes(tris.capacity(), size_of::<obvhs::triangle::Triangle>()), bvh)
+}
+
 /// Triangles in obvhs's type.
 pub fn to_obvhs_triangles(triangles: &[Triangle]) -> Vec<obvhs::triangle::Triangle> {
     triangles.iter().map(|t| obvhs::triangle::Triangle { v0: t.v0.into(), v1: t.v1.into(), v2: t.v2.into() }).collect()

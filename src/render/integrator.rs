@@ -148,6 +148,15 @@ impl RenderScene {
         Self::assemble(scene, triangles, material_of, &bvh, t, label)
     }
 
+    /// The rays a render of `scene` traces, roughly, for [`RenderScene::build_auto`]: each path
+    /// segment traces one ray, plus a shadow ray when the scene has emitters, and paths rarely
+    /// run past five segments (Russian roulette starts there).
+    pub fn estimated_rays(scene: &Scene, spp: u32, max_depth: u32, frames: usize) -> f64 {
+        let per_path = max_depth.min(RR_DEPTH) as f64 * if scene.has_emitters() { 2.0 } else { 1.0 };
+        let pixels = scene.camera.width as f64 * scene.camera.height as f64;
+        pixels * spp as f64 * per_path * frames as f64
+    }
+
     /// The two-level build (see [`RenderScene::build`]).
     fn build_instanced(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
         let t = Instant::now();

@@ -2,6 +2,7 @@
 
 pub mod bsdf;
 pub mod camera;
+pub mod converge;
 pub mod film;
 pub mod geometry;
 pub mod integrator;

@@ -70,6 +70,8 @@ pub(super) struct ObjectFile {
     pub mesh: Option<S<String>>,
     pub shape: Option<S<String>>,
     pub subdivisions: Option<S<u32>>,
+    pub triangles: Option<S<u64>>,
+    pub seed: Option<S<u64>>,
     pub material: Option<S<String>>,
     pub translate: Option<S<[f32; 3]>>,
     pub rotate: Option<S<[f32; 3]>>,

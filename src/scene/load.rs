@@ -19,10 +19,13 @@ use super::{
     Animation, AnimationSettings, Camera, ConductorFresnel, Keyframe, Material, Object, RenderSettings, Scattering,
     Scene, SceneError, SceneMesh,
 };
-use crate::geometry::TriangleMesh;
+use crate::geometry::{TriangleMesh, procedural};
 
 /// Most subdivisions of a built-in sphere: 20 · 4^8 ≈ 1.3 M triangles.
 const MAX_SUBDIVISIONS: u32 = 8;
+/// Most triangles of a procedural shape (`city`, `hairball`): about 4.4 GB as a flat scene with
+/// its BVH, the most a 24 GiB machine renders with room to spare.
+const MAX_PROCEDURAL_TRIANGLES: u64 = 100_000_000;
 /// Largest image side.
 const MAX_RESOLUTION: u32 = 65_536;
 /// Most instances one `scatter` makes (each object is about 100 bytes).
@@ -321,8 +324,8 @@ struct Built {
 enum MeshKey {
     /// The OBJ file's canonical path (the joined path when it has none).
     Obj(PathBuf),
-    /// A built-in shape and its subdivision level (0 for shapes without one).
-    Shape(&'static str, u32),
+    /// A built-in shape ([`ShapeSpec`]).
+    Shape(ShapeSpec),
 }
 
 struct KnownMesh {
@@ -354,6 +357,12 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
             if let Some(s) = &f.subdivisions {
                 return Err(ctx.err(s.span(), key("subdivisions"), "only a built-in sphere takes subdivisions"));
             }
+            if let Some(s) = &f.triangles {
+                return Err(ctx.err(s.span(), key("triangles"), "only a procedural shape takes `triangles`"));
+            }
+            if let Some(s) = &f.seed {
+                return Err(ctx.err(s.span(), key("seed"), "only a procedural shape takes `seed`"));
+            }
             let known = shared_obj_mesh(ctx, &key("mesh"), path, env.base, out)?;
             if let (None, Some(why)) = (material, &known.needs_material) {
                 return Err(ctx.err(path.span(), key("mesh"), why.clone()));
@@ -362,10 +371,10 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
         }
         (None, Some(shape)) => {
             let m = material.ok_or_else(|| ctx.err(o.span(), key("material"), "a built-in shape needs a material"))?;
-            let (name, level) = builtin_shape(ctx, &key("shape"), shape, f.subdivisions.as_ref())?;
+            let spec = builtin_shape(ctx, index, shape, f)?;
             let meshes = &mut out.meshes;
-            let known = out.known.entry(MeshKey::Shape(name, level)).or_insert_with(|| {
-                meshes.push(shape_mesh(name, level, m));
+            let known = out.known.entry(MeshKey::Shape(spec)).or_insert_with(|| {
+                meshes.push(shape_mesh(spec, m));
                 KnownMesh { index: meshes.len() - 1, needs_material: None }
             });
             known.index
@@ -411,52 +420,80 @@ fn shared_obj_mesh<'a>(
     }
 }
 
-/// The checked built-in shape name and its subdivision level (0 for shapes without one).
-fn builtin_shape(
-    ctx: &Ctx,
-    key: &str,
-    shape: &S<String>,
-    subdivisions: Option<&S<u32>>,
-) -> Result<(&'static str, u32), SceneError> {
+/// A built-in shape as an object asks for it: what makes two objects' shapes one mesh.
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+struct ShapeSpec {
+    name: &'static str,
+    /// The sphere's subdivision level, a procedural shape's triangle count; 0 otherwise.
+    size: u64,
+    /// A procedural shape's seed; 0 otherwise.
+    seed: u64,
+}
+
+/// The checked built-in shape of object `index` (`shape`, `subdivisions`, `triangles`, `seed`).
+fn builtin_shape(ctx: &Ctx, index: usize, shape: &S<String>, f: &ObjectFile) -> Result<ShapeSpec, SceneError> {
+    let key = |k: &str| format!("objects[{index}].{k}");
     let name = shape.get_ref().as_str();
-    if let Some(s) = subdivisions.filter(|_| name != "sphere") {
-        return Err(ctx.err(
-            s.span(),
-            key.replace("shape", "subdivisions"),
-            "only a built-in sphere takes subdivisions",
-        ));
+    let procedural = matches!(name, "city" | "hairball");
+    if let Some(s) = f.subdivisions.as_ref().filter(|_| name != "sphere") {
+        return Err(ctx.err(s.span(), key("subdivisions"), "only a built-in sphere takes subdivisions"));
     }
-    Ok(match name {
-        "quad" => ("quad", 0),
-        "box" => ("box", 0),
-        "sphere" => {
-            let level = subdivisions.map_or(Ok(3), |s| {
-                let l = *s.get_ref();
-                if l > MAX_SUBDIVISIONS {
-                    Err(ctx.err(
-                        s.span(),
-                        key.replace("shape", "subdivisions"),
-                        format!("{l} is more than {MAX_SUBDIVISIONS}"),
-                    ))
-                } else {
-                    Ok(l)
-                }
-            })?;
-            ("sphere", level)
+    if !procedural {
+        if let Some(s) = &f.triangles {
+            return Err(ctx.err(
+                s.span(),
+                key("triangles"),
+                "only a procedural shape (city, hairball) takes `triangles`",
+            ));
         }
-        other => return Err(ctx.err(shape.span(), key, format!("unknown shape `{other}`; known: quad, box, sphere"))),
+        if let Some(s) = &f.seed {
+            return Err(ctx.err(s.span(), key("seed"), "only a procedural shape (city, hairball) takes `seed`"));
+        }
+    }
+    let spec = |name, size, seed| ShapeSpec { name, size, seed };
+    Ok(match name {
+        "quad" => spec("quad", 0, 0),
+        "box" => spec("box", 0, 0),
+        "sphere" => {
+            let level = match &f.subdivisions {
+                None => 3,
+                Some(s) if *s.get_ref() > MAX_SUBDIVISIONS => {
+                    let msg = format!("{} is more than {MAX_SUBDIVISIONS}", s.get_ref());
+                    return Err(ctx.err(s.span(), key("subdivisions"), msg));
+                }
+                Some(s) => *s.get_ref(),
+            };
+            spec("sphere", u64::from(level), 0)
+        }
+        "city" | "hairball" => {
+            let n = f.triangles.as_ref().ok_or_else(|| {
+                ctx.err(shape.span(), key("triangles"), format!("shape `{name}` needs `triangles` (how many)"))
+            })?;
+            if !(1..=MAX_PROCEDURAL_TRIANGLES).contains(n.get_ref()) {
+                let msg = format!("{} is not in 1 to {MAX_PROCEDURAL_TRIANGLES}", n.get_ref());
+                return Err(ctx.err(n.span(), key("triangles"), msg));
+            }
+            let name = if name == "city" { "city" } else { "hairball" };
+            spec(name, *n.get_ref(), f.seed.as_ref().map_or(0, |s| *s.get_ref()))
+        }
+        other => {
+            let msg = format!("unknown shape `{other}`; known: quad, box, sphere, city, hairball");
+            return Err(ctx.err(shape.span(), key("shape"), msg));
+        }
     })
 }
 
 /// A shape [`builtin_shape`] accepted, every triangle of `material`.
-fn shape_mesh(name: &'static str, level: u32, material: u32) -> SceneMesh {
-    let mesh = match name {
+fn shape_mesh(spec: ShapeSpec, material: u32) -> SceneMesh {
+    let mesh = match spec.name {
         "quad" => TriangleMesh::quad(),
         "box" => TriangleMesh::cube(),
-        _ => TriangleMesh::icosphere(level),
+        "city" => procedural::city(spec.size as usize, spec.seed),
+        "hairball" => procedural::hairball(spec.size as usize, spec.seed),
+        _ => TriangleMesh::icosphere(spec.size as u32),
     };
     let material_ids = vec![material; mesh.triangle_count()];
-    SceneMesh { source: name.to_owned(), mesh, material_ids }
+    SceneMesh { source: spec.name.to_owned(), mesh, material_ids }
 }
 
 /// The OBJ mesh at `path` (`rel` as written), its MTL materials appended to `materials`. A

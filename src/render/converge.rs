@@ -1,0 +1,448 @@
+//! Time against error: how fast each BVH builder's renders converge to a reference image, counting
+//! the BVH build in the time (`bvh-bench --converge`).
+//!
+//! For each builder, the scene is rendered at doubling sample counts (1, 2, 4, ... spp). A render
+//! of `n` spp is the first `n` samples of every pixel, the same whichever builder traced them, so
+//! the error at a sample count differs between builders only where their hits do; the time is
+//! what differs. One point of a curve is what a user rendering `n` spp with that builder would
+//! wait: the BVH build plus the render.
+//!
+//! - A fixed builder builds once; its curve renders sample ranges `[0, 1), [1, 2), [2, 4), ...`
+//!   into one film and times each, so the point at `n` spp costs the build plus the render
+//!   time of samples `0..n`, as a separate render of `n` spp would.
+//! - `auto` decides how long to optimise from the render's ray count
+//!   ([`RenderScene::build_auto`]), so each of its points is a separate build and render with
+//!   that point's sample count.
+//!
+//! Errors, over every pixel and channel against the reference `r`:
+//! - relative MSE: the mean of `(x - r)² / (r² + 0.01)` (the 0.01 keeps dark pixels from
+//!   dominating; the usual form in the denoising literature);
+//! - mean absolute error: the mean of `|x - r|`.
+//!
+//! The reference is an independent image (e.g. another renderer's) or a render at many samples
+//! with another seed, so that its noise does not correlate with the curves'. Its own noise puts
+//! a floor under the measured error: with `k` times the last point's samples, about `1/k` of that
+//! point's relative MSE.
+//!
+//! Comparing builders at equal time ([`compare_auto`]): the curves are sampled at different
+//! times, so each builder's sample count at a time is interpolated between its points, and the
+//! error there is read from one model fitted to all points, `c/spp + floor` ([`ErrorModel`]).
+//! Only times where every curve has points are compared. The relative MSE falls as `1/spp`, so
+//! a ratio of 1.1 in relative MSE is about 10% more time for the same error.
+
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::RenderScene;
+use super::film::Film;
+use crate::bvh::builders::Builder;
+use crate::image_io::Image;
+use crate::scene::Scene;
+
+/// The relative MSE's guard against division by a dark reference pixel.
+const REL_MSE_EPSILON: f64 = 0.01;
+
+/// A builder as the convergence benchmark takes it.
+#[derive(Clone, Debug)]
+pub enum BuilderChoice {
+    Fixed(Builder),
+    /// `render --builder auto`: optimise as long as the render's estimated length repays it.
+    Auto,
+}
+
+impl std::fmt::Display for BuilderChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BuilderChoice::Fixed(b) => write!(f, "{b}"),
+            BuilderChoice::Auto => f.write_str("auto"),
+        }
+    }
+}
+
+impl std::str::FromStr for BuilderChoice {
+    type Err = crate::bvh::builders::UnknownBuilder;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s == "auto" { Ok(BuilderChoice::Auto) } else { s.parse().map(BuilderChoice::Fixed) }
+    }
+}
+
+/// What to measure. `Default`: 1 to 64 spp, seed 0.
+#[derive(Clone, Debug)]
+pub struct ConvergeConfig {
+    /// Sample counts: `start_spp`, doubled while at most `max_spp`.
+    pub start_spp: u32,
+    pub max_spp: u32,
+    /// Path segments per sample (the scene's `render.max_depth` usually).
+    pub max_depth: u32,
+    /// Seed of the curves' renders (the rendered reference takes another).
+    pub seed: u64,
+}
+
+impl Default for ConvergeConfig {
+    fn default() -> Self {
+        Self { start_spp: 1, max_spp: 64, max_depth: 8, seed: 0 }
+    }
+}
+
+impl ConvergeConfig {
+    /// The sample counts of a curve's points.
+    pub fn spp_steps(&self) -> Vec<u32> {
+        std::iter::successors(Some(self.start_spp.max(1)), |&n| n.checked_mul(2))
+            .take_while(|&n| n <= self.max_spp)
+            .collect()
+    }
+}
+
+/// One point of a curve.
+#[derive(Clone, Debug, Serialize)]
+pub struct ConvergePoint {
+    pub spp: u32,
+    /// BVH build plus render, seconds.
+    pub time_s: f64,
+    /// The BVH build's part of `time_s`.
+    pub build_s: f64,
+    pub rel_mse: f64,
+    pub mae: f64,
+    /// Samples dropped because they were NaN or infinite (0 in a correct render).
+    pub non_finite: u64,
+}
+
+/// One builder on one device.
+#[derive(Clone, Debug, Serialize)]
+pub struct ConvergeCurve {
+    pub builder: String,
+    pub device: String,
+    /// What the builder did (for `auto`, its decision at the last point).
+    pub detail: String,
+    pub points: Vec<ConvergePoint>,
+}
+
+/// `auto` against the best fixed builder at equal time, where all curves overlap.
+#[derive(Clone, Debug, Serialize)]
+pub struct AutoComparison {
+    /// The largest ratio of auto's relative MSE to the lowest of the fixed builders'.
+    pub worst_ratio_rel_mse: f64,
+    /// Where it is, seconds, and which fixed builder was best there.
+    pub worst_at_time_s: f64,
+    pub best_fixed_there: String,
+    /// The same for the mean absolute error.
+    pub worst_ratio_mae: f64,
+    /// The time range compared, seconds.
+    pub compared_from_s: f64,
+    pub compared_to_s: f64,
+    /// The relative MSE model the ratios come from.
+    pub rel_mse_model: ErrorModel,
+}
+
+/// Relative MSE and mean absolute error of `image` against `reference` (see the module docs).
+///
+/// # Panics
+/// If the sizes differ (callers check them with a message first).
+pub fn image_error(image: &Image, reference: &Image) -> (f64, f64) {
+    assert_eq!((image.width, image.height), (reference.width, reference.height), "image sizes differ");
+    let (sq, abs) = image
+        .pixels
+        .par_iter()
+        .zip(&reference.pixels)
+        .map(|(x, r)| {
+            let mut s = (0.0, 0.0);
+            for c in 0..3 {
+                let (x, r) = (f64::from(x[c]), f64::from(r[c]));
+                s.0 += (x - r) * (x - r) / (r * r + REL_MSE_EPSILON);
+                s.1 += (x - r).abs();
+            }
+            s
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let n = (3 * image.pixels.len()).max(1) as f64;
+    (sq / n, abs / n)
+}
+
+/// Renders `scene` at `spp` samples with `seed` (a reference); returns it and the seconds taken.
+pub fn render_reference(scene: &Scene, spp: u32, max_depth: u32, seed: u64) -> (Image, f64) {
+    let t = Instant::now();
+    let (rs, _) = RenderScene::build(scene, &"lbvh+prbvh".parse().expect("a builder name"));
+    let mut film = Film::new(rs.width, rs.height);
+    rs.render(&mut film, seed, max_depth, 0..spp, &|_| {});
+    (film.mean(), t.elapsed().as_secs_f64())
+}
+
+/// The curve of `choice` against `reference`; `progress` hears of each point.
+pub fn measure_curve(
+    scene: &Scene,
+    choice: &BuilderChoice,
+    reference: &Image,
+    config: &ConvergeConfig,
+    progress: &mut dyn FnMut(&ConvergePoint),
+) -> ConvergeCurve {
+    let steps = config.spp_steps();
+    let mut points = Vec::with_capacity(steps.len());
+    let mut detail = String::new();
+    match choice {
+        BuilderChoice::Fixed(builder) => {
+            let t = Instant::now();
+            let (rs, report) = RenderScene::build(scene, builder);
+            let build_s = t.elapsed().as_secs_f64();
+            detail = report.builder;
+            let mut film = Film::new(rs.width, rs.height);
+            let (mut done, mut render_s) = (0, 0.0);
+            for &spp in &steps {
+                let t = Instant::now();
+                rs.render(&mut film, config.seed, config.max_depth, done..spp, &|_| {});
+                render_s += t.elapsed().as_secs_f64();
+                done = spp;
+                points.push(point(&film, reference, spp, build_s, build_s + render_s));
+                progress(points.last().expect("just pushed"));
+            }
+        }
+        BuilderChoice::Auto => {
+            for &spp in &steps {
+                let t = Instant::now();
+                let rays = RenderScene::estimated_rays(scene, spp, config.max_depth, 1);
+                let (rs, report) = RenderScene::build_auto(scene, rays);
+                let build_s = t.elapsed().as_secs_f64();
+                let mut film = Film::new(rs.width, rs.height);
+                rs.render(&mut film, config.seed, config.max_depth, 0..spp, &|_| {});
+                let time_s = t.elapsed().as_secs_f64();
+                detail = report.builder;
+                points.push(point(&film, reference, spp, build_s, time_s));
+                progress(points.last().expect("just pushed"));
+            }
+        }
+    }
+    ConvergeCurve { builder: choice.to_string(), device: "cpu".into(), detail, points }
+}
+
+fn point(film: &Film, reference: &Image, spp: u32, build_s: f64, time_s: f64) -> ConvergePoint {
+    let (rel_mse, mae) = image_error(&film.mean(), reference);
+    ConvergePoint { spp, time_s, build_s, rel_mse, mae, non_finite: film.non_finite_count() }
+}
+
+/// The curves of several runs of the same builders (each run a `Vec` in the same builder
+/// order), point by point: the point of median time. Errors barely differ between runs (same
+/// samples), so the median time is the run's figure that matters, and a point keeps its own
+/// run's errors with it.
+pub fn median_of_runs(mut runs: Vec<Vec<ConvergeCurve>>) -> Vec<ConvergeCurve> {
+    let Some(mut merged) = runs.pop() else { return Vec::new() };
+    for (k, curve) in merged.iter_mut().enumerate() {
+        for (i, point) in curve.points.iter_mut().enumerate() {
+            let mut candidates: Vec<ConvergePoint> =
+                runs.iter().filter_map(|r| r.get(k)?.points.get(i).cloned()).chain([point.clone()]).collect();
+            candidates.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
+            *point = candidates.swap_remove(candidates.len() / 2);
+        }
+    }
+    merged
+}
+
+/// The expected error of an `spp`-sample render, `c · spp^-exponent + floor`: Monte Carlo
+/// variance, and with it the relative MSE, falls as `1/spp` (exponent 1), the mean absolute
+/// error as `1/√spp` (exponent ½); the reference's own noise (or bias) is the floor.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct ErrorModel {
+    pub c: f64,
+    pub exponent: f64,
+    pub floor: f64,
+}
+
+impl ErrorModel {
+    /// Fits the model to every point of `curves` by least squares on relative residuals
+    /// (`Σ ((c/spp + floor - e)/e)²`), both terms kept non-negative. All builders render the
+    /// same samples, so one model serves every curve.
+    pub fn fit(curves: &[ConvergeCurve], exponent: f64, error: impl Fn(&ConvergePoint) -> f64) -> Option<ErrorModel> {
+        let pts: Vec<(f64, f64)> = curves
+            .iter()
+            .flat_map(|c| &c.points)
+            .map(|p| ((p.spp as f64).powf(-exponent), error(p)))
+            .filter(|&(_, e)| e > 0.0 && e.is_finite())
+            .collect();
+        if pts.is_empty() {
+            return None;
+        }
+        // Weighted sums with weights 1/e²: normal equations of (c, floor).
+        let (mut sxx, mut sx, mut s1, mut sxe, mut se) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(x, e) in &pts {
+            let w = 1.0 / (e * e);
+            sxx += w * x * x;
+            sx += w * x;
+            s1 += w;
+            sxe += w * x * e;
+            se += w * e;
+        }
+        let det = sxx * s1 - sx * sx;
+        let (c, floor) = if det.abs() > 1e-12 * sxx * s1 {
+            ((sxe * s1 - sx * se) / det, (sxx * se - sx * sxe) / det)
+        } else {
+            (f64::NAN, f64::NAN)
+        };
+        Some(if c.is_finite() && floor.is_finite() && c >= 0.0 && floor >= 0.0 {
+            ErrorModel { c, exponent, floor }
+        } else if floor < 0.0 || !floor.is_finite() {
+            ErrorModel { c: sxe / sxx, exponent, floor: 0.0 }
+        } else {
+            ErrorModel { c: 0.0, exponent, floor: se / s1 }
+        })
+    }
+
+    pub fn at(&self, spp: f64) -> f64 {
+        self.c * spp.powf(-self.exponent) + self.floor
+    }
+}
+
+/// The samples a curve would have taken by time `t`, interpolating its points linearly in
+/// log(time)–log(spp); `None` outside its points.
+pub fn spp_at(points: &[ConvergePoint], t: f64) -> Option<f64> {
+    if let [only] = points {
+        return (only.time_s == t).then_some(only.spp as f64);
+    }
+    let i = points.windows(2).position(|w| w[0].time_s <= t && t <= w[1].time_s)?;
+    let (a, b) = (&points[i], &points[i + 1]);
+    let (ta, tb) = (a.time_s.max(1e-12).ln(), b.time_s.max(1e-12).ln());
+    let (sa, sb) = ((a.spp as f64).ln(), (b.spp as f64).ln());
+    let f = if tb > ta { (t.max(1e-12).ln() - ta) / (tb - ta) } else { 1.0 };
+    Some((sa + f * (sb - sa)).exp())
+}
+
+/// Compares the `auto` curve with the best fixed builder at equal time, at every point time
+/// where all curves have points. `None` without an `auto` curve, a fixed one, or an overlap.
+///
+/// The error at time `t` is the fitted model's at the samples the builder had taken by `t`
+/// ([`spp_at`]), not the measured error interpolated: at a few spp the measured error jumps
+/// with each firefly, and because every builder renders the same samples, those jumps would
+/// shift with each curve's timing and be read as differences between builders. With the model,
+/// the ratio of relative MSEs is at most the ratio of samples per second, whatever the noise.
+pub fn compare_auto(curves: &[ConvergeCurve]) -> Option<AutoComparison> {
+    let auto = curves.iter().find(|c| c.builder == "auto")?;
+    let fixed: Vec<&ConvergeCurve> = curves.iter().filter(|c| c.builder != "auto").collect();
+    if fixed.is_empty() {
+        return None;
+    }
+    let mut from = 0.0f64;
+    let mut to = f64::INFINITY;
+    for c in fixed.iter().chain([&auto]) {
+        let (Some(a), Some(b)) = (c.points.first(), c.points.last()) else { return None };
+        from = from.max(a.time_s);
+        to = to.min(b.time_s);
+    }
+    if from > to {
+        return None;
+    }
+    let mse = ErrorModel::fit(curves, 1.0, |p| p.rel_mse)?;
+    let mae = ErrorModel::fit(curves, 0.5, |p| p.mae)?;
+    let times: Vec<f64> =
+        curves.iter().flat_map(|c| c.points.iter().map(|p| p.time_s)).filter(|t| (from..=to).contains(t)).collect();
+    let mut result: Option<AutoComparison> = None;
+    let mut worst_mae = 0.0f64;
+    for t in times {
+        let Some(ours) = spp_at(&auto.points, t) else { continue };
+        let Some((best, name)) = fixed
+            .iter()
+            .filter_map(|c| Some((spp_at(&c.points, t)?, c.builder.clone())))
+            .max_by(|a, b| a.0.total_cmp(&b.0))
+        else {
+            continue;
+        };
+        let r_mse = mse.at(ours) / mse.at(best).max(1e-300);
+        worst_mae = worst_mae.max(mae.at(ours) / mae.at(best).max(1e-300));
+        if result.as_ref().is_none_or(|r| r_mse > r.worst_ratio_rel_mse) {
+            result = Some(AutoComparison {
+                worst_ratio_rel_mse: r_mse,
+                worst_at_time_s: t,
+                best_fixed_there: name,
+                worst_ratio_mae: 0.0,
+                compared_from_s: from,
+                compared_to_s: to,
+                rel_mse_model: mse,
+            });
+        }
+    }
+    result.map(|r| AutoComparison { worst_ratio_mae: worst_mae, ..r })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn curve(name: &str, pts: Vec<ConvergePoint>) -> ConvergeCurve {
+        ConvergeCurve { builder: name.into(), device: "cpu".into(), detail: String::new(), points: pts }
+    }
+
+    #[test]
+    fn error_of_identical_images_is_zero_and_of_a_doubled_one_is_known() {
+        let mut a = Image::new(2, 1);
+        a.pixels = vec![[1.0, 0.5, 0.0], [2.0, 2.0, 2.0]];
+        assert_eq!(image_error(&a, &a), (0.0, 0.0));
+        let mut b = a.clone();
+        b.pixels = a.pixels.iter().map(|p| p.map(|c| 2.0 * c)).collect();
+        let (mse, mae) = image_error(&b, &a);
+        let expect_mse = (1.0 / 1.01 + 0.25 / 0.26 + 3.0 * 4.0 / 4.01) / 6.0;
+        assert!((mse - expect_mse).abs() < 1e-9, "{mse} vs {expect_mse}");
+        assert!((mae - 7.5 / 6.0).abs() < 1e-9);
+    }
+
+    fn q(spp: u32, time_s: f64) -> ConvergePoint {
+        ConvergePoint {
+            spp,
+            time_s,
+            build_s: 0.0,
+            rel_mse: 1.0 / spp as f64,
+            mae: 1.0 / (spp as f64).sqrt(),
+            non_finite: 0,
+        }
+    }
+
+    #[test]
+    fn samples_at_a_time_interpolate_in_log_log() {
+        let pts = vec![q(1, 1.0), q(4, 4.0)];
+        assert!((spp_at(&pts, 2.0).unwrap() - 2.0).abs() < 1e-12);
+        assert_eq!(spp_at(&pts, 0.5), None);
+        assert_eq!(spp_at(&pts, 5.0), None);
+    }
+
+    #[test]
+    fn the_error_model_recovers_c_and_the_floor() {
+        let pts = [1, 2, 4, 8, 16, 32].map(|n| ConvergePoint { rel_mse: 0.5 / n as f64 + 0.01, ..q(n, n as f64) });
+        let m = ErrorModel::fit(&[curve("a", pts.to_vec())], 1.0, |p| p.rel_mse).unwrap();
+        assert!((m.c - 0.5).abs() < 1e-9 && (m.floor - 0.01).abs() < 1e-9, "{m:?}");
+    }
+
+    #[test]
+    fn auto_twice_as_slow_is_about_twice_the_error() {
+        let steps = [1u32, 2, 4, 8];
+        let best = curve("lbvh", steps.iter().map(|&n| q(n, n as f64)).collect());
+        let slow = curve("binned-sah", steps.iter().map(|&n| q(n, 1.5 * n as f64)).collect());
+        let auto = curve("auto", steps.iter().map(|&n| q(n, 2.0 * n as f64)).collect());
+        let c = compare_auto(&[best, slow, auto]).unwrap();
+        assert!((c.worst_ratio_rel_mse - 2.0).abs() < 1e-9, "{c:?}");
+        assert!((c.worst_ratio_mae - 2f64.sqrt()).abs() < 1e-2, "{c:?}");
+        assert_eq!(c.best_fixed_there, "lbvh");
+        assert_eq!((c.compared_from_s, c.compared_to_s), (2.0, 8.0));
+    }
+
+    #[test]
+    fn noise_in_the_measured_error_does_not_read_as_a_difference() {
+        // Same samples, same errors (one a firefly spike), same timing: a ratio of 1.
+        let pts: Vec<ConvergePoint> = [(1, 0.3), (2, 0.5), (4, 0.16), (8, 0.13)]
+            .map(|(n, e)| ConvergePoint { rel_mse: e, ..q(n, n as f64) })
+            .to_vec();
+        let mut late = pts.clone();
+        late.iter_mut().for_each(|p| p.time_s *= 1.02);
+        let c = compare_auto(&[curve("lbvh", pts), curve("auto", late)]).unwrap();
+        assert!(c.worst_ratio_rel_mse < 1.03, "{c:?}");
+    }
+
+    #[test]
+    fn runs_merge_to_the_median_time_point() {
+        let run = |t: f64| vec![curve("lbvh", vec![q(1, t), q(2, 2.0 * t)])];
+        let merged = median_of_runs(vec![run(3.0), run(1.0), run(2.0)]);
+        assert_eq!(merged[0].points.iter().map(|p| p.time_s).collect::<Vec<_>>(), vec![2.0, 4.0]);
+    }
+
+    #[test]
+    fn spp_steps_double_up_to_the_maximum() {
+        let c = ConvergeConfig { start_spp: 1, max_spp: 20, ..Default::default() };
+        assert_eq!(c.spp_steps(), vec![1, 2, 4, 8, 16]);
+    }
+}
