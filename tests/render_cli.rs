@@ -167,3 +167,23 @@ fn frames_render_numbered_sequences() {
     }
     assert!(!dir.join("nopattern.exr").exists());
 }
+
+/// `--clamp R` bounds every sample, so every pixel, by R; without it the Cornell box's light
+/// reads far above R. A clamp of 0 or less is refused.
+#[test]
+fn clamp_bounds_samples_only_when_asked() {
+    let dir = temp_dir("clamp");
+    let max_of = |args: &[&str]| {
+        let out = dir.join("c.exr");
+        let o = render().arg(scene("cornell-box.toml")).arg("-o").arg(&out).args(args).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let image = arbor::image_io::read_exr(&out).unwrap();
+        image.pixels.iter().flatten().fold(0.0f32, |m, &v| m.max(v))
+    };
+    let common = ["--spp", "2", "--max-depth", "3", "--quiet"];
+    assert!(max_of(&common) > 5.0, "the light is brighter than 5 unclamped");
+    let clamped = max_of(&[&common[..], &["--clamp", "0.5"]].concat());
+    assert!(clamped <= 0.5 + 1e-6, "clamped maximum {clamped}");
+    let o = render().arg(scene("cornell-box.toml")).args(["-o", "x.exr", "--clamp", "0"]).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--clamp"));
+}

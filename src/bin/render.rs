@@ -58,6 +58,10 @@ struct Args {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// Clamp fireflies: scale down any sample whose largest channel exceeds this radiance.
+    /// Biased (it removes energy); off unless given.
+    #[arg(long, value_name = "RADIANCE")]
+    clamp: Option<f32>,
     /// Seed of the random streams (overrides render.seed).
     #[arg(long)]
     seed: Option<u64>,
@@ -101,6 +105,9 @@ fn run() -> Result<()> {
     if spp == 0 || max_depth == 0 {
         bail!("--spp and --max-depth must be at least 1");
     }
+    if args.clamp.is_some_and(|c| !(c.is_finite() && c > 0.0)) {
+        bail!("--clamp must be a radiance > 0");
+    }
     if time.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
         bail!("--time must be a number of seconds > 0");
     }
@@ -129,6 +136,7 @@ fn run() -> Result<()> {
             RenderScene::build_auto(&scene, RenderScene::estimated_rays(&scene, spp, max_depth, frame_count))
         }
     };
+    render_scene.sample_clamp = args.clamp;
     if !args.quiet {
         println!(
             "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}",

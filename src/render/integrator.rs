@@ -50,6 +50,10 @@ pub struct RenderScene {
     pub camera: CameraModel,
     pub width: u32,
     pub height: u32,
+    /// Firefly clamp, off (`None`) unless the user asks (`render --clamp`): a sample whose
+    /// largest channel exceeds it is scaled down to it. Biased (energy is lost), so never a
+    /// default, and no accuracy test runs with it.
+    pub sample_clamp: Option<f32>,
 }
 
 /// What building the acceleration structure cost.
@@ -204,6 +208,7 @@ impl RenderScene {
             camera: CameraModel::new(&scene.camera),
             width: scene.camera.width,
             height: scene.camera.height,
+            sample_clamp: None,
         }
     }
 
@@ -353,7 +358,14 @@ impl RenderScene {
                         let mut rng = Rng::for_sample(seed, pixel, s as u64);
                         let film_pos = Vec2::new(x as f32, y as f32) + rng.next_vec2();
                         let ray = self.camera.ray(film_pos, rng.next_vec2());
-                        let (l, r) = self.radiance(ray, &mut rng, max_depth);
+                        let (mut l, r) = self.radiance(ray, &mut rng, max_depth);
+                        if let Some(c) = self.sample_clamp {
+                            // NaN stays NaN, for the film to count.
+                            let m = l.max_element();
+                            if m > c {
+                                l *= c / m;
+                            }
+                        }
                         px.add(l);
                         rays += r as u64;
                     }
