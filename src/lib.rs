@@ -3,6 +3,7 @@
 //! - [`geometry`]: boxes, rays, the watertight triangle test, Morton codes, meshes.
 //! - [`bvh`]: the tree layout shared with the GPU, the LBVH and binned-SAH builders, SAH cost and
 //!   leaf collapse, validation, and closest/any-hit traversal.
+//! - [`gpu`]: the wgpu backend: context, shared layouts, GPU LBVH.
 //! - [`scene`]: the TOML scene format and its loader.
 //! - [`render`]: camera, film, materials (BSDFs), sampling, lights, the path tracer, and the
 //!   time-against-error benchmark.
@@ -12,6 +13,7 @@
 pub mod atomic_file;
 pub mod bvh;
 pub mod geometry;
+pub mod gpu;
 pub mod image_io;
 pub mod memory;
 pub mod render;

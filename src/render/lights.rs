@@ -48,10 +48,13 @@ impl Lights {
             let area = t.area();
             // Emitted power of a Lambertian emitter: π · L · area per side.
             let p = std::f32::consts::PI * luminance(radiance) * area * if two_sided { 2.0 } else { 1.0 };
-            if !(p > 0.0 && p.is_finite()) {
+            // A triangle so small that its area is subnormal has no usable normal or density
+            // (1/area overflows); it can be neither sampled nor hit, so it is no light.
+            let normal = t.normal().normalize_or_zero();
+            if !(p > 0.0 && p.is_finite() && area.is_normal() && (1.0 / area).is_finite() && normal != Vec3::ZERO) {
                 continue;
             }
-            lights.push(LightTriangle { triangle: *t, normal: t.normal().normalize(), area, radiance, two_sided });
+            lights.push(LightTriangle { triangle: *t, normal, area, radiance, two_sided });
             prims.push(i);
             power.push(p as f64);
         }

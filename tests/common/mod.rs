@@ -92,3 +92,16 @@ pub fn all_shared_models() -> Vec<(String, TriangleMesh)> {
     names.sort();
     names.into_iter().filter_map(|n| shared_model(&n).map(|m| (n, m))).collect()
 }
+
+/// The shared GPU context, or `None` with the reason printed where there is no adapter; under
+/// `CI=true` a missing adapter fails the test instead (CI installs lavapipe).
+pub fn gpu_or_skip(test: &str) -> Option<&'static arbor::gpu::GpuContext> {
+    match arbor::gpu::GpuContext::shared() {
+        Ok(ctx) => Some(ctx),
+        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("{test}: no GPU under CI=true: {e}"),
+        Err(e) => {
+            eprintln!("skipping {test}: {e}");
+            None
+        }
+    }
+}

@@ -1,0 +1,67 @@
+//! The GPU LBVH builds the CPU LBVH's tree, node for node (topology, boxes, primitive order),
+//! on random boxes, on inputs with many equal Morton codes, and on the shared dragon; and the
+//! tree passes `validate()`. Runs on any adapter, lavapipe included; skips without one, except
+//! under `CI=true`.
+
+mod common;
+
+use arbor::bvh::{lbvh, validate};
+use arbor::geometry::{Aabb, Triangle};
+use arbor::gpu::lbvh as gpu_lbvh;
+use common::gpu_or_skip;
+
+fn same_tree(name: &str, prims: &[Aabb]) {
+    let Some(ctx) = gpu_or_skip(name) else { return };
+    let cpu = lbvh::build(prims);
+    let (gpu, times) = gpu_lbvh::build(ctx, prims).unwrap_or_else(|e| panic!("{name}: {e}"));
+    eprintln!("{name}: {} primitives on {}: {:?}", prims.len(), ctx.describe(), times);
+    validate(&gpu, prims).unwrap_or_else(|e| panic!("{name}: the GPU tree is invalid: {e}"));
+    let (cpu_codes, cpu_ids) = lbvh::sorted_morton_codes(prims);
+    let (gpu_codes, gpu_ids) = gpu_lbvh::sorted_morton_codes(ctx, prims).unwrap();
+    if let Some(k) = (0..prims.len()).find(|&k| cpu_codes[k] != gpu_codes[k] || cpu_ids[k] != gpu_ids[k]) {
+        let p = cpu_ids[k] as usize;
+        panic!(
+            "{name}: key {k} differs: CPU primitive {p} code {:#x}, GPU primitive {} code {:#x}; box {:?}",
+            cpu_codes[k], gpu_ids[k], gpu_codes[k], prims[p]
+        );
+    }
+    assert!(gpu.prim_ids == cpu.prim_ids, "{name}: primitive order");
+    assert!(gpu.parents == cpu.parents, "{name}: parents");
+    for (i, (g, c)) in gpu.nodes.iter().zip(cpu.nodes.iter()).enumerate() {
+        assert_eq!(g, c, "{name}: node {i}");
+    }
+    assert_eq!(gpu.nodes.len(), cpu.nodes.len());
+}
+
+#[test]
+fn random_boxes_give_the_cpu_tree() {
+    let mut rng = common::rng(11);
+    for n in [2usize, 3, 17, 1000, 70_001] {
+        let tris = common::random_triangles(n, 0.05, &mut rng);
+        let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
+        same_tree(&format!("random {n}"), &prims);
+    }
+}
+
+/// Many primitives share a Morton code: the index tie-break must match.
+#[test]
+fn duplicate_codes_give_the_cpu_tree() {
+    let mut rng = common::rng(12);
+    let mut prims: Vec<Aabb> = Vec::new();
+    for k in 0..5000 {
+        // 50 distinct centres, each 100 times.
+        let c = glam::Vec3::splat((k % 50) as f32);
+        prims.push(Aabb::new(c - 0.5, c + 0.5));
+    }
+    prims.extend(common::random_triangles(100, 0.1, &mut rng).iter().map(Triangle::aabb));
+    same_tree("duplicates", &prims);
+    // All equal, and a flat (zero-extent) axis.
+    same_tree("all equal", &vec![Aabb::new(glam::Vec3::ZERO, glam::Vec3::ONE); 300]);
+}
+
+#[test]
+fn dragon_gives_the_cpu_tree() {
+    let Some(mesh) = common::shared_model("dragon_res2.obj") else { return };
+    let prims: Vec<Aabb> = mesh.triangles().iter().map(Triangle::aabb).collect();
+    same_tree("dragon", &prims);
+}
