@@ -143,17 +143,17 @@ fn spawned_rays_do_not_self_intersect() {
             let o = center + random_dir(&mut r) * radius * 3.0;
             let target = center + random_dir(&mut r) * radius * 0.5;
             let Some(hit) = bvh.closest_hit_triangles(&tris, &Ray::new(o, target - o), f32::INFINITY) else { continue };
-            let (p, n) = hit_point_and_normal(&tris, &hit);
+            let (p, err, n) = hit_point_and_normal(&tris, &hit);
             let n = if n.dot(p - center) < 0.0 { -n } else { n }; // outward
             let mut dir = random_dir(&mut r);
             if dir.dot(n) < 0.0 {
                 dir = -dir;
             }
             spawned += 1;
-            if bvh.closest_hit_triangles(&tris, &spawn_ray(p, n, dir), f32::INFINITY).is_some() {
+            if bvh.closest_hit_triangles(&tris, &spawn_ray(p, err, n, dir), f32::INFINITY).is_some() {
                 outward_hits += 1;
             }
-            if let Some(h) = bvh.closest_hit_triangles(&tris, &spawn_ray(p, n, -dir), f32::INFINITY) {
+            if let Some(h) = bvh.closest_hit_triangles(&tris, &spawn_ray(p, err, n, -dir), f32::INFINITY) {
                 self_hits += (h.prim_id == hit.prim_id) as u32;
             }
         }
@@ -176,7 +176,7 @@ fn unoffset_rays_do_self_intersect() {
         else {
             continue;
         };
-        let (p, n) = hit_point_and_normal(&tris, &hit);
+        let (p, _, n) = hit_point_and_normal(&tris, &hit);
         let n = if n.dot(p) < 0.0 { -n } else { n };
         let dir = (n + random_dir(&mut r) * 0.9).normalize();
         self_hits += bvh.closest_hit_triangles(&tris, &Ray::new(p, dir), f32::INFINITY).is_some() as u32;

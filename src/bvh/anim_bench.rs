@@ -359,7 +359,8 @@ fn diffuse_rays(anim: &AnimatedInstances, level: &TwoLevel, primary: &[Ray]) -> 
         let h = level.closest_hit(ray, f32::INFINITY)?;
         let inst = &level.instances()[h.instance as usize];
         let world = anim.meshes[inst.mesh as usize].triangle(h.prim_id as usize).transformed(&inst.world_from_object);
-        Some((world.point(h.u, h.v), world.normal().normalize_or_zero()))
+        let (p, err) = world.point_with_error(h.u, h.v);
+        Some((p, err, world.normal().normalize_or_zero()))
     })
 }
 

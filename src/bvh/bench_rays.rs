@@ -53,17 +53,17 @@ pub fn diffuse_rays(bvh: &Bvh, triangles: &[Triangle], primary: &[Ray]) -> Vec<R
     })
 }
 
-/// [`diffuse_rays`] for any geometry: `hit(ray)` gives the closest hit's point and unit
-/// geometric normal.
-pub fn diffuse_rays_with(primary: &[Ray], hit: impl Fn(&Ray) -> Option<(Vec3, Vec3)> + Sync) -> Vec<Ray> {
+/// [`diffuse_rays`] for any geometry: `hit(ray)` gives the closest hit's point, its rounding
+/// error bound and the unit geometric normal.
+pub fn diffuse_rays_with(primary: &[Ray], hit: impl Fn(&Ray) -> Option<(Vec3, Vec3, Vec3)> + Sync) -> Vec<Ray> {
     primary
         .par_iter()
         .enumerate()
         .filter_map(|(i, ray)| {
-            let (p, n) = hit(ray)?;
+            let (p, err, n) = hit(ray)?;
             let n = if n.dot(ray.dir) > 0.0 { -n } else { n };
             let u = Rng::for_sample(0, i as u64, 0).next_vec2();
-            Some(spawn_ray(p, n, Frame::from_normal(n).to_world(cosine_hemisphere(u)).normalize()))
+            Some(spawn_ray(p, err, n, Frame::from_normal(n).to_world(cosine_hemisphere(u)).normalize()))
         })
         .collect()
 }
@@ -81,8 +81,8 @@ pub fn shadow_rays(bvh: &Bvh, triangles: &[Triangle], primary: &[Ray], light: Ve
         .par_iter()
         .filter_map(|ray| {
             let hit = bvh.closest_hit_triangles(triangles, ray, f32::INFINITY)?;
-            let (p, n) = hit_point_and_normal(triangles, &hit);
-            let from = spawn_ray(p, n, light - p).origin;
+            let (p, err, n) = hit_point_and_normal(triangles, &hit);
+            let from = spawn_ray(p, err, n, light - p).origin;
             Some(Ray::new(from, light - from))
         })
         .collect()

@@ -220,8 +220,10 @@ pub fn brute_force_any(triangles: &[Triangle], ray: &Ray, t_max: f32) -> bool {
     triangles.iter().any(|t| t.intersect(&wr, t_max).is_some())
 }
 
-/// A hit's position, from barycentrics (more accurate than `ray.at(t)`), and geometric normal.
-pub fn hit_point_and_normal(triangles: &[Triangle], hit: &Hit) -> (Vec3, Vec3) {
+/// A hit's position from barycentrics (more accurate than `ray.at(t)`), a bound on its rounding
+/// error ([`Triangle::point_with_error`]), and the unit geometric normal.
+pub fn hit_point_and_normal(triangles: &[Triangle], hit: &Hit) -> (Vec3, Vec3, Vec3) {
     let tri = &triangles[hit.prim_id as usize];
-    (tri.point(hit.u, hit.v), tri.normal().normalize_or_zero())
+    let (p, err) = tri.point_with_error(hit.u, hit.v);
+    (p, err, tri.normal().normalize_or_zero())
 }

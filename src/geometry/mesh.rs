@@ -2,9 +2,18 @@
 //!
 //! Procedural meshes share every vertex between the triangles that meet there, including at the
 //! poles and the wrap-around seams, so they are closed and watertight tests can rely on it.
+//!
+//! OBJ and MTL files are parsed by tobj 4, after checks of our own ([`read_obj`]): tobj panics on
+//! some bad input (an MTL colour with fewer than 3 numbers; a `vt` or `vn` index out of range,
+//! whose offset overflows), and most of its errors do not say where. Every error here names the
+//! file and, where the fault is one line, the line.
 
+use std::cell::RefCell;
+use std::collections::HashSet;
 use std::f32::consts::TAU;
+use std::io::Cursor;
 use std::path::{Path, PathBuf};
+use std::str::SplitWhitespace;
 
 use glam::{Mat4, Vec3};
 
@@ -18,8 +27,15 @@ pub struct TriangleMesh {
     pub indices: Vec<[u32; 3]>,
 }
 
+/// Why an OBJ file (or an MTL file it names) cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
+    #[error("{path}: cannot read: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    /// A line that is not valid OBJ or MTL, or not usable.
+    #[error("{path}:{line}: {message}")]
+    Invalid { path: PathBuf, line: usize, message: String },
+    /// What tobj finds only when an object ends, past the line at fault.
     #[error("{path}: cannot read OBJ: {source}")]
     Obj { path: PathBuf, source: tobj::LoadError },
 }
@@ -59,21 +75,24 @@ impl TriangleMesh {
         self.indices.extend(other.indices.iter().map(|t| t.map(|i| i + base)));
     }
 
-    /// Loads every object of a Wavefront OBJ file into one mesh, triangulating polygons.
+    /// Loads every object of a Wavefront OBJ file into one mesh, triangulating polygons. Its MTL
+    /// files are not read.
     pub fn load_obj(path: impl AsRef<Path>) -> Result<Self, MeshError> {
-        let path = path.as_ref();
-        let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-        let (models, _materials) =
-            tobj::load_obj(path, &opts).map_err(|source| MeshError::Obj { path: path.to_owned(), source })?;
+        let obj = read_obj(path.as_ref(), false)?;
         let mut mesh = TriangleMesh::default();
-        for m in &models {
-            let part = TriangleMesh {
-                positions: m.mesh.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])).collect(),
-                indices: m.mesh.indices.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
-            };
-            mesh.append(&part);
+        for m in &obj.models {
+            mesh.append(&TriangleMesh::from_tobj(&m.mesh));
         }
         Ok(mesh)
+    }
+
+    /// The positions and triangles of one tobj mesh (loaded with `triangulate` and
+    /// `single_index`).
+    pub(crate) fn from_tobj(m: &tobj::Mesh) -> Self {
+        TriangleMesh {
+            positions: m.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])).collect(),
+            indices: m.indices.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
+        }
     }
 
     /// A UV sphere of `stacks` latitude bands and `slices` longitude segments (each at least 3),
@@ -225,6 +244,206 @@ impl TriangleMesh {
         }
         Self { positions, indices }
     }
+}
+
+/// An OBJ file as tobj reads it, with the materials of the MTL files it names.
+pub(crate) struct ObjFile {
+    /// One per object and material; every position finite.
+    pub models: Vec<tobj::Model>,
+    /// The materials of the MTL files that loaded, which `material_id` indexes.
+    pub materials: Vec<tobj::Material>,
+    /// The MTL files named, each relative to the OBJ file's folder.
+    pub mtl_files: Vec<PathBuf>,
+    /// The first MTL file that could not be read or parsed.
+    pub mtl_error: Option<MeshError>,
+    /// The first `usemtl` naming a material that no MTL file defines: its line and the name.
+    pub unknown_material: Option<(usize, String)>,
+}
+
+/// Reads the OBJ file at `path`, triangulated, and with `materials` the MTL files it names
+/// (a broken MTL file is no error here: see [`ObjFile::mtl_error`]).
+pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshError> {
+    let text = std::fs::read(path).map_err(|source| MeshError::Read { path: path.to_owned(), source })?;
+    let usemtl = check_obj(path, &text)?;
+    let (mtl_files, mtl_error) = (RefCell::new(Vec::new()), RefCell::new(None));
+    let load_mtl = |name: &Path| {
+        if !materials {
+            return Ok(Default::default());
+        }
+        let mtl = path.parent().map_or_else(|| name.to_owned(), |dir| dir.join(name));
+        let loaded = load_mtl(&mtl, &mtl_error);
+        mtl_files.borrow_mut().push(mtl);
+        loaded
+    };
+    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    let mut reader = Cursor::new(&text[..]);
+    let (models, loaded) = match tobj::load_obj_buf(&mut reader, &opts, load_mtl) {
+        Ok(r) => r,
+        Err(e) => return Err(tobj_error(path, &text, reader.position(), e)),
+    };
+    // An error only when no MTL file loaded, and then `mtl_error` says why.
+    let materials = loaded.unwrap_or_default();
+    let defined: HashSet<&str> = materials.iter().map(|m| m.name.as_str()).collect();
+    let unknown_material = usemtl.into_iter().find(|(_, name)| !defined.contains(name.as_str()));
+    let (mtl_files, mtl_error) = (mtl_files.into_inner(), mtl_error.into_inner());
+    Ok(ObjFile { models, materials, mtl_files, mtl_error, unknown_material })
+}
+
+/// The MTL file at `path`, for tobj's OBJ loader, checked first where tobj would panic
+/// ([`check_mtl`]). The first failure is kept in `error`: tobj keeps only its kind.
+fn load_mtl(path: &Path, error: &RefCell<Option<MeshError>>) -> tobj::MTLLoadResult {
+    let fail = |e: MeshError| {
+        error.borrow_mut().get_or_insert(e);
+        tobj::LoadError::GenericFailure
+    };
+    let text = std::fs::read(path).map_err(|source| fail(MeshError::Read { path: path.to_owned(), source }))?;
+    check_mtl(path, &text).map_err(fail)?;
+    let mut reader = Cursor::new(&text[..]);
+    tobj::load_mtl_buf(&mut reader).map_err(|e| fail(tobj_error(path, &text, reader.position(), e)))
+}
+
+/// The lines of `text` up to the first that is not UTF-8, where tobj stops with an error.
+fn utf8_lines(text: &[u8]) -> impl Iterator<Item = (usize, &str)> {
+    text.split(|&b| b == b'\n').map_while(|l| std::str::from_utf8(l).ok()).enumerate().map(|(k, l)| (k + 1, l))
+}
+
+/// What tobj 4 misses or panics on in an OBJ file, with its line: a face index of 0, past the
+/// end of its list, or (relative) before its start; a face without vertices, or a vertex
+/// without a position index; a vertex position that is not finite. A `vt` or `vn` index out of range is the panic: tobj multiplies it by 2
+/// or 3 unchecked, which overflows. Indices are resolved as tobj does: relative ones against
+/// the elements so far, absolute ones against the whole file; a `vt` or `vn` reference (or one
+/// of 0) is ignored when the file has none of them. Lines that tobj rejects itself (a number
+/// that does not parse) are left to it. Returns each `usemtl` line's number and name.
+fn check_obj(path: &Path, text: &[u8]) -> Result<Vec<(usize, String)>, MeshError> {
+    const KINDS: [&str; 3] = ["v", "vt", "vn"];
+    let mut total = [0; 3];
+    for (_, l) in utf8_lines(text) {
+        if let Some(k) = l.split_whitespace().next().and_then(|w| KINDS.iter().position(|&kind| kind == w)) {
+            total[k] += 1;
+        }
+    }
+    let mut seen = [0; 3];
+    let mut usemtl = Vec::new();
+    for (line, l) in utf8_lines(text) {
+        let at = |message| MeshError::Invalid { path: path.to_owned(), line, message };
+        let mut words = l.split_whitespace();
+        match words.next() {
+            Some("v") => {
+                seen[0] += 1;
+                if let Some(p) = obj_position(words).filter(|p| !p.iter().all(|c| c.is_finite())) {
+                    return Err(at(format!("vertex {}: position {p:?} is not finite", seen[0])));
+                }
+            }
+            Some("vt") => seen[1] += 1,
+            Some("vn") => seen[2] += 1,
+            Some(kind @ ("f" | "l")) => check_face(kind, words, seen, total).map_err(at)?,
+            Some("usemtl") => usemtl.push((line, l.split_once(' ').unwrap_or_default().1.trim().to_owned())),
+            _ => {}
+        }
+    }
+    Ok(usemtl)
+}
+
+/// A `v` line's position as tobj computes it (divided by w when a fourth number is given), or
+/// `None` where tobj rejects the line itself.
+fn obj_position(mut words: SplitWhitespace) -> Option<[f32; 3]> {
+    let mut p = [0f32; 3];
+    for c in &mut p {
+        *c = words.next()?.parse().ok()?;
+    }
+    match (words.next(), words.next()) {
+        (Some(w), None) => {
+            let w: f32 = w.parse().ok()?;
+            (w != 0.0).then(|| p.map(|c| c / w))
+        }
+        _ => Some(p),
+    }
+}
+
+/// The indices of an `f` or `l` line, checked as [`check_obj`] says; `seen` counts the
+/// vertices, texture coordinates and normals before the line, `total` those in the file.
+fn check_face(kind: &str, words: SplitWhitespace, seen: [usize; 3], total: [usize; 3]) -> Result<(), String> {
+    const NAMES: [(&str, &str); 3] =
+        [("vertex", "vertices"), ("texture coordinate", "texture coordinates"), ("normal", "normals")];
+    let mut refs = Vec::new();
+    let mut vertices = 0;
+    for word in words {
+        vertices += 1;
+        for (slot, part) in word.split('/').enumerate().filter(|(_, p)| !p.is_empty()) {
+            // A part that does not parse, or a fourth part: tobj's own error.
+            let Ok(x) = part.parse::<isize>() else { return Ok(()) };
+            if slot > 2 {
+                return Ok(());
+            }
+            refs.push((slot, x));
+        }
+        if word.split('/').next().is_none_or(str::is_empty) {
+            return Err(format!("`{kind}` vertex `{word}` has no position index"));
+        }
+    }
+    if vertices == 0 {
+        return Err(format!("`{kind}` without vertices"));
+    }
+    for (slot, x) in refs {
+        let (one, many) = NAMES[slot];
+        if slot > 0 && (x == 0 || total[slot] == 0) {
+            continue;
+        }
+        if x == 0 {
+            return Err(format!("`{kind}` refers to {one} 0; OBJ indices start at 1"));
+        }
+        if x > 0 && x.unsigned_abs() > total[slot] {
+            return Err(format!("`{kind}` refers to {one} {x}, but the file has {} {many}", total[slot]));
+        }
+        if x < 0 && x.unsigned_abs() > seen[slot] {
+            return Err(format!("`{kind}` refers to {one} {x} (relative), but {} {many} come before it", seen[slot]));
+        }
+    }
+    Ok(())
+}
+
+/// What tobj 4 panics on in an MTL file: a colour (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than 3
+/// numbers.
+fn check_mtl(path: &Path, text: &[u8]) -> Result<(), MeshError> {
+    for (line, l) in utf8_lines(text) {
+        let mut words = l.split_whitespace();
+        if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() {
+            let n = words.take(3).count();
+            if n < 3 {
+                let message = format!("`{key}` needs 3 numbers (r g b), not {n}");
+                return Err(MeshError::Invalid { path: path.to_owned(), line, message });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// tobj's error `e` after it read `read` bytes of `text` (from a `Cursor`): at the line it
+/// stopped at, unless tobj found it when an object ended, past the line at fault.
+fn tobj_error(path: &Path, text: &[u8], read: u64, e: tobj::LoadError) -> MeshError {
+    use tobj::LoadError as E;
+    let path = path.to_owned();
+    if matches!(
+        e,
+        E::FaceVertexOutOfBounds
+            | E::FaceTexCoordOutOfBounds
+            | E::FaceNormalOutOfBounds
+            | E::FaceColorOutOfBounds
+            | E::InvalidPolygon
+    ) {
+        return MeshError::Obj { path, source: e };
+    }
+    let read = &text[..usize::try_from(read).map_or(text.len(), |r| r.min(text.len()))];
+    let read = read.strip_suffix(b"\n").unwrap_or(read);
+    let start = read.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+    let line = read[..start].iter().filter(|&&b| b == b'\n').count() + 1;
+    let message = if e == E::ReadError {
+        "not UTF-8 text".to_owned()
+    } else {
+        let shown: String = String::from_utf8_lossy(&read[start..]).trim().chars().take(60).collect();
+        format!("{e}: `{shown}`")
+    };
+    MeshError::Invalid { path, line, message }
 }
 
 #[cfg(test)]

@@ -10,4 +10,4 @@ mod triangle;
 pub use aabb::{Aabb, ROBUST_SLAB_SCALE, RayInv, intersect_ray_packed};
 pub use mesh::{MeshError, TriangleMesh};
 pub use ray::{Ray, offset_ray_origin, spawn_ray};
-pub use triangle::{Triangle, TriangleHit, WatertightRay};
+pub use triangle::{Triangle, TriangleHit, WatertightRay, gamma};

@@ -1,10 +1,14 @@
 //! Rays, and spawning new rays from surfaces without a scene-scale epsilon.
 //!
-//! [`offset_ray_origin`] follows Wächter & Binder, "A Fast and Robust Method for Avoiding
-//! Self-Intersection" (Ray Tracing Gems, chapter 6): the hit point is moved off the surface along
-//! the geometric normal by a fixed number of units in the last place of each coordinate, so the
-//! offset grows with the coordinate's magnitude exactly as its rounding error does. Near the
-//! origin, where a few ULPs are tiny, a small absolute offset is used instead.
+//! [`offset_ray_origin`] moves a hit point off its surface along the geometric normal by a bound
+//! on the point's rounding error, computed from the triangle's vertices and the barycentrics
+//! (pbrt-v4, 4th ed., sections 6.8.4–6.8.6). The offset scales with the geometry, so a scene
+//! renders alike at 10⁻⁴ and at 10⁴, and far from the origin.
+//!
+//! History: this was the Wächter–Binder offset (Ray Tracing Gems, chapter 6), a fixed 256 ULPs
+//! of each coordinate, or 2⁻¹⁶ absolute near the origin. The stress suite showed both constants
+//! are scene scales in disguise: 256 ULPs at 10⁵ is 2 units (a Cornell box moved there lit
+//! nothing), and 2⁻¹⁶ is 8% of a Cornell box scaled by 10⁻⁴.
 
 use glam::Vec3;
 
@@ -34,38 +38,51 @@ impl Ray {
     }
 }
 
-/// Below this magnitude a coordinate is offset by an absolute amount (chapter 6, "origin()").
-const OFFSET_ORIGIN: f32 = 1.0 / 32.0;
-/// Absolute offset scale used near the origin.
-const OFFSET_FLOAT_SCALE: f32 = 1.0 / 65536.0;
-/// Offset in ULPs for a unit normal component.
-const OFFSET_INT_SCALE: f32 = 256.0;
-
-/// Moves `p`, a point computed on a surface, off that surface to the side `n` points to.
+/// Moves `p`, a point computed on a surface with rounding error at most `p_error` per axis
+/// (e.g. from [`crate::geometry::Triangle::point_with_error`]), off that surface to the side `n`
+/// points to.
 ///
 /// `n` is the geometric normal, unit length, flipped by the caller to face the side the new ray
-/// leaves into (outward for reflection, inward for transmission).
+/// leaves into (outward for reflection, inward for transmission). The offset along `n` is the
+/// error box's extent along `n`, `|n| · p_error`, and the sum is then rounded one more ULP
+/// away from `p` on each axis, so that its own rounding cannot pull it back (pbrt-v4,
+/// `OffsetRayOrigin`).
 #[inline]
-pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
-    let axis = |p: f32, n: f32| -> f32 {
-        if p.abs() < OFFSET_ORIGIN {
-            return p + OFFSET_FLOAT_SCALE * n;
+pub fn offset_ray_origin(p: Vec3, p_error: Vec3, n: Vec3) -> Vec3 {
+    let d = n.abs().dot(p_error);
+    let offset = n * d;
+    let po = p + offset;
+    let away = |v: f32, o: f32| {
+        if o > 0.0 {
+            next_up(v)
+        } else if o < 0.0 {
+            -next_up(-v)
+        } else {
+            v
         }
-        // Adding to the bit pattern moves the magnitude; flip the step for negative values so
-        // that a positive `n` always moves `p` towards +inf.
-        let ulps = (OFFSET_INT_SCALE * n) as i32;
-        let step = if p < 0.0 { -ulps } else { ulps };
-        f32::from_bits((p.to_bits() as i32).wrapping_add(step) as u32)
     };
-    Vec3::new(axis(p.x, n.x), axis(p.y, n.y), axis(p.z, n.z))
+    Vec3::new(away(po.x, offset.x), away(po.y, offset.y), away(po.z, offset.z))
 }
 
-/// Spawns a ray from surface point `p` with geometric normal `ng` in direction `dir`, offsetting
-/// the origin to whichever side of the surface `dir` points to.
+/// The next float towards +∞ (`f32::next_up`, which needs Rust 1.86; our minimum is 1.85).
 #[inline]
-pub fn spawn_ray(p: Vec3, ng: Vec3, dir: Vec3) -> Ray {
+fn next_up(v: f32) -> f32 {
+    if v.is_nan() || v == f32::INFINITY {
+        return v;
+    }
+    if v == 0.0 {
+        return f32::from_bits(1);
+    }
+    let bits = v.to_bits();
+    f32::from_bits(if v > 0.0 { bits + 1 } else { bits - 1 })
+}
+
+/// Spawns a ray from surface point `p` (rounding error `p_error`) with geometric normal `ng` in
+/// direction `dir`, offsetting the origin to whichever side of the surface `dir` points to.
+#[inline]
+pub fn spawn_ray(p: Vec3, p_error: Vec3, ng: Vec3, dir: Vec3) -> Ray {
     let n = if ng.dot(dir) < 0.0 { -ng } else { ng };
-    Ray::new(offset_ray_origin(p, n), dir)
+    Ray::new(offset_ray_origin(p, p_error, n), dir)
 }
 
 #[cfg(test)]
@@ -76,14 +93,18 @@ mod tests {
     fn offset_moves_to_the_normal_side_at_every_magnitude() {
         for &s in &[1e-6f32, 1e-3, 0.5, 1.0, 1e4, 1e5, 1e7] {
             for &sign in &[1.0f32, -1.0] {
-                let p = Vec3::new(s * sign, -s, s * 0.3);
-                let n = Vec3::new(0.6, -0.8, 0.0) * sign;
-                let q = offset_ray_origin(p, n);
+                let tri = crate::geometry::Triangle::new(
+                    Vec3::new(s * sign, -s, 0.0),
+                    Vec3::new(2.0 * s * sign, s, s),
+                    Vec3::new(-s * sign, s, -s),
+                );
+                let (p, err) = tri.point_with_error(0.3, 0.3);
+                let n = tri.normal().normalize() * sign;
+                let q = offset_ray_origin(p, err, n);
                 let d = q - p;
                 assert!(d.dot(n) > 0.0, "scale {s} sign {sign}: moved {d} against {n}");
-                // 256 ULPs (about 3e-5 relative) away from the origin, 2^-16 absolute near it.
-                let bound = (p.abs() * 1e-4).max(Vec3::splat(OFFSET_FLOAT_SCALE));
-                assert!(d.abs().cmple(bound).all(), "scale {s}: offset {d} too large");
+                // A few ULPs of the vertices: about 1e-6 relative to the triangle's scale.
+                assert!(d.abs().max_element() <= 4e-6 * s, "scale {s}: offset {d} too large");
             }
         }
     }

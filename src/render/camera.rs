@@ -26,6 +26,20 @@ pub struct CameraModel {
     focus_distance: f32,
 }
 
+/// What [`CameraModel::parts`] gives: the unit frame, the tangents of the half opening
+/// angles, and the thin lens (radius 0: a pinhole).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraParts {
+    pub origin: Vec3,
+    pub forward: Vec3,
+    pub right: Vec3,
+    pub up: Vec3,
+    pub tan_x: f32,
+    pub tan_y: f32,
+    pub lens_radius: f32,
+    pub focus_distance: f32,
+}
+
 impl CameraModel {
     pub fn new(c: &Camera) -> Self {
         let forward = (c.look_at - c.position).normalize();
@@ -43,6 +57,20 @@ impl CameraModel {
             height: c.height as f32,
             lens_radius: c.aperture,
             focus_distance: c.focus_distance,
+        }
+    }
+
+    /// The model's numbers, for the GPU path (`src/gpu/trace.rs`), which makes the same rays.
+    pub fn parts(&self) -> CameraParts {
+        CameraParts {
+            origin: self.origin,
+            forward: self.forward,
+            right: self.right,
+            up: self.up,
+            tan_x: self.tan_x,
+            tan_y: self.tan_y,
+            lens_radius: self.lens_radius,
+            focus_distance: self.focus_distance,
         }
     }
 

@@ -107,7 +107,10 @@ impl Instanced {
         let mut emission = Vec::new();
         let mut light_base = vec![INVALID_INDEX; self.instance_material.len()];
         let emissive = |m: u32| materials[m as usize].emission.is_some();
-        let mesh_emits: Vec<bool> = self.mesh_materials.iter().map(|ms| ms.iter().any(|&m| emissive(m))).collect();
+        // A mesh's own ids may be `u32::MAX` (an OBJ triangle without an MTL material); every
+        // object using such a mesh overrides its material, so those ids are never looked up.
+        let mesh_emits: Vec<bool> =
+            self.mesh_materials.iter().map(|ms| ms.iter().any(|&m| m != u32::MAX && emissive(m))).collect();
         for (i, inst) in self.two_level.instances().iter().enumerate() {
             let any = self.instance_material[i].map_or(mesh_emits[inst.mesh as usize], emissive);
             if !any {

@@ -26,11 +26,15 @@ use crate::bvh::builders::Builder;
 use crate::bvh::instances::TopLevelUpdate;
 use crate::bvh::prbvh::{self, PrbvhConfig};
 use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh, sah_cost};
-use crate::geometry::{Ray, Triangle, offset_ray_origin, spawn_ray};
+use crate::geometry::{Ray, Triangle, gamma, spawn_ray};
 use crate::scene::{ConductorFresnel, Scattering, Scene};
 
+/// Where a shadow ray's occlusion test ends, as a fraction of the way to the light's plane (see
+/// `direct_light`).
+pub const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
+
 /// Russian roulette starts at this many path segments (Mitsuba's `rr_depth`).
-const RR_DEPTH: u32 = 5;
+pub const RR_DEPTH: u32 = 5;
 
 /// A material as the integrator uses it.
 #[derive(Clone, Copy, Debug)]
@@ -248,7 +252,7 @@ impl RenderScene {
             if ng == Vec3::ZERO {
                 break;
             }
-            let p = tri.point(hit.u, hit.v);
+            let (p, p_error) = tri.point_with_error(hit.u, hit.v);
             let wo_world = -ray.dir;
             let front = ng.dot(wo_world) > 0.0;
             let material = &self.materials[hit.material as usize];
@@ -272,7 +276,7 @@ impl RenderScene {
             let frame = Frame::from_normal(ng);
             let wo = frame.to_local(wo_world);
             if !self.lights.is_empty() && bsdf.has_non_delta() {
-                rays += self.direct_light(&bsdf, &frame, p, ng, wo, beta, rng, &mut l);
+                rays += self.direct_light(&bsdf, &frame, (p, p_error), ng, wo, beta, rng, &mut l);
             }
             let Some(s) = bsdf.sample(wo, rng.next_vec2(), rng.next_f32()) else { break };
             if !(s.weight.is_finite() && s.weight.max_element() > 0.0) {
@@ -281,7 +285,7 @@ impl RenderScene {
             beta *= s.weight;
             prev_pdf = s.pdf;
             prev_delta = s.is_delta;
-            ray = spawn_ray(p, ng, frame.to_world(s.wi).normalize());
+            ray = spawn_ray(p, p_error, ng, frame.to_world(s.wi).normalize());
             if depth >= RR_DEPTH {
                 let q = beta.max_element().min(0.95);
                 if rng.next_f32() >= q {
@@ -300,7 +304,7 @@ impl RenderScene {
         &self,
         bsdf: &Bsdf,
         frame: &Frame,
-        p: Vec3,
+        (p, p_error): (Vec3, Vec3),
         ng: Vec3,
         wo: Vec3,
         beta: Vec3,
@@ -325,10 +329,23 @@ impl RenderScene {
         if f.max_element() <= 0.0 {
             return 0;
         }
-        // Both ends offset off their surfaces, towards each other; the light sits at t = 1.
-        let from = offset_ray_origin(p, if ng.dot(wi_world) > 0.0 { ng } else { -ng });
-        let to_light = offset_ray_origin(lp.point, if cos_light > 0.0 { lp.normal } else { -lp.normal });
-        if self.geometry.occluded(&Ray::new(from, to_light - from), 1.0) {
+        // Neither end is moved sideways, off the line from `p` to the sampled point: that would
+        // tilt the ray and shift penumbrae by the offsets (about 1% of a Cornell box placed 10⁵
+        // from the origin, where one ULP is 0.4% of it). Instead the ray starts along that line
+        // just far enough to clear the receiver's surface, by its error bound plus one rounding
+        // of the start itself, and stops short of the light's plane by the light point's error
+        // bound, both measured along the ray. It stops a further 10⁻⁴ of its length short: once
+        // rounded, the two triangles of a quad light are not exactly coplanar, and a ray reaching
+        // one near their shared edge can clip the other (the Cornell box's light scaled by 0.1 or
+        // 10⁻⁴ lost up to 1% of its direct light that way). Both found by tests/stability.rs.
+        let cos_receiver = ng.dot(wi_world).abs();
+        let clear = ng.abs().dot(p_error + p.abs() * gamma(1)) / cos_receiver;
+        let from = p + wi_world * clear;
+        let shadow = Ray::new(from, lp.point - from);
+        let length = shadow.dir.length();
+        let short_of_plane = lp.normal.abs().dot(lp.point_error) / (cos_light.abs() * length);
+        let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
+        if !(clear.is_finite() && clear * clear < dist2 && t_max > 0.0) || self.geometry.occluded(&shadow, t_max) {
             return 1;
         }
         let p_light = lp.pdf_area * dist2 / cos_light.abs();

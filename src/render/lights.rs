@@ -10,6 +10,8 @@ use crate::geometry::Triangle;
 #[derive(Clone, Copy, Debug)]
 pub struct LightPoint {
     pub point: Vec3,
+    /// A bound on `point`'s rounding error per axis ([`Triangle::point_with_error`]).
+    pub point_error: Vec3,
     /// The triangle's unit geometric normal (its front side).
     pub normal: Vec3,
     pub radiance: Vec3,
@@ -86,15 +88,39 @@ impl Lights {
         let k = self.cdf.partition_point(|&c| c <= u_select).min(self.lights.len() - 1);
         let l = &self.lights[k];
         let b = uniform_triangle(u);
-        let point = l.triangle.point(b.y, b.z);
+        let (point, point_error) = l.triangle.point_with_error(b.y, b.z);
         let p_select = self.cdf[k] - if k == 0 { 0.0 } else { self.cdf[k - 1] };
         Some(LightPoint {
             point,
+            point_error,
             normal: l.normal,
             radiance: l.radiance,
             two_sided: l.two_sided,
             pdf_area: p_select / l.area,
         })
+    }
+
+    /// The lights as the GPU path (`src/gpu/trace.rs`) uploads them: each light's triangle,
+    /// its CDF value (the running sum of power up to and including it), and the fields of
+    /// [`LightPoint`] that do not depend on the point, `pdf_area` as [`Lights::sample`] gives it
+    /// (`point` is the first vertex, `point_error` zero).
+    pub fn gpu_arrays(&self) -> Vec<(Triangle, f32, LightPoint)> {
+        self.lights
+            .iter()
+            .enumerate()
+            .map(|(k, l)| {
+                let p_select = self.cdf[k] - if k == 0 { 0.0 } else { self.cdf[k - 1] };
+                let point = LightPoint {
+                    point: l.triangle.v0,
+                    point_error: Vec3::ZERO,
+                    normal: l.normal,
+                    radiance: l.radiance,
+                    two_sided: l.two_sided,
+                    pdf_area: p_select / l.area,
+                };
+                (l.triangle, self.cdf[k], point)
+            })
+            .collect()
     }
 
     /// The density per unit area with which [`Lights::sample`] picks points on primitive `prim`.

@@ -19,6 +19,7 @@ use super::{
     Animation, AnimationSettings, Camera, ConductorFresnel, Keyframe, Material, Object, RenderSettings, Scattering,
     Scene, SceneError, SceneMesh,
 };
+use crate::geometry::mesh::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
 
 /// Most subdivisions of a built-in sphere: 20 · 4^8 ≈ 1.3 M triangles.
@@ -30,12 +31,24 @@ const MAX_PROCEDURAL_TRIANGLES: u64 = 100_000_000;
 const MAX_RESOLUTION: u32 = 65_536;
 /// Most instances one `scatter` makes (each object is about 100 bytes).
 const MAX_SCATTER: u64 = 10_000_000;
+/// Most objects in a scene, scattered instances included: a scene file of a few lines must not
+/// ask for unbounded memory (many scatters of `MAX_SCATTER` each).
+const MAX_OBJECTS: u64 = MAX_SCATTER;
 /// A scatter's orbit period when none is given, seconds.
 const DEFAULT_PERIOD: f32 = 4.0;
 
 pub(super) fn load(path: PathBuf) -> Result<Scene, SceneError> {
-    let text = std::fs::read_to_string(&path).map_err(|source| SceneError::Read { file: path.clone(), source })?;
-    parse(&text, path)
+    let bytes = std::fs::read(&path).map_err(|source| SceneError::Read { file: path.clone(), source })?;
+    match String::from_utf8(bytes) {
+        Ok(text) => parse(&text, path),
+        Err(e) => {
+            // TOML is UTF-8; say where it stops being that, as a syntax error.
+            let (bytes, at) = (e.as_bytes(), e.utf8_error().valid_up_to());
+            let line = bytes[..at].iter().filter(|&&b| b == b'\n').count() + 1;
+            let message = format!("not UTF-8 (byte {:#04x})", bytes[at]);
+            Err(SceneError::Invalid { file: path, line, key: "syntax".into(), message })
+        }
+    }
 }
 
 /// Where errors point: the file and its text, to turn byte offsets into lines.
@@ -46,8 +59,9 @@ struct Ctx<'a> {
 
 impl Ctx<'_> {
     fn line(&self, span: Range<usize>) -> usize {
+        // Bytes, not `str`: a span need not start at a character boundary.
         let end = span.start.min(self.text.len());
-        self.text[..end].bytes().filter(|&b| b == b'\n').count() + 1
+        self.text.as_bytes()[..end].iter().filter(|&&b| b == b'\n').count() + 1
     }
 
     fn err(&self, span: Range<usize>, key: impl Into<String>, message: impl Into<String>) -> SceneError {
@@ -114,7 +128,8 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
     }
     let animation = animation(&ctx, &parsed)?;
     let env = ObjectEnv { base: file.parent().unwrap_or(Path::new(".")), by_name, clock: animation.is_some() };
-    let mut out = Built { materials, meshes: Vec::new(), known: HashMap::new(), objects: Vec::new() };
+    let mut out =
+        Built { materials, meshes: Vec::new(), known: HashMap::new(), objects: Vec::new(), procedural_triangles: 0 };
     for (i, o) in parsed.objects.iter().enumerate() {
         object(&ctx, i, o, &env, &mut out)?;
     }
@@ -152,6 +167,17 @@ fn camera(ctx: &Ctx, f: &SceneFile) -> Result<Camera, SceneError> {
     let view = look_at - position;
     if view.length_squared() == 0.0 {
         return Err(ctx.err(c.look_at.span(), "camera.look_at", "equals camera.position"));
+    }
+    // The camera normalizes both: their squared lengths must be finite.
+    if !view.length_squared().is_finite() {
+        return Err(ctx.err(
+            c.look_at.span(),
+            "camera.look_at",
+            "is too far from camera.position (the distance overflows)",
+        ));
+    }
+    if let Some(u) = c.up.as_ref().filter(|_| !up.length_squared().is_finite()) {
+        return Err(ctx.err(u.span(), "camera.up", format!("{up} is too long (its length overflows)")));
     }
     if view.cross(up).length_squared() <= 1e-12 * view.length_squared() * up.length_squared() {
         let span = c.up.as_ref().map_or(c.look_at.span(), |u| u.span());
@@ -317,6 +343,8 @@ struct Built {
     /// The mesh already made for an OBJ file or a built-in shape.
     known: HashMap<MeshKey, KnownMesh>,
     objects: Vec<Object>,
+    /// Triangles of the procedural shapes made so far.
+    procedural_triangles: u64,
 }
 
 /// What makes two objects' meshes the same.
@@ -372,6 +400,17 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
         (None, Some(shape)) => {
             let m = material.ok_or_else(|| ctx.err(o.span(), key("material"), "a built-in shape needs a material"))?;
             let spec = builtin_shape(ctx, index, shape, f)?;
+            // Each procedural shape is within its limit; their sum must be too.
+            if let Some(n) = f.triangles.as_ref().filter(|_| !out.known.contains_key(&MeshKey::Shape(spec))) {
+                out.procedural_triangles += spec.size;
+                if out.procedural_triangles > MAX_PROCEDURAL_TRIANGLES {
+                    let msg = format!(
+                        "{} more make {} triangles of procedural shapes in the scene, more than {MAX_PROCEDURAL_TRIANGLES}",
+                        spec.size, out.procedural_triangles
+                    );
+                    return Err(ctx.err(n.span(), key("triangles"), msg));
+                }
+            }
             let meshes = &mut out.meshes;
             let known = out.known.entry(MeshKey::Shape(spec)).or_insert_with(|| {
                 meshes.push(shape_mesh(spec, m));
@@ -506,47 +545,45 @@ fn obj_mesh(
     path: &Path,
     materials: &mut Vec<Material>,
 ) -> Result<(SceneMesh, Option<String>), SceneError> {
-    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-    let (models, mtl) = tobj::load_obj(path, &opts)
-        .map_err(|e| ctx.err(rel.span(), key, format!("cannot load {}: {e}", path.display())))?;
+    let obj = read_obj(path, true).map_err(|e| ctx.err(rel.span(), key, e.to_string()))?;
     let mtl_base = materials.len() as u32;
-    let mut needs_material = None;
-    let mtl_materials = mtl.unwrap_or_else(|e| {
-        needs_material = Some(format!("{}: cannot load its MTL materials: {e}", path.display()));
-        Vec::new()
-    });
     let stem = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
-    for m in &mtl_materials {
+    for m in &obj.materials {
         materials.push(from_mtl(&format!("{stem}/{}", m.name), m));
     }
+    let mut needs_material =
+        obj.mtl_error.as_ref().map(|e| format!("{}: cannot load its MTL materials: {e}", path.display()));
     let mut mesh = TriangleMesh::default();
     let mut material_ids = Vec::new();
-    for model in &models {
+    // tobj ends with an object of no faces when the file's last object has none.
+    for model in obj.models.iter().filter(|m| !m.mesh.indices.is_empty()) {
         let id = match model.mesh.material_id {
-            Some(i) if i < mtl_materials.len() => mtl_base + i as u32,
+            Some(i) if i < obj.materials.len() => mtl_base + i as u32,
             _ => {
-                needs_material.get_or_insert_with(|| {
-                    format!(
-                        "{}: object `{}` has no MTL material; give the object a `material`",
-                        path.display(),
-                        model.name
-                    )
-                });
+                needs_material.get_or_insert_with(|| missing_material(path, &obj, &model.name));
                 u32::MAX
             }
         };
-        let part = TriangleMesh {
-            positions: model.mesh.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])).collect(),
-            indices: model.mesh.indices.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
-        };
-        if let Some(bad) = part.positions.iter().position(|p| !p.is_finite()) {
-            let msg = format!("{}: object `{}`, vertex {bad}: non-finite position", path.display(), model.name);
-            return Err(ctx.err(rel.span(), key, msg));
-        }
+        let part = TriangleMesh::from_tobj(&model.mesh);
         material_ids.extend(std::iter::repeat_n(id, part.indices.len()));
         mesh.append(&part);
     }
+    if mesh.indices.is_empty() {
+        return Err(ctx.err(rel.span(), key, format!("{}: no faces (`f` lines)", path.display())));
+    }
     Ok((SceneMesh { source: path.display().to_string(), mesh, material_ids }, needs_material))
+}
+
+/// Why object `model` of the OBJ file at `path` has no MTL material: the error when the scene
+/// object using it gives none.
+fn missing_material(path: &Path, obj: &ObjFile, model: &str) -> String {
+    let give = "give the object a `material`";
+    let Some((line, name)) = &obj.unknown_material else {
+        return format!("{}: object `{model}` has no MTL material; {give}", path.display());
+    };
+    let files: Vec<String> = obj.mtl_files.iter().map(|p| p.display().to_string()).collect();
+    let searched = if files.is_empty() { "no `mtllib` names an MTL file".to_owned() } else { files.join(", ") };
+    format!("{}:{line}: `usemtl {name}`: no MTL material `{name}` ({searched}); {give}", path.display())
 }
 
 /// MTL to Arbor, documented in `docs/scene-format.md`: `Ke` makes an emitter (which also
@@ -592,7 +629,12 @@ fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError
         return Ok(mat);
     }
     let (scale, rotation, translation) = trs(ctx, &key, &f.scale, &f.rotate, &f.translate)?;
-    Ok(Mat4::from_scale_rotation_translation(scale, rotation, translation))
+    let mat = Mat4::from_scale_rotation_translation(scale, rotation, translation);
+    // A rotated scale near f32::MAX can round past it.
+    if let Some(s) = f.scale.as_ref().filter(|_| !mat.is_finite()) {
+        return Err(ctx.err(s.span(), key("scale"), "is too large: the placement overflows"));
+    }
+    Ok(mat)
 }
 
 /// Checked `scale`, `rotate` and `translate` keys (defaults 1, 0, 0), as scale, rotation and
@@ -680,6 +722,13 @@ fn scatter(
     if min.cmpgt(max).any() {
         return Err(ctx.err(min_s.span(), key("min"), format!("{min} is above max {max} on some axis")));
     }
+    if !(max - min).is_finite() {
+        return Err(ctx.err(
+            min_s.span(),
+            key("min"),
+            format!("the box from {min} to {max} is too large (it overflows)"),
+        ));
+    }
     let radius = match &f.radius {
         Some(r) => ctx.number(r, &key("radius"), |x| x >= 0.0, "a radius >= 0")?,
         None => 0.0,
@@ -698,6 +747,11 @@ fn scatter(
     }
     // Radius 0: nothing moves, so no instance carries an animation.
     let mut left = if radius > 0.0 { (f64::from(moving) * count as f64).round() as u64 } else { 0 };
+    let total = objects.len() as u64 + count;
+    if total > MAX_OBJECTS {
+        let msg = format!("{count} instances make {total} objects in the scene, more than {MAX_OBJECTS}");
+        return Err(ctx.err(count_s.span(), key("count"), msg));
+    }
     let mut rng = SplitMix64(seed);
     objects.reserve(count as usize);
     for i in 0..count {
@@ -710,9 +764,14 @@ fn scatter(
         // count moves, and every subset of that size is equally likely.
         let moves = rng.below(count - i) < left;
         left -= u64::from(moves);
+        let world_from_object = Mat4::from_translation(at) * Mat4::from_rotation_y(yaw) * placed.world_from_object;
+        if !world_from_object.is_finite() {
+            let msg = format!("instance {i} at {at}, after the object's own placement, overflows");
+            return Err(ctx.err(min_s.span(), key("min"), msg));
+        }
         objects.push(Object {
             mesh: placed.mesh,
-            world_from_object: Mat4::from_translation(at) * Mat4::from_rotation_y(yaw) * placed.world_from_object,
+            world_from_object,
             material: placed.material,
             animation: moves.then_some(Animation::Orbit { radius, period, phase }),
         });
