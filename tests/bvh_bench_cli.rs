@@ -316,3 +316,27 @@ fn memory_report_per_builder() {
         assert_eq!(b["triangles"], report["triangles"]);
     }
 }
+
+/// `--gpu`: the GPU LBVH is the CPU's tree, and GPU PRBVH lowers the SAH like the CPU's. Skips
+/// without an adapter, except under `CI=true`.
+#[test]
+fn gpu_builds_are_reported_beside_the_cpu() {
+    if let Err(e) = arbor::gpu::GpuContext::shared() {
+        assert!(std::env::var("CI").map_or(true, |v| v != "true"), "no GPU adapter under CI=true: {e}");
+        eprintln!("skipping: {e}");
+        return;
+    }
+    let dir = temp_dir("gpu");
+    let json = dir.join("g.json");
+    run_ok(bench().args(["--gpu", "--procedural", "city:5k", "--runs", "1", "--json"]).arg(&json));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rows = report["rows"].as_array().unwrap();
+    let row = |stage: &str, device: &str| rows.iter().find(|r| r["stage"] == stage && r["device"] == device).unwrap();
+    assert_eq!(row("lbvh", "gpu")["same_tree_as_cpu"], true);
+    let (lbvh, cpu, gpu) = (
+        row("lbvh", "cpu")["sah"].as_f64().unwrap(),
+        row("prbvh", "cpu")["sah"].as_f64().unwrap(),
+        row("prbvh", "gpu")["sah"].as_f64().unwrap(),
+    );
+    assert!(gpu < lbvh && (gpu - cpu).abs() <= 0.02 * cpu, "SAH: LBVH {lbvh}, CPU PRBVH {cpu}, GPU PRBVH {gpu}");
+}

@@ -25,13 +25,23 @@
 //! are printed with their p-values.
 //!
 //! `ARBOR_BLESS=1 cargo test --test golden` rewrites the goldens instead of comparing.
+//!
+//! The GPU path tracer (`src/gpu/trace.rs`) is checked against the same goldens by the same
+//! comparison ([`scenes_match_their_golden_images_on_the_gpu`]), at the same size, spp and seed;
+//! an animated scene is flattened at the same mid-sequence frame. Its failure images are named
+//! `<scene>.gpu.{actual,diff,z}.exr`. Without a GPU adapter those tests print why and pass,
+//! except under `CI=true`.
+
+mod common;
 
 use std::path::{Path, PathBuf};
 
 use arbor::bvh::builders::Builder;
+use arbor::gpu::trace::{self as gpu_trace, GpuScene};
 use arbor::image_io::{Image, read_exr, write_image};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
+use arbor::render::geometry::wants_instancing;
 use arbor::scene::{Scattering, Scene};
 
 /// Longest side of the test renders, in pixels; the scene's aspect ratio is kept.
@@ -111,6 +121,35 @@ fn render(scene: &Scene, seed: u64) -> Estimate {
     assert_eq!(film.non_finite_count(), 0, "{}: non-finite samples", scene.path.display());
     Estimate { mean: film.mean(), stderr: film.stderr() }
 }
+
+/// [`render`] on the GPU: the same scene, frame, seed and spp. A static scene is built as for
+/// the CPU; an animated one is flattened at the middle of its frame range.
+fn render_gpu(scene: &Scene, seed: u64) -> Estimate {
+    let ctx = arbor::gpu::GpuContext::shared().unwrap_or_else(|e| panic!("{e}"));
+    let lbvh = "lbvh".parse::<Builder>().unwrap();
+    let (rs, _) = if wants_instancing(scene) {
+        let time =
+            scene.animation.as_ref().map_or(0.0, |a| scene.frame_time(a.frames.start + a.frames.len() as u32 / 2));
+        gpu_trace::flatten(scene, time, &lbvh)
+    } else {
+        RenderScene::build(scene, &lbvh)
+    };
+    let gpu = GpuScene::upload(ctx, &rs).unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
+    let out = gpu_trace::render(ctx, &gpu, seed, scene.render.max_depth, SPP, &mut |_| true)
+        .unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
+    assert_eq!(out.film.non_finite_count(), 0, "{}: non-finite samples on the GPU", scene.path.display());
+    Estimate { mean: out.film.mean(), stderr: out.film.stderr() }
+}
+
+/// A renderer for [`check`]: the CPU's [`render`] or [`render_gpu`], and the suffix of its
+/// failure images.
+struct Device {
+    render: fn(&Scene, u64) -> Estimate,
+    suffix: &'static str,
+}
+
+const CPU: Device = Device { render, suffix: "" };
+const GPU: Device = Device { render: render_gpu, suffix: ".gpu" };
 
 fn golden_paths(stem: &str) -> (PathBuf, PathBuf) {
     (golden_dir().join(format!("{stem}.exr")), golden_dir().join(format!("{stem}.stderr.exr")))
@@ -347,12 +386,14 @@ fn clear_failure(stem: &str) {
     }
 }
 
-/// Renders scene `path` with the test seed and compares it with its golden; the error names the
-/// scene.
-fn check(path: &Path) -> Result<(), String> {
-    let stem = stem(path);
-    let golden = read_golden(&stem)?;
-    let ours = render(&load_small(path), TEST_SEED);
+/// Renders scene `path` with the test seed on `device` and compares it with its golden; the
+/// error names the scene.
+fn check(path: &Path, device: &Device) -> Result<(), String> {
+    let scene_stem = stem(path);
+    let golden = read_golden(&scene_stem)?;
+    // The name of this device's failure images (and its messages).
+    let stem = format!("{scene_stem}{}", device.suffix);
+    let ours = (device.render)(&load_small(path), TEST_SEED);
     let (w, h) = (ours.mean.width, ours.mean.height);
     for image in [&golden.mean, &golden.stderr] {
         if (image.width, image.height) != (w, h) {
@@ -375,7 +416,7 @@ fn check(path: &Path) -> Result<(), String> {
         cmp.details(5),
         dir.display()
     );
-    Err(format!("{stem}: render differs from golden_images/{stem}.exr ({})", cmp.summary()))
+    Err(format!("{stem}: render differs from golden_images/{scene_stem}.exr ({})", cmp.summary()))
 }
 
 #[test]
@@ -389,8 +430,20 @@ fn scenes_match_their_golden_images() {
         }
         return;
     }
-    let failures: Vec<String> = paths.iter().filter_map(|p| check(p).err()).collect();
+    let failures: Vec<String> = paths.iter().filter_map(|p| check(p, &CPU).err()).collect();
     assert!(failures.is_empty(), "golden image comparison failed:\n{}", failures.join("\n"));
+}
+
+/// Every scene rendered on the GPU against the CPU's goldens, by the same comparison.
+#[test]
+fn scenes_match_their_golden_images_on_the_gpu() {
+    if blessing() || common::gpu_or_skip("scenes_match_their_golden_images_on_the_gpu").is_none() {
+        return;
+    }
+    let paths = scene_paths();
+    assert!(!paths.is_empty(), "no scenes/*.toml");
+    let failures: Vec<String> = paths.iter().filter_map(|p| check(p, &GPU).err()).collect();
+    assert!(failures.is_empty(), "GPU golden image comparison failed:\n{}", failures.join("\n"));
 }
 
 /// The Cornell box at test size and its golden; `None` (with a message) while blessing, when the
@@ -416,6 +469,23 @@ fn golden_comparison_rejects_a_3_percent_albedo_change() {
     let cmp = compare(&render(&scene, TEST_SEED), &golden);
     println!("cornell-box, white albedo x 1.03: {}", cmp.summary());
     assert!(!cmp.passed(), "a 3% albedo change passed the golden comparison: {}", cmp.summary());
+}
+
+/// The same deliberately wrong Cornell box, rendered on the GPU: the GPU check fails it too.
+#[test]
+fn golden_comparison_rejects_a_3_percent_albedo_change_on_the_gpu() {
+    if common::gpu_or_skip("golden_comparison_rejects_a_3_percent_albedo_change_on_the_gpu").is_none() {
+        return;
+    }
+    let Some((mut scene, golden)) = cornell_box() else { return };
+    let white = scene.materials.iter_mut().find(|m| m.name == "white").expect("cornell-box has a white material");
+    match &mut white.scattering {
+        Scattering::Diffuse { albedo } => *albedo *= 1.03,
+        other => panic!("cornell-box: white is {other:?}, expected diffuse"),
+    }
+    let cmp = compare(&render_gpu(&scene, TEST_SEED), &golden);
+    println!("cornell-box on the GPU, white albedo x 1.03: {}", cmp.summary());
+    assert!(!cmp.passed(), "a 3% albedo change passed the GPU golden comparison: {}", cmp.summary());
 }
 
 #[test]

@@ -92,6 +92,11 @@ struct Args {
     /// the bytes per triangle it keeps to trace (triangles included) and the process's peak.
     #[arg(long, conflicts_with_all = ["converge", "animated", "procedural_animated"])]
     memory: bool,
+    /// GPU builds instead of the CPU builders: the GPU LBVH (checked against the CPU's tree) and
+    /// GPU PRBVH with each lock scheme the adapter has, timed over --runs, beside the CPU
+    /// optimiser on the same input.
+    #[arg(long, conflicts_with_all = ["converge", "animated", "procedural_animated", "memory"])]
+    gpu: bool,
     /// (internal) The process --memory runs for one builder.
     #[arg(long, hide = true)]
     memory_child: Option<String>,
@@ -125,6 +130,9 @@ fn run() -> Result<()> {
     }
     if args.memory {
         return run_memory(&args);
+    }
+    if args.gpu {
+        return run_gpu(&args);
     }
     if args.animated.is_some() || args.procedural_animated.is_some() {
         return run_animated(&args);
@@ -458,6 +466,100 @@ struct MemoryReport {
     peak_bytes: u64,
     kept_bytes_per_triangle: f64,
     peak_bytes_per_triangle: f64,
+}
+
+/// `--gpu`: GPU LBVH and PRBVH times, beside the CPU's on the same input.
+fn run_gpu(args: &Args) -> Result<()> {
+    use arbor::bvh::prbvh::{self, PrbvhConfig};
+    use arbor::gpu::prbvh::{self as gpu_prbvh, LockScheme};
+    use std::time::Instant;
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let ctx = arbor::gpu::GpuContext::shared()?;
+    let (name, mesh) = load_input(args)?;
+    let prims: Vec<arbor::geometry::Aabb> = mesh.triangles().iter().map(arbor::geometry::Triangle::aabb).collect();
+    if prims.len() < 2 {
+        bail!("{name}: --gpu needs at least 2 triangles");
+    }
+    eprintln!("{name}: {} triangles on {}", prims.len(), ctx.describe());
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let config = PrbvhConfig { mu: args.mu, epsilon: args.epsilon, collapse: None, ..Default::default() };
+    let mut rows = Vec::new();
+    let (mut cpu_ms, mut gpu_ms, mut upload_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut cpu_tree = None;
+    let mut gpu_tree = None;
+    // A first, untimed build compiles the pipelines (seconds on lavapipe).
+    arbor::gpu::lbvh::build(ctx, &prims)?;
+    for _ in 0..args.runs {
+        let t = Instant::now();
+        cpu_tree = Some(arbor::bvh::lbvh::build(&prims));
+        cpu_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        let (tree, times) = arbor::gpu::lbvh::build(ctx, &prims)?;
+        gpu_ms.push(times.build.as_secs_f64() * 1e3);
+        upload_ms.push(times.upload.as_secs_f64() * 1e3);
+        gpu_tree = Some(tree);
+    }
+    let (cpu_tree, gpu_tree) = (cpu_tree.expect("runs >= 1"), gpu_tree.expect("runs >= 1"));
+    let same = cpu_tree.nodes[..] == gpu_tree.nodes[..] && cpu_tree.prim_ids == gpu_tree.prim_ids;
+    rows.push(serde_json::json!({"stage": "lbvh", "device": "cpu", "ms": median(cpu_ms), "sah": arbor::bvh::sah_cost(&cpu_tree)}));
+    rows.push(serde_json::json!({"stage": "lbvh", "device": "gpu", "ms": median(gpu_ms), "upload_ms": median(upload_ms), "sah": arbor::bvh::sah_cost(&gpu_tree), "same_tree_as_cpu": same}));
+    let mut times = Vec::new();
+    let mut sah = 0.0;
+    for _ in 0..args.runs {
+        let mut tree = cpu_tree.clone();
+        let stats = prbvh::optimize(&mut tree, &config);
+        times.push(stats.optimize_time.as_secs_f64() * 1e3);
+        sah = stats.sah_before_collapse;
+    }
+    rows.push(serde_json::json!({"stage": "prbvh", "device": "cpu", "ms": median(times), "sah": sah}));
+    let mut schemes = vec![LockScheme::Portable32];
+    if LockScheme::best_for(ctx) == LockScheme::Atomic64 {
+        schemes.push(LockScheme::Atomic64);
+    }
+    for scheme in schemes {
+        let mut times = Vec::new();
+        let mut iterations = 0;
+        let warm = PrbvhConfig { max_iterations: 1, ..config };
+        gpu_prbvh::optimize(ctx, &cpu_tree, &warm, scheme)?;
+        for _ in 0..args.runs {
+            let (_, stats) = gpu_prbvh::optimize(ctx, &cpu_tree, &config, scheme)?;
+            times.push(stats.optimize_time.as_secs_f64() * 1e3);
+            sah = stats.sah_before_collapse;
+            iterations = stats.iterations.len();
+        }
+        let lock = if scheme == LockScheme::Atomic64 { "64-bit" } else { "32-bit" };
+        rows.push(serde_json::json!({"stage": "prbvh", "device": "gpu", "locks": lock, "ms": median(times), "sah": sah, "iterations": iterations}));
+    }
+    println!(
+        "{} triangles; {}; medians of {} runs (GPU times exclude pipeline compilation, upload and readback)",
+        prims.len(),
+        ctx.describe(),
+        args.runs
+    );
+    println!("{:<8} {:<6} {:<8} {:>12} {:>10}", "stage", "device", "locks", "ms", "SAH");
+    for r in &rows {
+        println!(
+            "{:<8} {:<6} {:<8} {:>12.2} {:>10.2}",
+            r["stage"].as_str().unwrap_or(""),
+            r["device"].as_str().unwrap_or(""),
+            r["locks"].as_str().unwrap_or("-"),
+            r["ms"].as_f64().unwrap_or(0.0),
+            r["sah"].as_f64().unwrap_or(0.0)
+        );
+    }
+    if !same {
+        bail!("the GPU LBVH differs from the CPU LBVH on {name}");
+    }
+    let report =
+        serde_json::json!({"triangles": prims.len(), "adapter": ctx.describe(), "runs": args.runs, "rows": rows});
+    if let Some(path) = &args.json {
+        write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, &report)?))?;
+    }
+    Ok(())
 }
 
 /// `--memory`: each builder in a fresh process, so that no peak hides another.

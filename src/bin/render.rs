@@ -11,9 +11,13 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use arbor::bvh::builders::Builder;
 use arbor::bvh::instances::TopLevelUpdate;
+use arbor::gpu::trace::{self, GpuScene, flatten};
+use arbor::gpu::{AdapterPolicy, GpuContext};
 use arbor::image_io::{check_output_path, frame_path, has_frame_pattern, write_image};
-use arbor::render::RenderScene;
 use arbor::render::film::Film;
+use arbor::render::geometry::wants_instancing;
+use arbor::render::integrator::first_frame_time;
+use arbor::render::{BuildReport, RenderScene};
 use arbor::scene::Scene;
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -53,8 +57,10 @@ struct Args {
     device: Device,
     /// BVH builder: auto, or a name bvh-bench takes (lbvh, lbvh+prbvh, binned-sah, ...). `auto`
     /// optimises the LBVH only while that pays for itself in this render's estimated time.
-    #[arg(long, default_value = "lbvh+prbvh")]
-    builder: String,
+    /// Default lbvh+prbvh; but on the GPU an animated or instanced scene is rebuilt flat every
+    /// frame, with lbvh unless a builder other than auto is given.
+    #[arg(long)]
+    builder: Option<String>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -78,6 +84,14 @@ enum Device {
 }
 
 fn main() {
+    // Mesa's Vulkan device-select layer prints "XDG_RUNTIME_DIR is invalid" on stderr whenever
+    // that variable is unset (as in CI), even for `--quiet` renders that only probe for a GPU
+    // (`--device auto`). The layer only reorders adapters, which `GpuContext` sorts itself.
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() && std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: first thing in `main`, before any other thread exists, so nothing reads the
+        // environment concurrently.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
     if let Err(e) = run() {
         eprintln!("render: error: {e:#}");
         std::process::exit(1);
@@ -86,11 +100,9 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = Args::parse();
-    if args.device == Device::Gpu {
-        bail!("--device gpu: GPU rendering is not built yet; use --device cpu");
-    }
+    let builder_name = args.builder.as_deref().unwrap_or("lbvh+prbvh");
     let builder: Option<Builder> =
-        if args.builder == "auto" { None } else { Some(args.builder.parse().context("--builder")?) };
+        if builder_name == "auto" { None } else { Some(builder_name.parse().context("--builder")?) };
     if let Some(n) = args.threads {
         if n == 0 {
             bail!("--threads must be at least 1");
@@ -129,6 +141,10 @@ fn run() -> Result<()> {
         );
     }
 
+    let settings = FrameSettings { spp, max_depth, seed, time, quiet: args.quiet };
+    if let Some(ctx) = gpu_context(args.device, args.quiet)? {
+        return run_gpu(ctx, &scene, &args, builder.as_ref(), &settings, frames);
+    }
     let (mut render_scene, build) = match &builder {
         Some(b) => RenderScene::build(&scene, b),
         None => {
@@ -138,17 +154,8 @@ fn run() -> Result<()> {
     };
     render_scene.sample_clamp = args.clamp;
     if !args.quiet {
-        println!(
-            "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}",
-            args.scene.display(),
-            build.triangles,
-            build.builder,
-            build.build_ms,
-            build.sah,
-            peak_memory(build.triangles),
-        );
+        print_build(&args.scene, &build);
     }
-    let settings = FrameSettings { spp, max_depth, seed, time, quiet: args.quiet };
     let update = TopLevelUpdate::Dynamic(Default::default());
     match frames {
         None => render_frame(&render_scene, &settings, &args.output, None)?,
@@ -162,6 +169,135 @@ fn run() -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// `--device`: the GPU context to render with, or `None` for the CPU. `gpu` takes any adapter,
+/// software ones included; `auto` only a hardware GPU, and otherwise falls back to the CPU (a
+/// software GPU is slower than the CPU path).
+fn gpu_context(device: Device, quiet: bool) -> Result<Option<&'static GpuContext>> {
+    let ctx = match device {
+        Device::Cpu => return Ok(None),
+        Device::Gpu => GpuContext::shared().context("--device gpu")?,
+        Device::Auto => match GpuContext::new(AdapterPolicy::HardwareOnly) {
+            // One context for the process's lifetime.
+            Ok(ctx) => Box::leak(Box::new(ctx)),
+            Err(e) => {
+                if !quiet {
+                    println!("no hardware GPU ({e}): rendering on the CPU");
+                }
+                return Ok(None);
+            }
+        },
+    };
+    if !quiet {
+        println!("GPU: {}", ctx.describe());
+    }
+    Ok(Some(ctx))
+}
+
+fn print_build(scene: &Path, build: &BuildReport) {
+    println!(
+        "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}",
+        scene.display(),
+        build.triangles,
+        build.builder,
+        build.build_ms,
+        build.sah,
+        peak_memory(build.triangles),
+    );
+}
+
+/// The GPU path (`arbor::gpu::trace`). A static scene is built as for the CPU and uploaded
+/// once; an animated or instanced one is flattened to one BVH per frame (the GPU traces flat
+/// scenes only), reported as that frame's BVH update.
+fn run_gpu(
+    ctx: &GpuContext,
+    scene: &Scene,
+    args: &Args,
+    builder: Option<&Builder>,
+    settings: &FrameSettings,
+    frames: Option<Range<u32>>,
+) -> Result<()> {
+    let upload = |rs: &mut RenderScene, report: bool| -> Result<GpuScene> {
+        rs.sample_clamp = args.clamp;
+        let gpu_scene = GpuScene::upload(ctx, rs).context("uploading the scene to the GPU")?;
+        let t = Instant::now();
+        trace::compile(ctx, &gpu_scene).context("compiling the GPU kernel")?;
+        if report && !args.quiet {
+            println!(
+                "GPU kernel {} ready in {:.2} s, BVH depth {}",
+                gpu_scene.features.key(),
+                t.elapsed().as_secs_f64(),
+                gpu_scene.depth
+            );
+        }
+        Ok(gpu_scene)
+    };
+    if !wants_instancing(scene) {
+        let (mut rs, build) = match builder {
+            Some(b) => RenderScene::build(scene, b),
+            None => {
+                let frame_count = frames.as_ref().map_or(1, |f| f.len());
+                let rays = RenderScene::estimated_rays(scene, settings.spp, settings.max_depth, frame_count);
+                RenderScene::build_auto(scene, rays)
+            }
+        };
+        if !args.quiet {
+            print_build(&args.scene, &build);
+        }
+        let gpu_scene = upload(&mut rs, true)?;
+        match frames {
+            None => render_frame_gpu(ctx, &gpu_scene, &rs, settings, &args.output, None)?,
+            Some(frames) => {
+                for f in frames {
+                    render_frame_gpu(ctx, &gpu_scene, &rs, settings, &frame_path(&args.output, f), None)?;
+                }
+            }
+        }
+        return Ok(());
+    }
+    // A rebuild every frame: LBVH alone unless the user named a builder (PRBVH over the 1.7
+    // million triangles of instanced-field.toml takes a minute on two cores; `auto` has no
+    // model for per-frame builds).
+    let lbvh: Builder = "lbvh".parse().expect("a builder name");
+    let builder = builder.filter(|_| args.builder.is_some()).unwrap_or(&lbvh);
+    let list: Vec<(Option<u32>, f32)> = match frames {
+        None => vec![(None, first_frame_time(scene))],
+        Some(frames) => frames.map(|f| (Some(f), scene.frame_time(f))).collect(),
+    };
+    for (k, (frame, time)) in list.into_iter().enumerate() {
+        let (mut rs, build) = flatten(scene, time, builder);
+        if !args.quiet && k == 0 {
+            print_build(&args.scene, &build);
+        }
+        let gpu_scene = upload(&mut rs, k == 0)?;
+        let output = frame.map_or_else(|| args.output.clone(), |f| frame_path(&args.output, f));
+        let update_ms = (k > 0).then_some(build.build_ms);
+        render_frame_gpu(ctx, &gpu_scene, &rs, settings, &output, update_ms)?;
+    }
+    Ok(())
+}
+
+/// Renders `gpu_scene` to `output` on the GPU, in passes of `trace::PASS_SPP` samples.
+fn render_frame_gpu(
+    ctx: &GpuContext,
+    gpu_scene: &GpuScene,
+    rs: &RenderScene,
+    s: &FrameSettings,
+    output: &Path,
+    update_ms: Option<f64>,
+) -> Result<()> {
+    let bar = progress_bar(!s.quiet && std::io::stderr().is_terminal(), s.spp as u64);
+    let start = Instant::now();
+    let budget = s.time.map(Duration::from_secs_f64);
+    let out = trace::render(ctx, gpu_scene, s.seed, s.max_depth, s.spp, &mut |done| {
+        bar.set_position(done as u64);
+        budget.is_none_or(|b| start.elapsed() < b)
+    })
+    .context("rendering on the GPU")?;
+    bar.finish_and_clear();
+    let render_secs = start.elapsed().as_secs_f64();
+    finish_frame(rs, s, output, update_ms, &out.film, out.rays as f64, render_secs, out.samples)
 }
 
 struct FrameSettings {
@@ -198,12 +334,26 @@ fn render_frame(render_scene: &RenderScene, s: &FrameSettings, output: &Path, up
     }
     bar.finish_and_clear();
     let render_secs = start.elapsed().as_secs_f64();
+    finish_frame(render_scene, s, output, update_ms, &film, rays.load(Ordering::Relaxed) as f64, render_secs, done)
+}
+
+/// Writes the image and prints the frame's summary line.
+#[allow(clippy::too_many_arguments)]
+fn finish_frame(
+    render_scene: &RenderScene,
+    s: &FrameSettings,
+    output: &Path,
+    update_ms: Option<f64>,
+    film: &Film,
+    rays: f64,
+    render_secs: f64,
+    done: u32,
+) -> Result<()> {
     if let Some(dir) = output.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     write_image(output, &film.mean())?;
     if !s.quiet {
-        let rays = rays.load(Ordering::Relaxed) as f64;
         println!(
             "{}: {}render {:.2} s, {:.2} Mrays/s, {done} spp{}{}",
             output.display(),

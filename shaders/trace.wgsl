@@ -1,0 +1,574 @@
+// The path tracer's megakernel: one thread per pixel, looping over the pass's samples. The same
+// integrator as src/render/integrator.rs (RenderScene::radiance and direct_light), with the
+// traversal of src/bvh/traverse.rs over the leaf-collapsed tree (triangles in leaf order, as in
+// MeshBvh), the watertight test of src/geometry/triangle.rs with its conservative t, and the
+// error-bound ray offsets of src/geometry/ray.rs. Concatenated after bsdf.wgsl (src/gpu/trace.rs); the HAS_* constants choose what
+// this variant compiles.
+
+@group(0) @binding(0) var<storage, read> params: TraceParams;
+@group(0) @binding(1) var<storage, read> nodes: array<BvhNode>;
+@group(0) @binding(2) var<storage, read> triangles: array<GpuTriangle>;
+@group(0) @binding(3) var<storage, read> materials: array<GpuMaterial>;
+@group(0) @binding(4) var<storage, read> lights: array<GpuLight>;
+@group(0) @binding(5) var<storage, read_write> film: array<GpuPixel>;
+
+// The largest finite f32: "no hit yet". (Infinite literals are not valid WGSL.)
+const T_FAR: f32 = 3.40282347e38;
+
+// ---- random numbers ----
+
+// PCG with 32 bits of state and the RXS-M-XS output (O'Neill 2014, section 6.3.4), one stream
+// per (seed, pixel, sample): the state and the (odd) increment are hashes of the triple.
+struct Rng {
+    state: u32,
+    inc: u32,
+}
+
+// A bijective 32-bit mix (Wellons' lowbias32).
+fn mix32(x_in: u32) -> u32 {
+    var x = x_in;
+    x ^= x >> 16u;
+    x *= 0x7feb352du;
+    x ^= x >> 15u;
+    x *= 0x846ca68bu;
+    x ^= x >> 16u;
+    return x;
+}
+
+fn rng_next(rng: ptr<function, Rng>) -> u32 {
+    let old = (*rng).state;
+    (*rng).state = old * 747796405u + (*rng).inc;
+    let word = ((old >> ((old >> 28u) + 4u)) ^ old) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+fn rng_for_sample(pixel: u32, sample: u32) -> Rng {
+    let h = mix32(mix32(mix32(params.seed_lo ^ 0x61726270u) ^ params.seed_hi) + pixel);
+    let state = mix32(h ^ mix32(sample + 0x9e3779b9u));
+    var rng = Rng(state, (mix32(state ^ 0x85ebca6bu) << 1u) | 1u);
+    _ = rng_next(&rng);
+    return rng;
+}
+
+// Uniform in [0, 1): 24 random bits, as the CPU's Rng::next_f32.
+fn rng_f32(rng: ptr<function, Rng>) -> f32 {
+    return f32(rng_next(rng) >> 8u) * (1.0 / 16777216.0);
+}
+
+fn rng_vec2(rng: ptr<function, Rng>) -> vec2<f32> {
+    let x = rng_f32(rng);
+    let y = rng_f32(rng);
+    return vec2<f32>(x, y);
+}
+
+// ---- rays ----
+
+struct Ray {
+    origin: vec3<f32>,
+    dir: vec3<f32>,
+}
+
+// CameraModel::ray.
+fn camera_ray(film_pos: vec2<f32>, lens: vec2<f32>) -> Ray {
+    let sx = (2.0 * film_pos.x / f32(params.width) - 1.0) * params.tan_x;
+    let sy = (1.0 - 2.0 * film_pos.y / f32(params.height)) * params.tan_y;
+    let dir = normalize_glam(params.cam_forward + params.cam_right * sx + params.cam_up * sy);
+    if !HAS_THIN_LENS || params.lens_radius == 0.0 {
+        return Ray(params.cam_origin, dir);
+    }
+    let focus = params.cam_origin + dir * (params.focus_distance / dot(dir, params.cam_forward));
+    let d = concentric_disk(lens) * params.lens_radius;
+    let origin = params.cam_origin + params.cam_right * d.x + params.cam_up * d.y;
+    return Ray(origin, normalize_glam(focus - origin));
+}
+
+// A point on a surface and a bound on its rounding error per axis.
+struct SurfacePoint {
+    p: vec3<f32>,
+    error: vec3<f32>,
+}
+
+// Triangle::point_with_error: v0 + u (v1 - v0) + v (v2 - v0), error at most
+// γ₂ |p| + γ₄ (|u e1| + |v e2|).
+fn point_with_error(v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, u: f32, v: f32) -> SurfacePoint {
+    let ue1 = (v1 - v0) * u;
+    let ve2 = (v2 - v0) * v;
+    let p = v0 + (ue1 + ve2);
+    return SurfacePoint(p, abs(p) * GAMMA2 + (abs(ue1) + abs(ve2)) * GAMMA4);
+}
+
+// The next f32 towards +inf (ray.rs's next_up; NaN and +inf stay).
+fn next_up(v: f32) -> f32 {
+    let bits = bitcast<u32>(v);
+    let magnitude = bits & 0x7fffffffu;
+    if magnitude >= 0x7f800000u && bits != 0xff800000u {
+        return v; // NaN or +inf
+    }
+    if magnitude == 0u {
+        return bitcast<f32>(1u);
+    }
+    return bitcast<f32>(select(bits - 1u, bits + 1u, (bits & 0x80000000u) == 0u));
+}
+
+// offset_ray_origin (pbrt-v4): off the surface along n (facing the side the ray leaves into) by
+// the error box's extent along n, then one more float away on each axis that moved.
+fn offset_ray_origin(sp: SurfacePoint, n: vec3<f32>) -> vec3<f32> {
+    let offset = n * dot(abs(n), sp.error);
+    let po = sp.p + offset;
+    var out = po;
+    for (var i = 0u; i < 3u; i++) {
+        if offset[i] > 0.0 {
+            out[i] = next_up(po[i]);
+        } else if offset[i] < 0.0 {
+            out[i] = -next_up(-po[i]);
+        }
+    }
+    return out;
+}
+
+fn spawn_ray(sp: SurfacePoint, ng: vec3<f32>, dir: vec3<f32>) -> Ray {
+    let n = select(ng, -ng, dot(ng, dir) < 0.0);
+    return Ray(offset_ray_origin(sp, n), dir);
+}
+
+// ---- traversal ----
+
+// A ray prepared for slab tests and the watertight triangle test.
+struct TraceRay {
+    origin: vec3<f32>,
+    inv_dir: vec3<f32>,
+    negative: vec3<bool>,
+    // WatertightRay: axis permutation and shear.
+    kx: u32,
+    ky: u32,
+    kz: u32,
+    shear: vec3<f32>,
+}
+
+fn prepare_ray(ray: Ray) -> TraceRay {
+    let d = ray.dir;
+    let inv_dir = 1.0 / d;
+    let ad = abs(d);
+    var kz = 2u;
+    if ad.x > ad.y {
+        if ad.x > ad.z {
+            kz = 0u;
+        }
+    } else if ad.y > ad.z {
+        kz = 1u;
+    }
+    var kx = (kz + 1u) % 3u;
+    var ky = (kx + 1u) % 3u;
+    if d[kz] < 0.0 {
+        let k = kx;
+        kx = ky;
+        ky = k;
+    }
+    let shear = vec3<f32>(d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]);
+    return TraceRay(ray.origin, inv_dir, inv_dir < vec3<f32>(0.0), kx, ky, kz, shear);
+}
+
+// Aabb::intersect_ray (Ize 2013): the entry distance, or -1 for a miss.
+fn slab(bmin: vec3<f32>, bmax: vec3<f32>, r: TraceRay, t_max: f32) -> f32 {
+    let near = (select(bmin, bmax, r.negative) - r.origin) * r.inv_dir;
+    let far = (select(bmax, bmin, r.negative) - r.origin) * r.inv_dir;
+    var t_enter = 0.0;
+    var t_exit = t_max;
+    for (var i = 0u; i < 3u; i++) {
+        // Written so that a NaN (origin on a plane, direction 0) keeps the running value.
+        if near[i] > t_enter {
+            t_enter = near[i];
+        }
+        if far[i] < t_exit {
+            t_exit = far[i];
+        }
+    }
+    if t_enter <= t_exit * ROBUST_SLAB_SCALE {
+        return t_enter;
+    }
+    return -1.0;
+}
+
+// a * b - c * d with one rounding error, by Kahan's algorithm with fma.
+fn difference_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
+    let cd = c * d;
+    let err = fma(c, d, -cd);
+    return fma(a, b, -cd) - err;
+}
+
+// The watertight test (Woop et al. 2013), as Triangle::intersect: (t, u, v), t < 0 for a miss.
+fn intersect_triangle(tri: GpuTriangle, r: TraceRay, t_max: f32) -> vec3<f32> {
+    let miss = vec3<f32>(-1.0, 0.0, 0.0);
+    let a = tri.v0 - r.origin;
+    let b = tri.v1 - r.origin;
+    let c = tri.v2 - r.origin;
+    let ax = a[r.kx] - r.shear.x * a[r.kz];
+    let ay = a[r.ky] - r.shear.y * a[r.kz];
+    let bx = b[r.kx] - r.shear.x * b[r.kz];
+    let by = b[r.ky] - r.shear.y * b[r.kz];
+    let cx = c[r.kx] - r.shear.x * c[r.kz];
+    let cy = c[r.ky] - r.shear.y * c[r.kz];
+    var u = cx * by - cy * bx;
+    var v = ax * cy - ay * cx;
+    var w = bx * ay - by * ax;
+    if u == 0.0 || v == 0.0 || w == 0.0 {
+        // The CPU recomputes in f64; WGSL has no portable f64, so the exact-sign fallback is
+        // Kahan's difference of products.
+        u = difference_of_products(cx, by, cy, bx);
+        v = difference_of_products(ax, cy, ay, cx);
+        w = difference_of_products(bx, ay, by, ax);
+    }
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return miss;
+    }
+    let det = u + v + w;
+    if det == 0.0 {
+        return miss;
+    }
+    let az = r.shear.z * a[r.kz];
+    let bz = r.shear.z * b[r.kz];
+    let cz = r.shear.z * c[r.kz];
+    let t_scaled = u * az + v * bz + w * cz;
+    let rcp = 1.0 / det;
+    let t = t_scaled * rcp;
+    if !(t > 0.0 && t <= t_max) {
+        return miss;
+    }
+    // t is conservatively positive (pbrt-v4, section 6.8.7, with the shear's term in length
+    // units as on the CPU): a ray leaving a surface cannot hit it again at a t of rounding noise.
+    let max_z = max3(abs(vec3<f32>(az, bz, cz)));
+    let shear_z = max3(abs(vec3<f32>(a[r.kz], b[r.kz], c[r.kz])));
+    let max_x = max3(abs(vec3<f32>(ax, bx, cx)));
+    let max_y = max3(abs(vec3<f32>(ay, by, cy)));
+    let delta_z = GAMMA3 * max_z;
+    let delta_x = GAMMA5 * (max_x + abs(r.shear.x) * shear_z);
+    let delta_y = GAMMA5 * (max_y + abs(r.shear.y) * shear_z);
+    let delta_e = 2.0 * (GAMMA2 * max_x * max_y + delta_y * max_x + delta_x * max_y);
+    let max_e = max3(abs(vec3<f32>(u, v, w)));
+    let delta_t = 3.0 * (GAMMA3 * max_e * max_z + delta_e * max_z + delta_z * max_e) * abs(rcp);
+    if t <= delta_t {
+        return miss;
+    }
+    return vec3<f32>(t, v * rcp, w * rcp);
+}
+
+// The box-culling slack of traverse.rs (cull_slack).
+fn cull_slack(r: Ray) -> f32 {
+    let root = nodes[0];
+    let far = max(abs(root.aabb_min - r.origin), abs(root.aabb_max - r.origin));
+    return CULL_ABS_SLACK * length(far) / length(r.dir);
+}
+
+struct Hit {
+    t: f32,
+    // Position in leaf order; INVALID_INDEX for none.
+    index: u32,
+    u: f32,
+    v: f32,
+}
+
+// Closest hit (Bvh::closest_hit): near child first, the far one pushed with its entry distance
+// and skipped on pop when it begins past the best hit plus the slack. Ties in t go to the lowest
+// leaf position (the CPU's go to the lowest primitive id; only duplicate triangles differ).
+// The stack cannot overflow: trees deeper than TRACE_STACK_SIZE + 1 are refused on upload.
+fn closest_hit(ray: Ray) -> Hit {
+    var best = Hit(T_FAR, INVALID_INDEX, 0.0, 0.0);
+    let r = prepare_ray(ray);
+    let slack = cull_slack(ray);
+    var limit = T_FAR;
+    let root = nodes[0];
+    if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
+        return best;
+    }
+    var stack_node: array<u32, TRACE_STACK_SIZE>;
+    var stack_t: array<f32, TRACE_STACK_SIZE>;
+    var sp = 0u;
+    var node = root;
+    loop {
+        if node.prim_count > 0u {
+            for (var i = node.first; i < node.first + node.prim_count; i++) {
+                let h = intersect_triangle(triangles[i], r, best.t);
+                if h.x > 0.0 && (h.x < best.t || (h.x == best.t && i < best.index)) {
+                    best = Hit(h.x, i, h.y, h.z);
+                    limit = best.t * CULL_SCALE + slack;
+                }
+            }
+        } else {
+            let left = nodes[node.first];
+            let right = nodes[node.first + 1u];
+            let tl = slab(left.aabb_min, left.aabb_max, r, limit);
+            let tr = slab(right.aabb_min, right.aabb_max, r, limit);
+            if tl >= 0.0 && tr >= 0.0 {
+                if sp < TRACE_STACK_SIZE {
+                    if tl <= tr {
+                        stack_node[sp] = node.first + 1u;
+                        stack_t[sp] = tr;
+                    } else {
+                        stack_node[sp] = node.first;
+                        stack_t[sp] = tl;
+                    }
+                    sp += 1u;
+                }
+                if tl <= tr {
+                    node = left;
+                } else {
+                    node = right;
+                }
+                continue;
+            }
+            if tl >= 0.0 {
+                node = left;
+                continue;
+            }
+            if tr >= 0.0 {
+                node = right;
+                continue;
+            }
+        }
+        // Pop the next node still in range.
+        var found = false;
+        while sp > 0u {
+            sp -= 1u;
+            if stack_t[sp] <= limit {
+                node = nodes[stack_node[sp]];
+                found = true;
+                break;
+            }
+        }
+        if !found {
+            break;
+        }
+    }
+    return best;
+}
+
+// Whether anything is hit with 0 < t <= t_max (Bvh::any_hit): shadow rays.
+fn occluded(ray: Ray, t_max: f32) -> bool {
+    let r = prepare_ray(ray);
+    let limit = t_max * CULL_SCALE + cull_slack(ray);
+    let root = nodes[0];
+    if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
+        return false;
+    }
+    var stack_node: array<u32, TRACE_STACK_SIZE>;
+    var sp = 0u;
+    var node = root;
+    loop {
+        if node.prim_count > 0u {
+            for (var i = node.first; i < node.first + node.prim_count; i++) {
+                if intersect_triangle(triangles[i], r, t_max).x > 0.0 {
+                    return true;
+                }
+            }
+        } else {
+            let left = nodes[node.first];
+            let right = nodes[node.first + 1u];
+            let tl = slab(left.aabb_min, left.aabb_max, r, limit);
+            let tr = slab(right.aabb_min, right.aabb_max, r, limit);
+            if tl >= 0.0 && tr >= 0.0 {
+                // The limit never shrinks, so the entry distance need not be kept.
+                if sp < TRACE_STACK_SIZE {
+                    stack_node[sp] = select(node.first, node.first + 1u, tl <= tr);
+                    sp += 1u;
+                }
+                if tl <= tr {
+                    node = left;
+                } else {
+                    node = right;
+                }
+                continue;
+            }
+            if tl >= 0.0 {
+                node = left;
+                continue;
+            }
+            if tr >= 0.0 {
+                node = right;
+                continue;
+            }
+        }
+        if sp == 0u {
+            break;
+        }
+        sp -= 1u;
+        node = nodes[stack_node[sp]];
+    }
+    return false;
+}
+
+// ---- the integrator ----
+
+// Lights::sample's choice: the first light whose CDF value exceeds u (binary search).
+fn choose_light(u: f32) -> u32 {
+    var lo = 0u;
+    var hi = params.light_count;
+    while lo < hi {
+        let mid = (lo + hi) / 2u;
+        if lights[mid].cdf <= u {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    return min(lo, params.light_count - 1u);
+}
+
+// RenderScene::direct_light: one light sample, MIS-weighted against the BSDF. Returns the
+// contribution in xyz and the rays traced (0 or 1) in w.
+fn direct_light(
+    mat: GpuMaterial,
+    frame: Frame,
+    sp: SurfacePoint,
+    ng: vec3<f32>,
+    wo: vec3<f32>,
+    beta: vec3<f32>,
+    rng: ptr<function, Rng>,
+) -> vec4<f32> {
+    let u_select = rng_f32(rng);
+    let u = rng_vec2(rng);
+    let light = lights[choose_light(u_select)];
+    let b = uniform_triangle(u);
+    let lp = point_with_error(light.v0, light.v1, light.v2, b.y, b.z);
+    let to = lp.p - sp.p;
+    let dist2 = dot(to, to);
+    if dist2 <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    let wi_world = to / sqrt(dist2);
+    let cos_light = dot(light.normal, -wi_world);
+    if !(cos_light > 0.0 || (light.two_sided != 0u && cos_light < 0.0)) {
+        return vec4<f32>(0.0);
+    }
+    let wi = to_local(frame, wi_world);
+    let f = bsdf_eval(mat, wo, wi);
+    if max3(f) <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    // As on the CPU: the shadow ray stays on the line from p to the light point, starting just
+    // clear of the receiver (its error bound plus one rounding, along the ray) and stopping short
+    // of the light's plane by the light point's error bound, and by SHADOW_T_MAX.
+    let cos_receiver = abs(dot(ng, wi_world));
+    let clear = dot(abs(ng), sp.error + abs(sp.p) * GAMMA1) / cos_receiver;
+    let from_surface = sp.p + wi_world * clear;
+    let shadow = Ray(from_surface, lp.p - from_surface);
+    let short_of_plane = dot(abs(light.normal), lp.error) / (abs(cos_light) * length(shadow.dir));
+    let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
+    if !(is_finite_f(clear) && clear * clear < dist2 && t_max > 0.0) || occluded(shadow, t_max) {
+        return vec4<f32>(0.0, 0.0, 0.0, 1.0);
+    }
+    let p_light = light.pdf_area * dist2 / abs(cos_light);
+    let w = power_heuristic(p_light, bsdf_pdf(mat, wo, wi));
+    return vec4<f32>(beta * f * abs(wi.z) * light.radiance * (w / p_light), 1.0);
+}
+
+struct PathResult {
+    l: vec3<f32>,
+    rays: u32,
+}
+
+// RenderScene::radiance: a path of at most params.max_depth segments.
+fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
+    var l = vec3<f32>(0.0);
+    var beta = vec3<f32>(1.0);
+    var prev_pdf = 0.0;
+    var prev_delta = true;
+    var rays = 0u;
+    var ray = camera;
+    for (var depth = 1u; depth <= params.max_depth; depth++) {
+        rays += 1u;
+        let hit = closest_hit(ray);
+        if hit.index == INVALID_INDEX {
+            if HAS_ENVIRONMENT {
+                l += beta * params.environment;
+            }
+            break;
+        }
+        let tri = triangles[hit.index];
+        let ng = normalize_or_zero(cross(tri.v1 - tri.v0, tri.v2 - tri.v0));
+        if all(ng == vec3<f32>(0.0)) {
+            break;
+        }
+        let sp = point_with_error(tri.v0, tri.v1, tri.v2, hit.u, hit.v);
+        let wo_world = -ray.dir;
+        let front = dot(ng, wo_world) > 0.0;
+        let mat = materials[tri.material];
+        if (mat.flags & MAT_EMITS) != 0u && (front || (mat.flags & MAT_TWO_SIDED) != 0u) {
+            if prev_delta {
+                l += beta * mat.emission;
+            } else {
+                let to = sp.p - ray.origin;
+                let p_light = tri.light_pdf * dot(to, to) / abs(dot(ng, wo_world));
+                l += beta * mat.emission * power_heuristic(prev_pdf, p_light);
+            }
+        }
+        if depth == params.max_depth || mat.kind == MAT_BLACK {
+            break;
+        }
+        if mat.kind != MAT_DIELECTRIC && !front {
+            break; // one-sided reflector seen from the back
+        }
+        let frame = frame_from_normal(ng);
+        let wo = to_local(frame, wo_world);
+        if HAS_LIGHTS && params.light_count > 0u && !mat_is_delta(mat) {
+            let direct = direct_light(mat, frame, sp, ng, wo, beta, rng);
+            l += direct.xyz;
+            rays += u32(direct.w);
+        }
+        let u = rng_vec2(rng);
+        let u_lobe = rng_f32(rng);
+        let s = bsdf_sample(mat, wo, u, u_lobe);
+        if !s.ok || !(all_finite(s.weight) && max3(s.weight) > 0.0) {
+            break;
+        }
+        beta *= s.weight;
+        prev_pdf = s.pdf;
+        prev_delta = s.is_delta;
+        ray = spawn_ray(sp, ng, normalize_glam(to_world(frame, s.wi)));
+        if depth >= RR_DEPTH {
+            let q = min(max3(beta), 0.95);
+            if rng_f32(rng) >= q {
+                break;
+            }
+            beta /= q;
+        }
+    }
+    return PathResult(l, rays);
+}
+
+@compute @workgroup_size(TRACE_WORKGROUP, TRACE_WORKGROUP)
+fn trace(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= params.width || gid.y >= params.height {
+        return;
+    }
+    let pixel = gid.y * params.width + gid.x;
+    var acc = film[pixel];
+    let end = params.sample_start + params.sample_count;
+    for (var s = params.sample_start; s < end; s++) {
+        var rng = rng_for_sample(pixel, s);
+        let film_pos = vec2<f32>(f32(gid.x), f32(gid.y)) + rng_vec2(&rng);
+        let lens = rng_vec2(&rng);
+        let path = radiance(camera_ray(film_pos, lens), &rng);
+        acc.rays += path.rays;
+        var l = path.l;
+        // Film::add_sample: non-finite samples are counted and dropped; then the clamp (which
+        // on the CPU turns an infinite sample into NaN, dropped all the same).
+        if !all_finite(l) {
+            acc.non_finite += 1u;
+            continue;
+        }
+        if params.clamp > 0.0 {
+            let m = max3(l);
+            if m > params.clamp {
+                l *= params.clamp / m;
+            }
+        }
+        if acc.count == 0u {
+            acc.shift = l;
+        }
+        let d = l - acc.shift;
+        acc.sum += d;
+        acc.sum_sq += d * d;
+        acc.count += 1u;
+    }
+    film[pixel] = acc;
+}

@@ -1,0 +1,528 @@
+//! Path tracing on the GPU: the CPU integrator ([`RenderScene::radiance`] and its next-event
+//! estimation), kernel for kernel the same, in `shaders/bsdf.wgsl` + `shaders/trace.wgsl`.
+//!
+//! **A megakernel, not a wavefront.** One thread per pixel traces whole paths, looping over a
+//! pass's samples. A wavefront tracer (a kernel per stage, ray and hit queues between them)
+//! keeps SIMD lanes full when paths diverge, which pays on wide hardware GPUs; it costs a
+//! dispatch and a round trip of every path's state through memory per stage and bounce. On
+//! lavapipe a dispatch with its submission costs 0.1 to 0.3 ms (measured) and "device memory"
+//! is the same RAM, so the queues buy nothing there; and a megakernel is one kernel to write, to
+//! check against the CPU, and to specialize per scene, which also trims divergence between
+//! material kinds on real GPUs.
+//!
+//! **Specialization.** Each scene gets a shader variant: `HAS_DIELECTRIC`, `HAS_CONDUCTOR`,
+//! `HAS_ENVIRONMENT`, `HAS_LIGHTS` and `HAS_THIN_LENS` are generated as `const` bools in front of
+//! the source ([`Features`]), and code behind a false one (a material's BSDF, the environment,
+//! next-event estimation and shadow rays, the thin lens) is removed by the compiler. The pipeline
+//! cache key names the variant. `ARBOR_GPU_NO_SPECIALIZE=1` compiles every scene with all
+//! features, for measuring what specialization saves.
+//!
+//! **Scene.** [`GpuScene::upload`] takes a flat [`RenderScene`] (one BVH over world-space
+//! triangles, leaf-collapsed, triangles in leaf order as in [`MeshBvh`]); material ids, stored by
+//! original triangle id on the CPU, are mapped to leaf order through `prim_ids`. An instanced or
+//! animated scene is flattened first, frame by frame ([`flatten`]): the GPU path renders
+//! animation by rebuilding one flat BVH per frame, not with two levels. A buffer larger than the
+//! adapter's largest storage binding (128 MiB on lavapipe: about 2.8 million triangles) is
+//! refused with [`GpuError::BufferTooLarge`], naming the limit; nothing is split.
+//!
+//! **Traversal stack.** Fixed, [`TRACE_STACK_SIZE`] entries: each entry is the far sibling of a
+//! node on the current path, so a tree of depth `d` needs at most `d - 1`. The tree's depth is
+//! measured before upload, and a tree deeper than `TRACE_STACK_SIZE + 1` is refused with an error
+//! naming both (after leaf collapse the example scenes' LBVH trees are 10 to 26 deep, and that
+//! of the 1.7 million triangles of `instanced-field.toml`, flattened, 29 to 31).
+//!
+//! **Samples.** Each pass dispatches [`PASS_SPP`] samples per pixel (a submission short enough
+//! for a display GPU's watchdog), accumulating into per-pixel sums on the device; the film is
+//! read back once, at the end, into a [`Film`] with the same per-pixel statistics as the CPU's.
+//! Sums are in f32, of `sample - first sample` ([`GpuPixel`]), which keeps a constant pixel's
+//! variance exactly 0.
+//!
+//! **Departures from the CPU integrator** (none changes the expected image):
+//! - random numbers: a 32-bit PCG (RXS-M-XS) stream per (seed, pixel, sample), seeded by a hash
+//!   of the triple, not the CPU's 64-bit PCG32; images agree statistically, not bit for bit;
+//! - the watertight test's fallback for edge functions that are exactly 0 is Kahan's
+//!   difference of products (correctly signed) rather than f64, which WGSL lacks portably;
+//! - ties between hits at the same distance go to the lowest leaf position, not the lowest
+//!   original triangle id (only duplicate triangles can tie);
+//! - WGSL's `sin`, `cos`, division and `sqrt` may be less accurate than Rust's, a few ULPs;
+//! - the geometry is flat for every scene (see Scene above), so an animated scene's tree
+//!   differs from the CPU's two-level one; it finds the same surfaces, up to rounding.
+//!
+//! Everything else is the CPU's, step for step: thin-lens camera rays, the slab test and box
+//! culling slack of the traversal, the watertight test with its conservative `t`, error-bound
+//! ray offsets and shadow rays kept on the line to the light sample, every BSDF (Lambert, GGX
+//! conductors with height-correlated Smith, visible-normal sampling, complex or Schlick
+//! Fresnel, smooth and rough dielectrics), emitters front-only or two-sided, lights chosen by
+//! power through the CDF, next-event estimation with the power heuristic and the `prev_delta`
+//! rule, Russian roulette from `RR_DEPTH`, the firefly clamp, and non-finite samples counted and
+//! dropped.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::context::{GpuContext, GpuError};
+use super::layout::{
+    BvhNode, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
+    MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP, TraceParams,
+    with_prelude,
+};
+use crate::bvh::builders::Builder;
+use crate::bvh::prbvh::PrbvhConfig;
+use crate::bvh::{Bvh, CollapseConfig, MeshBvh, collapse_leaves, sah_cost};
+use crate::geometry::{Aabb, Triangle};
+use crate::render::bsdf::{Bsdf, ConductorFresnel};
+use crate::render::camera::CameraModel;
+use crate::render::film::{Film, PixelAccum};
+use crate::render::geometry::{Flat, Geometry, flat_lights};
+use crate::render::integrator::{BuildReport, RenderMaterial, RenderScene};
+use crate::scene::Scene;
+
+/// The shader files concatenated (after the variant's constants and the prelude) into the
+/// path tracer, in order. `tests/gpu_layout.rs` validates them together, every variant.
+pub const SHADER_FILES: [&str; 2] = ["bsdf.wgsl", "trace.wgsl"];
+
+/// Samples per pixel per submission.
+pub const PASS_SPP: u32 = 4;
+
+/// What a scene needs of the path tracer: each `false` removes that code from its variant.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Features {
+    pub dielectric: bool,
+    pub conductor: bool,
+    pub environment: bool,
+    /// Emitters to sample: next-event estimation and shadow rays.
+    pub lights: bool,
+    pub thin_lens: bool,
+}
+
+impl Features {
+    /// Every feature: a variant that renders any scene.
+    pub const ALL: Features =
+        Features { dielectric: true, conductor: true, environment: true, lights: true, thin_lens: true };
+
+    /// What `scene` uses.
+    pub fn of(scene: &RenderScene) -> Features {
+        let has = |f: fn(&Bsdf) -> bool| scene.materials.iter().any(|m| m.bsdf.as_ref().is_some_and(f));
+        Features {
+            dielectric: has(|b| matches!(b, Bsdf::Dielectric { .. })),
+            conductor: has(|b| matches!(b, Bsdf::Conductor { .. })),
+            environment: scene.environment.is_some(),
+            lights: !scene.lights.is_empty(),
+            thin_lens: scene.camera.parts().lens_radius != 0.0,
+        }
+    }
+
+    /// The pipeline cache key of this variant.
+    pub fn key(&self) -> String {
+        let b = |x: bool| u8::from(x);
+        format!(
+            "trace[dielectric={} conductor={} environment={} lights={} thin_lens={}]",
+            b(self.dielectric),
+            b(self.conductor),
+            b(self.environment),
+            b(self.lights),
+            b(self.thin_lens)
+        )
+    }
+
+    /// Every combination, for tests that validate each variant.
+    pub fn every() -> Vec<Features> {
+        (0..32u32)
+            .map(|m| Features {
+                dielectric: m & 1 != 0,
+                conductor: m & 2 != 0,
+                environment: m & 4 != 0,
+                lights: m & 8 != 0,
+                thin_lens: m & 16 != 0,
+            })
+            .collect()
+    }
+}
+
+/// The path tracer's WGSL for the variant `features`: prelude, `HAS_*` constants, then
+/// [`SHADER_FILES`].
+pub fn shader_source(features: Features) -> String {
+    let flags = format!(
+        "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_ENVIRONMENT: bool = {};\n\
+         const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\n",
+        features.dielectric, features.conductor, features.environment, features.lights, features.thin_lens
+    );
+    with_prelude(&format!(
+        "{flags}\n{}\n{}",
+        include_str!("../../shaders/bsdf.wgsl"),
+        include_str!("../../shaders/trace.wgsl")
+    ))
+}
+
+/// Whether `ARBOR_GPU_NO_SPECIALIZE` asks for the all-features variant.
+fn specialization_disabled() -> bool {
+    std::env::var("ARBOR_GPU_NO_SPECIALIZE").is_ok_and(|v| !v.is_empty() && v != "0")
+}
+
+/// A scene on the device, ready to render.
+pub struct GpuScene {
+    nodes: wgpu::Buffer,
+    triangles: wgpu::Buffer,
+    materials: wgpu::Buffer,
+    lights: wgpu::Buffer,
+    /// Camera, environment, clamp and light count; seed and samples are set per render.
+    params: TraceParams,
+    /// The variant to compile: [`Features::of`] the scene, or all of them under
+    /// `ARBOR_GPU_NO_SPECIALIZE=1`. May be widened (never narrowed) before rendering.
+    pub features: Features,
+    pub width: u32,
+    pub height: u32,
+    /// Nodes on the tree's longest root-to-leaf path.
+    pub depth: usize,
+}
+
+/// Nodes on the longest root-to-leaf path of `bvh` (0 for an empty tree).
+fn depth(bvh: &Bvh) -> usize {
+    if bvh.nodes.is_empty() {
+        return 0;
+    }
+    let mut deepest = 0;
+    let mut stack = vec![(0u32, 1usize)];
+    while let Some((i, d)) = stack.pop() {
+        deepest = deepest.max(d);
+        let n = &bvh.nodes[i as usize];
+        if !n.is_leaf() {
+            stack.push((n.first, d + 1));
+            stack.push((n.first + 1, d + 1));
+        }
+    }
+    deepest
+}
+
+fn gpu_material(m: &RenderMaterial) -> GpuMaterial {
+    let mut g = GpuMaterial { kind: MAT_BLACK, ..Default::default() };
+    match m.bsdf {
+        None => {}
+        Some(Bsdf::Diffuse { albedo }) => {
+            g.kind = MAT_DIFFUSE;
+            g.albedo = albedo;
+        }
+        Some(Bsdf::Conductor { alpha, fresnel }) => {
+            g.kind = MAT_CONDUCTOR;
+            g.alpha = alpha;
+            match fresnel {
+                ConductorFresnel::Complex { eta, k } => {
+                    g.albedo = eta;
+                    g.k = k;
+                    g.flags |= MAT_COMPLEX_FRESNEL;
+                }
+                ConductorFresnel::Schlick { f0 } => g.albedo = f0,
+            }
+        }
+        Some(Bsdf::Dielectric { alpha, ior }) => {
+            g.kind = MAT_DIELECTRIC;
+            g.alpha = alpha;
+            g.ior = ior;
+        }
+    }
+    if let Some(e) = m.emission {
+        g.flags |= MAT_EMITS;
+        g.emission = e;
+    }
+    if m.two_sided {
+        g.flags |= MAT_TWO_SIDED;
+    }
+    g
+}
+
+/// `data`, or one zeroed element when it is empty (a binding must hold at least one).
+fn at_least_one<T: bytemuck::Pod + Default>(mut data: Vec<T>) -> Vec<T> {
+    if data.is_empty() {
+        data.push(T::default());
+    }
+    data
+}
+
+impl GpuScene {
+    /// Uploads a flat scene (see the module docs; an instanced one is refused: [`flatten`] it).
+    /// Fails when a buffer is over the adapter's storage-binding limit, or the tree is deeper
+    /// than the traversal stack allows.
+    pub fn upload(ctx: &GpuContext, scene: &RenderScene) -> Result<GpuScene, GpuError> {
+        let Geometry::Flat(flat) = &scene.geometry else {
+            return Err(GpuError::Other(
+                "the GPU path renders flat scenes; flatten an instanced one first (gpu::trace::flatten)".into(),
+            ));
+        };
+        let bvh = &flat.mesh.bvh;
+        let depth = depth(bvh);
+        if depth > TRACE_STACK_SIZE as usize + 1 {
+            return Err(GpuError::Other(format!(
+                "the BVH is {depth} nodes deep, deeper than the GPU traversal stack allows ({} entries: depth {}); \
+                 use another builder or --device cpu",
+                TRACE_STACK_SIZE,
+                TRACE_STACK_SIZE + 1
+            )));
+        }
+        let nodes: Vec<BvhNode> = if bvh.nodes.is_empty() {
+            // One leaf with an empty box: every ray misses it.
+            vec![BvhNode::leaf(Aabb::EMPTY, 0, 1)]
+        } else {
+            bvh.nodes.to_vec()
+        };
+        let triangles: Vec<GpuTriangle> = flat
+            .mesh
+            .triangles
+            .par_iter()
+            .zip(&bvh.prim_ids)
+            .map(|(t, &prim)| GpuTriangle {
+                v0: t.v0,
+                material: flat.material_of[prim as usize],
+                v1: t.v1,
+                light_pdf: scene.lights.pdf_area(prim),
+                v2: t.v2,
+                pad: 0,
+            })
+            .collect();
+        let materials: Vec<GpuMaterial> = scene.materials.iter().map(gpu_material).collect();
+        let lights: Vec<GpuLight> = scene
+            .lights
+            .gpu_arrays()
+            .into_iter()
+            .map(|(t, cdf, l)| GpuLight {
+                v0: t.v0,
+                cdf,
+                v1: t.v1,
+                pdf_area: l.pdf_area,
+                v2: t.v2,
+                two_sided: u32::from(l.two_sided),
+                normal: l.normal,
+                pad0: 0,
+                radiance: l.radiance,
+                pad1: 0,
+            })
+            .collect();
+        let light_count = lights.len() as u32;
+        let camera = scene.camera.parts();
+        let params = TraceParams {
+            cam_origin: camera.origin,
+            width: scene.width,
+            cam_forward: camera.forward,
+            height: scene.height,
+            cam_right: camera.right,
+            tan_x: camera.tan_x,
+            cam_up: camera.up,
+            tan_y: camera.tan_y,
+            environment: scene.environment.unwrap_or(Vec3::ZERO),
+            lens_radius: camera.lens_radius,
+            focus_distance: camera.focus_distance,
+            clamp: scene.sample_clamp.unwrap_or(0.0),
+            light_count,
+            ..Default::default()
+        };
+        Ok(GpuScene {
+            nodes: ctx.storage_buffer("BVH nodes", &nodes)?,
+            triangles: ctx.storage_buffer("triangles", &at_least_one(triangles))?,
+            materials: ctx.storage_buffer("materials", &at_least_one(materials))?,
+            lights: ctx.storage_buffer("lights", &at_least_one(lights))?,
+            params,
+            features: if specialization_disabled() { Features::ALL } else { Features::of(scene) },
+            width: scene.width,
+            height: scene.height,
+            depth,
+        })
+    }
+
+    /// Sets the firefly clamp ([`RenderScene::sample_clamp`]; `None`: off).
+    pub fn set_clamp(&mut self, clamp: Option<f32>) {
+        self.params.clamp = clamp.unwrap_or(0.0);
+    }
+}
+
+/// A flat [`RenderScene`] of `scene` as it stands at `time`: every object's triangles in world
+/// space under one BVH built with `builder`, then the default leaf collapse; materials, lights
+/// and camera as [`RenderScene::build`] makes them. This is how the GPU path renders an animated
+/// or instanced scene, one frame at a time.
+pub fn flatten(scene: &Scene, time: f32, builder: &Builder) -> (RenderScene, BuildReport) {
+    let start = Instant::now();
+    let (triangles, material_of) = scene.world_triangles_at(time);
+    let prims: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
+    let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
+    let bvh = collapse_leaves(&built.bvh, &CollapseConfig::default());
+    let sah = sah_cost(&bvh);
+    let mesh = MeshBvh::new(bvh, &triangles);
+    let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
+    let lights = flat_lights(&triangles, &material_of, &materials);
+    let report = BuildReport {
+        build_ms: start.elapsed().as_secs_f64() * 1e3,
+        sah,
+        triangles: triangles.len(),
+        builder: format!("{builder}, flattened for the GPU"),
+    };
+    let render_scene = RenderScene {
+        geometry: Geometry::Flat(Flat { mesh, triangles, material_of }),
+        materials,
+        lights,
+        environment: scene.environment.filter(|e| e.max_element() > 0.0),
+        camera: CameraModel::new(&scene.camera),
+        width: scene.camera.width,
+        height: scene.camera.height,
+        sample_clamp: None,
+    };
+    (render_scene, report)
+}
+
+/// The pipeline of `scene`'s variant, compiled on first use and cached in `ctx`.
+fn pipeline(ctx: &GpuContext, scene: &GpuScene) -> wgpu::ComputePipeline {
+    let features = scene.features;
+    ctx.pipeline(&features.key(), || shader_source(features), "trace")
+}
+
+/// The bind group of a render of `scene` with these parameters and film.
+fn bind_group(
+    ctx: &GpuContext,
+    pipeline: &wgpu::ComputePipeline,
+    scene: &GpuScene,
+    params: &wgpu::Buffer,
+    film: &wgpu::Buffer,
+) -> wgpu::BindGroup {
+    ctx.bind_group(
+        pipeline,
+        &[(0, params), (1, &scene.nodes), (2, &scene.triangles), (3, &scene.materials), (4, &scene.lights), (5, film)],
+    )
+}
+
+/// Compiles `scene`'s variant, if this context has not yet, and runs it once on no pixels:
+/// drivers may compile at the first dispatch (lavapipe does, for about a second), so a render
+/// timed after this call times rendering alone.
+pub fn compile(ctx: &GpuContext, scene: &GpuScene) -> Result<(), GpuError> {
+    let pipeline = pipeline(ctx, scene);
+    let params = TraceParams { width: 0, height: 0, ..scene.params };
+    let params = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
+    let film = ctx.storage_buffer_zeroed("film", size_of::<GpuPixel>() as u64)?;
+    let bind_group = bind_group(ctx, &pipeline, scene, &params, &film);
+    let mut encoder = ctx.device.create_command_encoder(&Default::default());
+    {
+        let mut pass = encoder.begin_compute_pass(&Default::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &bind_group, &[]);
+        pass.dispatch_workgroups(1, 1, 1);
+    }
+    ctx.queue.submit([encoder.finish()]);
+    ctx.wait()
+}
+
+/// What [`render`] returns.
+pub struct GpuRender {
+    /// Every sample taken, with per-pixel standard errors, as the CPU's film.
+    pub film: Film,
+    /// Rays traced (camera, bounce and shadow rays).
+    pub rays: u64,
+    /// Samples per pixel taken.
+    pub samples: u32,
+}
+
+/// Renders `spp` samples per pixel (samples `0..spp` of each pixel's streams under `seed`) with
+/// paths of at most `max_depth` segments, in passes of [`PASS_SPP`]. After each pass has
+/// finished on the device, `after_pass(samples done so far)` is called; returning `false` stops
+/// the render there (a time budget).
+pub fn render(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    seed: u64,
+    max_depth: u32,
+    spp: u32,
+    after_pass: &mut dyn FnMut(u32) -> bool,
+) -> Result<GpuRender, GpuError> {
+    let (width, height) = (scene.width, scene.height);
+    let pixels = width as usize * height as usize;
+    let groups = (width.div_ceil(TRACE_WORKGROUP), height.div_ceil(TRACE_WORKGROUP));
+    let max_groups = ctx.limits.max_compute_workgroups_per_dimension;
+    if groups.0 > max_groups || groups.1 > max_groups {
+        return Err(GpuError::Other(format!(
+            "a {width}x{height} image needs {groups:?} workgroups, over the adapter's {max_groups} per dimension"
+        )));
+    }
+    let film_buffer = ctx.storage_buffer_zeroed("film", (pixels * size_of::<GpuPixel>()) as u64)?;
+    let mut params = TraceParams { seed_lo: seed as u32, seed_hi: (seed >> 32) as u32, max_depth, ..scene.params };
+    // A storage buffer, not a uniform one: lavapipe (Mesa 22) inlines uniform values into the
+    // shader at every dispatch, which cost 5 ms and leaked 0.6 MB per pass of this kernel.
+    let params_buffer = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
+    let pipeline = pipeline(ctx, scene);
+    let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, &film_buffer);
+    let mut done = 0;
+    while done < spp && pixels > 0 {
+        params.sample_start = done;
+        params.sample_count = PASS_SPP.min(spp - done);
+        ctx.queue.write_buffer(&params_buffer, 0, bytemuck::bytes_of(&params));
+        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace"), timestamp_writes: None });
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &bind_group, &[]);
+            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        }
+        ctx.queue.submit([encoder.finish()]);
+        ctx.wait()?;
+        done += params.sample_count;
+        if !after_pass(done) {
+            break;
+        }
+    }
+    let sums: Vec<GpuPixel> = ctx.read_buffer("film", &film_buffer, pixels)?;
+    let mut film = Film::new(width, height);
+    film.rows_mut().for_each(|(y, row)| {
+        for (x, px) in row.iter_mut().enumerate() {
+            *px = pixel_accum(&sums[y as usize * width as usize + x]);
+        }
+    });
+    let rays = sums.iter().map(|p| u64::from(p.rays)).sum();
+    Ok(GpuRender { film, rays, samples: done })
+}
+
+/// The film's f64 sums from the device's shifted f32 sums (see [`GpuPixel`]). `sum_sq` is
+/// written as `sum² / n` plus the centred sum of squares, so that the film's variance formula
+/// gives exactly 0 for a constant pixel.
+fn pixel_accum(p: &GpuPixel) -> PixelAccum {
+    let mut a = PixelAccum { count: u64::from(p.count), non_finite: u64::from(p.non_finite), ..Default::default() };
+    if p.count == 0 {
+        return a;
+    }
+    let n = f64::from(p.count);
+    for c in 0..3 {
+        let (shift, s1, s2) = (f64::from(p.shift[c]), f64::from(p.sum[c]), f64::from(p.sum_sq[c]));
+        let sum = n * shift + s1;
+        let centred = (s2 - s1 * s1 / n).max(0.0);
+        a.sum[c] = sum;
+        a.sum_sq[c] = sum * sum / n + centred;
+    }
+    a
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pixel_sums_of_a_constant_pixel_have_zero_variance() {
+        let p = GpuPixel { shift: Vec3::splat(0.8), count: 64, ..Default::default() };
+        let a = pixel_accum(&p);
+        assert_eq!(a.mean(), [0.8; 3]);
+        assert_eq!(a.stderr(), [0.0; 3]);
+    }
+
+    #[test]
+    fn pixel_sums_match_the_film() {
+        let samples = [0.5f32, 2.0, 1.25, 7.0];
+        let mut film = PixelAccum::default();
+        let mut p = GpuPixel { shift: Vec3::splat(samples[0]), count: samples.len() as u32, ..Default::default() };
+        for &x in &samples {
+            film.add(Vec3::splat(x));
+            let d = Vec3::splat(x - samples[0]);
+            p.sum += d;
+            p.sum_sq += d * d;
+        }
+        let a = pixel_accum(&p);
+        for c in 0..3 {
+            assert!((a.mean()[c] - film.mean()[c]).abs() < 1e-6);
+            assert!((a.stderr()[c] - film.stderr()[c]).abs() < 1e-6);
+        }
+    }
+}

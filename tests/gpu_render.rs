@@ -1,0 +1,473 @@
+//! The GPU path tracer (`src/gpu/trace.rs`) against exact answers and against the CPU
+//! integrator, and `render --device gpu` as a user runs it. Runs on any adapter, lavapipe
+//! included; skips without one, except under `CI=true`.
+//!
+//! The exact cases are those of `tests/render_accuracy.rs`; the comparisons with the CPU use
+//! 8x8-pixel blocks: the difference of block means over the combined standard error must stay
+//! below a Bonferroni threshold for a family-wise false-alarm rate of 10⁻³ per image.
+
+mod common;
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use arbor::bvh::builders::Builder;
+use arbor::geometry::{Triangle, TriangleMesh};
+use arbor::gpu::GpuContext;
+use arbor::gpu::trace::{self, Features, GpuScene};
+use arbor::image_io::Image;
+use arbor::render::RenderScene;
+use arbor::render::film::Film;
+use arbor::scene::Scene;
+use common::gpu_or_skip;
+use glam::Vec3;
+
+fn scene_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)
+}
+
+fn lbvh() -> Builder {
+    "lbvh".parse().unwrap()
+}
+
+/// Renders `scene` on the GPU; asserts that no sample was non-finite.
+fn render_gpu(ctx: &GpuContext, scene: &RenderScene, seed: u64, spp: u32, max_depth: u32) -> Film {
+    let gpu = GpuScene::upload(ctx, scene).unwrap_or_else(|e| panic!("{e}"));
+    let out = trace::render(ctx, &gpu, seed, max_depth, spp, &mut |_| true).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(out.samples, spp);
+    assert_eq!(out.film.non_finite_count(), 0, "non-finite samples on the GPU");
+    assert_eq!(out.film.sample_count(), u64::from(spp) * u64::from(scene.width * scene.height));
+    out.film
+}
+
+fn render_cpu(scene: &RenderScene, seed: u64, spp: u32, max_depth: u32) -> Film {
+    let mut film = Film::new(scene.width, scene.height);
+    scene.render(&mut film, seed, max_depth, 0..spp, &|_| {});
+    assert_eq!(film.non_finite_count(), 0, "non-finite samples on the CPU");
+    film
+}
+
+/// Mean and standard error of the mean over the pixels `mask` selects, per channel.
+fn region(mean: &Image, stderr: &Image, mask: impl Fn(u32, u32) -> bool) -> (Vec3, Vec3) {
+    let (mut sum, mut var, mut n) = (glam::DVec3::ZERO, glam::DVec3::ZERO, 0usize);
+    for y in 0..mean.height {
+        for x in 0..mean.width {
+            if mask(x, y) {
+                let i = (y * mean.width + x) as usize;
+                sum += Vec3::from(mean.pixels[i]).as_dvec3();
+                var += (Vec3::from(stderr.pixels[i]) * Vec3::from(stderr.pixels[i])).as_dvec3();
+                n += 1;
+            }
+        }
+    }
+    let n = n as f64;
+    ((sum / n).as_vec3(), (var.powf(0.5) / n).as_vec3())
+}
+
+/// A convex sphere of albedo 0.8 under environment radiance 1 reads exactly 0.8 (f32 on the GPU:
+/// to 1e-5), and the background exactly 1.
+#[test]
+fn furnace_sphere_is_exactly_its_albedo_on_the_gpu() {
+    let Some(ctx) = gpu_or_skip("furnace_sphere_is_exactly_its_albedo_on_the_gpu") else { return };
+    let scene = Scene::load(scene_path("furnace.toml")).unwrap();
+    let (rs, _) = RenderScene::build(&scene, &lbvh());
+    let film = render_gpu(ctx, &rs, scene.render.seed, 16, scene.render.max_depth);
+    let image = film.mean();
+    let at = |x: u32, y: u32| Vec3::from(image.pixels[(y * image.width + x) as usize]);
+    let c = image.width / 2;
+    for y in c - 20..c + 20 {
+        for x in c - 20..c + 20 {
+            assert!((at(x, y) - Vec3::splat(0.8)).abs().max_element() < 1e-5, "pixel ({x}, {y}) = {}", at(x, y));
+        }
+    }
+    for (x, y) in [(0, 0), (image.width - 1, 0), (0, image.height - 1)] {
+        assert_eq!(at(x, y), Vec3::ONE, "background pixel ({x}, {y})");
+    }
+}
+
+/// A camera inside a closed diffuse shell of albedo `a` emitting 1 sees `(1 - a^D) / (1 - a)` at
+/// max depth D, within 3 standard errors.
+#[test]
+fn closed_shell_sums_the_geometric_series_on_the_gpu() {
+    let Some(ctx) = gpu_or_skip("closed_shell_sums_the_geometric_series_on_the_gpu") else { return };
+    let dir = std::env::temp_dir().join(format!("arbor-gpu-shell-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let sphere = TriangleMesh::icosphere(3);
+    let mut obj = String::new();
+    for p in &sphere.positions {
+        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &sphere.indices {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[2] + 1, t[1] + 1);
+    }
+    std::fs::write(dir.join("shell.obj"), obj).unwrap();
+    for (a, depth) in [(0.5f32, 4u32), (0.8, 3), (0.3, 1)] {
+        let text = format!(
+            "[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nfov = 60\nresolution = [24, 24]\n\n\
+             [materials.shell]\ntype = \"emissive\"\nradiance = [1, 1, 1]\nalbedo = [{a}, {a}, {a}]\n\n\
+             [[objects]]\nmesh = \"shell.obj\"\nmaterial = \"shell\"\n"
+        );
+        std::fs::write(dir.join("scene.toml"), text).unwrap();
+        let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
+        let (rs, _) = RenderScene::build(&scene, &lbvh());
+        let film = render_gpu(ctx, &rs, 0, 64, depth);
+        let (mean, se) = region(&film.mean(), &film.stderr(), |_, _| true);
+        let expected = (1.0 - a.powi(depth as i32)) / (1.0 - a);
+        let z = ((mean - Vec3::splat(expected)).abs() / se.max(Vec3::splat(1e-7))).max_element();
+        eprintln!("GPU shell a = {a}, D = {depth}: mean {mean}, expected {expected}, standard error {se}, z {z:.2}");
+        assert!(z <= 3.0, "a = {a}, D = {depth}: {mean} vs {expected} (standard error {se})");
+    }
+}
+
+/// Irradiance from a polygon of radiance `l` at `p` with normal `n` (Lambert's formula).
+fn polygon_irradiance(p: Vec3, n: Vec3, vertices: &[Vec3], l: f32) -> f32 {
+    let u: Vec<Vec3> = vertices.iter().map(|v| (*v - p).normalize()).collect();
+    let mut sum = 0.0f64;
+    for i in 0..u.len() {
+        let (a, b) = (u[i], u[(i + 1) % u.len()]);
+        let theta = f64::from(a.dot(b)).clamp(-1.0, 1.0).acos();
+        sum += theta * f64::from(n.dot(a.cross(b).normalize()));
+    }
+    (0.5 * f64::from(l) * sum.abs()) as f32
+}
+
+/// A diffuse floor under a square light, direct light only: each 8x8 block matches `albedo/π · E`
+/// from the closed form within 3 standard errors (as in render_accuracy.rs).
+#[test]
+fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
+    let Some(ctx) = gpu_or_skip("irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu") else {
+        return;
+    };
+    let (albedo, radiance, half, height) = (0.5f32, 10.0f32, 0.25f32, 1.0f32);
+    let text = format!(
+        "[camera]\nposition = [0, 2.5, 3]\nlook_at = [0, 0, 0.5]\nfov = 30\nresolution = [48, 48]\n\n\
+         [materials.floor]\ntype = \"diffuse\"\nalbedo = [{albedo}, {albedo}, {albedo}]\n\n\
+         [materials.lamp]\ntype = \"emissive\"\nradiance = [{radiance}, {radiance}, {radiance}]\n\n\
+         [[objects]]\nshape = \"quad\"\nmaterial = \"floor\"\nrotate = [-90, 0, 0]\nscale = 10\n\n\
+         [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [0, {height}, 0]\nrotate = [90, 0, 0]\nscale = {half}\n"
+    );
+    let scene = Scene::parse(&text, std::env::temp_dir().join("arbor-gpu-irradiance.toml")).unwrap();
+    let (rs, _) = RenderScene::build(&scene, &lbvh());
+    let film = render_gpu(ctx, &rs, 0, 256, 2);
+    let (image, stderr) = (film.mean(), film.stderr());
+    let camera = arbor::render::camera::CameraModel::new(&scene.camera);
+    let light = [
+        Vec3::new(-half, height, -half),
+        Vec3::new(half, height, -half),
+        Vec3::new(half, height, half),
+        Vec3::new(-half, height, half),
+    ];
+    let expected = |x: u32, y: u32| -> Option<f32> {
+        let mut sum = 0.0;
+        for k in 0..16 {
+            let film_pos =
+                glam::Vec2::new(x as f32 + (k % 4) as f32 * 0.25 + 0.125, y as f32 + (k / 4) as f32 * 0.25 + 0.125);
+            let ray = camera.ray(film_pos, glam::Vec2::ZERO);
+            let t_floor = -ray.origin.y / ray.dir.y;
+            let t_light = (height - ray.origin.y) / ray.dir.y;
+            let at_light = ray.at(t_light);
+            if t_light > 0.0 && at_light.x.abs() <= half * 1.05 && at_light.z.abs() <= half * 1.05 {
+                return None;
+            }
+            let p = ray.at(t_floor);
+            if t_floor.is_nan() || t_floor <= 0.0 || p.x.abs() > 10.0 || p.z.abs() > 10.0 {
+                return None;
+            }
+            sum += albedo / std::f32::consts::PI * polygon_irradiance(p, Vec3::Y, &light, radiance);
+        }
+        Some(sum / 16.0)
+    };
+    let (mut worst, mut blocks) = (0.0f32, 0);
+    for by in 0..6 {
+        for bx in 0..6 {
+            let pixels: Vec<(u32, u32)> = (0..64).map(|k| (bx * 8 + k % 8, by * 8 + k / 8)).collect();
+            let Some(want): Option<Vec<f32>> = pixels.iter().map(|&(x, y)| expected(x, y)).collect() else { continue };
+            let want = want.iter().sum::<f32>() / 64.0;
+            let (got, se) = region(&image, &stderr, |x, y| x / 8 == bx && y / 8 == by);
+            let z = (got.x - want).abs() / se.x.max(1e-7);
+            worst = worst.max(z);
+            blocks += 1;
+            assert!(z <= 3.0, "block ({bx}, {by}): {} vs closed form {want} (standard error {})", got.x, se.x);
+        }
+    }
+    assert!(blocks >= 20, "only {blocks} blocks see the floor alone");
+    eprintln!("GPU irradiance: {blocks} blocks, worst z {worst:.2}");
+}
+
+/// The |z| whose two-sided normal p-value is `p` (bisection on the Numerical Recipes erfc).
+fn z_for_two_sided_p(p: f64) -> f64 {
+    let erfc = |x: f64| {
+        let t = 1.0 / (1.0 + 0.5 * x.abs());
+        let c = [
+            -1.265_512_23,
+            1.000_023_68,
+            0.374_091_96,
+            0.096_784_18,
+            -0.186_288_06,
+            0.278_868_07,
+            -1.135_203_98,
+            1.488_515_87,
+            -0.822_152_23,
+            0.170_872_77,
+        ];
+        let poly = c.iter().rev().fold(0.0, |acc, c| c + t * acc);
+        t * (-x * x + poly).exp()
+    };
+    let (mut lo, mut hi) = (0.0f64, 40.0f64);
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if erfc(mid / std::f64::consts::SQRT_2) > p { lo = mid } else { hi = mid }
+    }
+    0.5 * (lo + hi)
+}
+
+/// 8x8 blocks of `a` against `b`: the worst |z| over blocks and channels and the Bonferroni
+/// threshold for a family-wise rate of 10⁻³. Pixel channels with standard error 0 in both must
+/// agree within 1e-5 relative and stay out of the z-test.
+fn block_z(a: &Film, b: &Film) -> (f64, f64) {
+    let (w, h) = (a.width(), a.height());
+    let (bx_count, by_count) = (w.div_ceil(8), h.div_ceil(8));
+    let mut sums = vec![[(0.0f64, 0.0f64); 3]; (bx_count * by_count) as usize];
+    let (ma, sa, mb, sb) = (a.mean(), a.stderr(), b.mean(), b.stderr());
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let block = &mut sums[((y / 8) * bx_count + x / 8) as usize];
+            for (c, s) in block.iter_mut().enumerate() {
+                let (va, vb) = (f64::from(ma.pixels[i][c]), f64::from(mb.pixels[i][c]));
+                let (ea, eb) = (f64::from(sa.pixels[i][c]), f64::from(sb.pixels[i][c]));
+                if ea == 0.0 && eb == 0.0 {
+                    assert!((va - vb).abs() <= 1e-5 * va.abs().max(vb.abs()), "exact pixel ({x}, {y}): {va} vs {vb}");
+                    continue;
+                }
+                s.0 += va - vb;
+                s.1 += ea * ea + eb * eb;
+            }
+        }
+    }
+    let worst = sums.iter().flatten().map(|&(d, v)| if v > 0.0 { d.abs() / v.sqrt() } else { 0.0 }).fold(0.0, f64::max);
+    (worst, z_for_two_sided_p(1e-3 / (3.0 * sums.len() as f64)))
+}
+
+/// GPU and CPU renders of the same scene (different random streams) agree block by block.
+fn gpu_matches_cpu(name: &str, mut scene: Scene, spp: u32, clamp: Option<f32>) {
+    let Some(ctx) = gpu_or_skip(name) else { return };
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let longest = w.max(h);
+    scene.camera.width = (w * 64).div_ceil(longest);
+    scene.camera.height = (h * 64).div_ceil(longest);
+    let (mut rs, _) = RenderScene::build(&scene, &lbvh());
+    rs.sample_clamp = clamp;
+    let depth = scene.render.max_depth;
+    let gpu = render_gpu(ctx, &rs, 1, spp, depth);
+    let cpu = render_cpu(&rs, 2, spp, depth);
+    let (worst, threshold) = block_z(&gpu, &cpu);
+    let (g, c) = (region(&gpu.mean(), &gpu.stderr(), |_, _| true), region(&cpu.mean(), &cpu.stderr(), |_, _| true));
+    eprintln!("{name}: worst block |z| {worst:.2} (limit {threshold:.2}); image means GPU {} CPU {}", g.0, c.0);
+    assert!(worst <= threshold, "{name}: GPU and CPU differ: worst block |z| {worst:.2} > {threshold:.2}");
+}
+
+#[test]
+fn gpu_matches_cpu_on_the_showcase() {
+    gpu_matches_cpu("showcase", Scene::load(scene_path("showcase.toml")).unwrap(), 64, None);
+}
+
+#[test]
+fn gpu_matches_cpu_on_the_cornell_box() {
+    gpu_matches_cpu("cornell-box", Scene::load(scene_path("cornell-box.toml")).unwrap(), 64, None);
+}
+
+/// The thin lens and the firefly clamp, on the GPU as on the CPU.
+#[test]
+fn gpu_matches_cpu_with_a_thin_lens_and_a_clamp() {
+    let mut scene = Scene::load(scene_path("cornell-box.toml")).unwrap();
+    scene.camera.aperture = 0.08;
+    scene.camera.focus_distance = 3.0;
+    gpu_matches_cpu("cornell-box, thin lens, clamp 2", scene, 32, Some(2.0));
+}
+
+/// Each scene gets the variant it needs, and the all-features variant renders it the same.
+#[test]
+fn specialized_and_general_variants_agree() {
+    let Some(ctx) = gpu_or_skip("specialized_and_general_variants_agree") else { return };
+    let mut scene = Scene::load(scene_path("furnace.toml")).unwrap();
+    scene.camera.width = 32;
+    scene.camera.height = 32;
+    let (rs, _) = RenderScene::build(&scene, &lbvh());
+    assert_eq!(
+        Features::of(&rs),
+        Features { dielectric: false, conductor: false, environment: true, lights: false, thin_lens: false }
+    );
+    let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
+    let specialized = trace::render(ctx, &gpu, 3, 8, 8, &mut |_| true).unwrap();
+    gpu.features = Features::ALL;
+    let general = trace::render(ctx, &gpu, 3, 8, 8, &mut |_| true).unwrap();
+    // The same random streams and the same arithmetic: the same image.
+    assert_eq!(specialized.film.mean().pixels, general.film.mean().pixels);
+    assert_eq!(specialized.rays, general.rays);
+}
+
+/// A tree deeper than the traversal stack is refused before upload, with a clear error.
+#[test]
+fn a_tree_deeper_than_the_stack_is_refused() {
+    let Some(ctx) = gpu_or_skip("a_tree_deeper_than_the_stack_is_refused") else { return };
+    let scene = Scene::load(scene_path("furnace.toml")).unwrap();
+    let (mut rs, _) = RenderScene::build(&scene, &lbvh());
+    // A caterpillar: internal node k has leaf k on the left and the next internal node on the
+    // right, 100 levels deep.
+    let n = 100u32;
+    let tris: Vec<Triangle> =
+        (0..n).map(|i| Triangle::new(Vec3::new(i as f32, 0.0, 0.0), Vec3::new(i as f32, 1.0, 0.0), Vec3::Z)).collect();
+    let aabb = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
+    let mut nodes = vec![arbor::bvh::BvhNode::internal(aabb, 2), bytemuck::Zeroable::zeroed()];
+    let mut parents = vec![arbor::bvh::INVALID_INDEX; 2];
+    for k in 0..n - 1 {
+        let pair = 2 + 2 * k;
+        nodes.push(arbor::bvh::BvhNode::leaf(tris[k as usize].aabb(), k, 1));
+        nodes.push(if k == n - 2 {
+            arbor::bvh::BvhNode::leaf(tris[k as usize + 1].aabb(), k + 1, 1)
+        } else {
+            arbor::bvh::BvhNode::internal(aabb, pair + 2)
+        });
+        parents.extend([if k == 0 { 0 } else { pair - 1 }; 2]);
+    }
+    let bvh = arbor::bvh::Bvh { nodes: nodes.into(), parents, prim_ids: (0..n).collect() };
+    let mesh = arbor::bvh::MeshBvh::new(bvh, &tris);
+    rs.geometry = arbor::render::geometry::Geometry::Flat(arbor::render::geometry::Flat {
+        mesh,
+        triangles: tris,
+        material_of: vec![0; n as usize],
+    });
+    let error = GpuScene::upload(ctx, &rs).err().expect("a 100-deep tree must be refused").to_string();
+    assert!(error.contains("100 nodes deep") && error.contains("traversal stack"), "{error}");
+}
+
+/// Whether the shared context (what `--device gpu` takes) is a software adapter; then, as the
+/// best adapter there is, `--device auto` finds no hardware GPU.
+fn ctx_is_software() -> bool {
+    GpuContext::shared().is_ok_and(GpuContext::is_software)
+}
+
+/// `render --device gpu` names the adapter, renders, and prints the usual summary; sequences of
+/// an animated scene render frame by frame.
+#[test]
+fn render_cli_on_the_gpu() {
+    if gpu_or_skip("render_cli_on_the_gpu").is_none() {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("arbor-gpu-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_render")).args(args).output().unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+        stdout
+    };
+    let out = dir.join("f.exr");
+    let furnace = scene_path("furnace.toml");
+    let stdout = run(&[furnace.to_str().unwrap(), "-o", out.to_str().unwrap(), "--device", "gpu", "--spp", "6"]);
+    for word in ["GPU:", "triangles", "SAH", "render", "Mrays/s", "6 spp"] {
+        assert!(stdout.contains(word), "summary lacks `{word}`: {stdout}");
+    }
+    let image = arbor::image_io::read_exr(&out).unwrap();
+    assert_eq!((image.width, image.height), (128, 128));
+    assert_eq!(image.pixels[0], [1.0; 3], "furnace background");
+    let frames = dir.join("c_%02d.png");
+    let stdout = run(&[
+        scene_path("cornell-animated.toml").to_str().unwrap(),
+        "-o",
+        frames.to_str().unwrap(),
+        "--device",
+        "gpu",
+        "--frames",
+        "3..5",
+        "--spp",
+        "1",
+        "--max-depth",
+        "3",
+    ]);
+    assert!(dir.join("c_03.png").exists() && dir.join("c_04.png").exists(), "{stdout}");
+    assert_eq!(stdout.matches(" spp").count(), 2, "{stdout}");
+    // `auto` takes a hardware GPU, or says in one line that it renders on the CPU.
+    let stdout = run(&[furnace.to_str().unwrap(), "-o", out.to_str().unwrap(), "--device", "auto", "--spp", "1"]);
+    let on_cpu = stdout.contains("no hardware GPU") && stdout.contains("rendering on the CPU");
+    assert!(on_cpu != stdout.contains("GPU: "), "{stdout}");
+    assert_eq!(on_cpu, ctx_is_software(), "{stdout}");
+    // A time budget stops after the pass (4 samples per pixel) that crosses it.
+    let stdout = run(&[
+        furnace.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--device",
+        "gpu",
+        "--spp",
+        "100000",
+        "--time",
+        "0.3",
+        "--seed",
+        "7",
+        "--clamp",
+        "5",
+    ]);
+    let spp: u32 =
+        stdout.split(", ").find_map(|f| f.strip_suffix(" spp\n").or(f.strip_suffix(" spp"))).unwrap().parse().unwrap();
+    assert!((4..100_000).contains(&spp) && spp % 4 == 0, "{stdout}");
+}
+
+/// CPU seconds this process has used (user + system, from `/proc/self/stat`; Linux only, else
+/// 0): on lavapipe the GPU's work is this process's threads, and CPU time is steadier than wall
+/// time on a shared machine.
+fn process_cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    // Fields after the command name (which is in parentheses): utime and stime are 12 and 13.
+    let rest = &stat[stat.rfind(')').map_or(0, |i| i + 2)..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |k: usize| fields.get(k).and_then(|f| f.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// What specialization saves: each scene rendered by its own variant and by the all-features
+/// variant, alternately, three times each; compilation is left out. Prints the best wall time
+/// and CPU time of each and their ratios; asserts nothing about speed (timings are for people,
+/// not for tests). `cargo test --release --test gpu_render -- --ignored --nocapture specialization`
+#[test]
+#[ignore]
+fn specialization_speedup() {
+    let Some(ctx) = gpu_or_skip("specialization_speedup") else { return };
+    for (name, spp) in [("furnace.toml", 64), ("cornell-box.toml", 16), ("showcase.toml", 16)] {
+        let scene = Scene::load(scene_path(name)).unwrap();
+        let (rs, _) = RenderScene::build(&scene, &lbvh());
+        let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
+        let specialized = Features::of(&rs);
+        let (mut wall, mut cpu, mut rays) = ([f64::INFINITY; 2], [f64::INFINITY; 2], [0u64; 2]);
+        for features in [specialized, Features::ALL] {
+            gpu.features = features;
+            trace::compile(ctx, &gpu).unwrap();
+        }
+        for _ in 0..3 {
+            for (k, features) in [specialized, Features::ALL].into_iter().enumerate() {
+                gpu.features = features;
+                let (t, c) = (std::time::Instant::now(), process_cpu_seconds());
+                let out = trace::render(ctx, &gpu, 0, scene.render.max_depth, spp, &mut |_| true).unwrap();
+                wall[k] = wall[k].min(t.elapsed().as_secs_f64());
+                cpu[k] = cpu[k].min(process_cpu_seconds() - c);
+                rays[k] = out.rays;
+            }
+        }
+        assert_eq!(rays[0], rays[1], "{name}: the variants traced different paths");
+        eprintln!(
+            "{name} ({}x{}, {spp} spp, {:.1} Mrays), {} vs all features: wall {:.2} s vs {:.2} s \
+             (all / specialized {:.2}), CPU {:.2} s vs {:.2} s (ratio {:.2})",
+            rs.width,
+            rs.height,
+            rays[0] as f64 / 1e6,
+            specialized.key(),
+            wall[0],
+            wall[1],
+            wall[1] / wall[0],
+            cpu[0],
+            cpu[1],
+            cpu[1] / cpu[0]
+        );
+    }
+}
