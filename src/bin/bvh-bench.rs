@@ -75,7 +75,7 @@ struct Args {
     /// measure the error against a reference, counting the BVH build in the time.
     #[arg(long, value_name = "SCENE.toml", conflicts_with_all = ["input", "procedural", "animated", "procedural_animated"])]
     converge: Option<PathBuf>,
-    /// Devices to render on with --converge, comma-separated: cpu (gpu comes with the GPU backend).
+    /// Devices to render on with --converge, comma-separated: cpu, gpu.
     #[arg(long, value_delimiter = ',', default_value = "cpu")]
     devices: Vec<String>,
     /// --converge: the reference image (.exr, linear), e.g. an independent renderer's; without
@@ -322,11 +322,13 @@ fn strategy_values(s: &arbor::bvh::anim_bench::StrategyReport) -> [f64; 8] {
 fn run_converge(args: &Args) -> Result<()> {
     use arbor::render::converge::{self, BuilderChoice, ConvergeConfig};
     let path = args.converge.as_ref().expect("checked by the caller");
-    if let Some(d) = args.devices.iter().find(|d| d.as_str() != "cpu") {
-        match d.as_str() {
-            "gpu" => bail!("--devices gpu: the GPU backend is not built yet; use --devices cpu"),
+    let mut devices = Vec::new();
+    for d in &args.devices {
+        devices.push(match d.trim() {
+            "cpu" => converge::ConvergeDevice::Cpu,
+            "gpu" => converge::ConvergeDevice::Gpu(arbor::gpu::GpuContext::shared().context("--devices gpu")?),
             other => bail!("--devices: unknown device `{other}`; known: cpu, gpu"),
-        }
+        });
     }
     let names = args
         .builders
@@ -381,11 +383,20 @@ fn run_converge(args: &Args) -> Result<()> {
     let mut runs = Vec::new();
     for run in 0..args.runs {
         let mut curves = Vec::new();
-        for choice in &choices {
-            let curve = converge::measure_curve(&scene, choice, &reference, &config, &mut |p| {
-                eprintln!("  run {}: {choice} {} spp: {:.3} s, rel MSE {:.4e}", run + 1, p.spp, p.time_s, p.rel_mse);
-            });
-            curves.push(curve);
+        for &device in &devices {
+            for choice in &choices {
+                let curve = converge::measure_curve(&scene, choice, device, &reference, &config, &mut |p| {
+                    eprintln!(
+                        "  run {}: {choice} on {} {} spp: {:.3} s, rel MSE {:.4e}",
+                        run + 1,
+                        device.name(),
+                        p.spp,
+                        p.time_s,
+                        p.rel_mse
+                    );
+                })?;
+                curves.push(curve);
+            }
         }
         runs.push(curves);
     }
@@ -406,9 +417,10 @@ fn run_converge(args: &Args) -> Result<()> {
         println!("(times: the median of {} runs)", args.runs);
     }
     let auto = converge::compare_auto(&curves);
-    if let Some(a) = &auto {
+    for a in &auto {
         println!(
-            "auto against the best fixed builder at equal time ({:.3} to {:.3} s): worst rel MSE ratio {:.3} at {:.3} s ({} best there), worst MAE ratio {:.3}",
+            "{}: auto against the best fixed builder at equal time ({:.3} to {:.3} s): worst rel MSE ratio {:.3} at {:.3} s ({} best there), worst MAE ratio {:.3}",
+            a.device,
             a.compared_from_s,
             a.compared_to_s,
             a.worst_ratio_rel_mse,

@@ -13,6 +13,9 @@
 //! - `auto` decides how long to optimise from the render's ray count
 //!   ([`RenderScene::build_auto`]), so each of its points is a separate build and render with
 //!   that point's sample count.
+//! - On the GPU ([`ConvergeDevice::Gpu`]) every point is a separate render of `0..n` samples
+//!   (its film is read back once per render); the tree is built and uploaded once per curve
+//!   for a fixed builder, per point for `auto`, and that time counts as build time.
 //!
 //! Errors, over every pixel and channel against the reference `r`:
 //! - relative MSE: the mean of `(x - r)² / (r² + 0.01)` (the 0.01 keeps dark pixels from
@@ -119,9 +122,11 @@ pub struct ConvergeCurve {
     pub points: Vec<ConvergePoint>,
 }
 
-/// `auto` against the best fixed builder at equal time, where all curves overlap.
+/// `auto` against the best fixed builder on the same device at equal time, where all that
+/// device's curves overlap.
 #[derive(Clone, Debug, Serialize)]
 pub struct AutoComparison {
+    pub device: String,
     /// The largest ratio of auto's relative MSE to the lowest of the fixed builders'.
     pub worst_ratio_rel_mse: f64,
     /// Where it is, seconds, and which fixed builder was best there.
@@ -169,21 +174,48 @@ pub fn render_reference(scene: &Scene, spp: u32, max_depth: u32, seed: u64) -> (
     (film.mean(), t.elapsed().as_secs_f64())
 }
 
-/// The curve of `choice` against `reference`; `progress` hears of each point.
+/// Where a curve renders.
+#[derive(Clone, Copy)]
+pub enum ConvergeDevice {
+    Cpu,
+    /// The GPU path ([`crate::gpu::trace`]): the BVH is built on the CPU as for a CPU render,
+    /// uploaded (counted in the build time), and each point is its own render of samples
+    /// `0..spp` (the GPU film is read back once per render). Pipeline compilation is done
+    /// before timing, once per scene variant.
+    Gpu(&'static crate::gpu::GpuContext),
+}
+
+impl ConvergeDevice {
+    pub fn name(&self) -> &'static str {
+        match self {
+            ConvergeDevice::Cpu => "cpu",
+            ConvergeDevice::Gpu(_) => "gpu",
+        }
+    }
+}
+
+/// The curve of `choice` on `device` against `reference`; `progress` hears of each point.
 pub fn measure_curve(
     scene: &Scene,
     choice: &BuilderChoice,
+    device: ConvergeDevice,
     reference: &Image,
     config: &ConvergeConfig,
     progress: &mut dyn FnMut(&ConvergePoint),
-) -> ConvergeCurve {
+) -> Result<ConvergeCurve, crate::gpu::GpuError> {
     let steps = config.spp_steps();
     let mut points = Vec::with_capacity(steps.len());
     let mut detail = String::new();
-    match choice {
-        BuilderChoice::Fixed(builder) => {
+    let build = |spp: u32| match choice {
+        BuilderChoice::Fixed(builder) => RenderScene::build(scene, builder),
+        BuilderChoice::Auto => {
+            RenderScene::build_auto(scene, RenderScene::estimated_rays(scene, spp, config.max_depth, 1))
+        }
+    };
+    match (choice, device) {
+        (BuilderChoice::Fixed(_), ConvergeDevice::Cpu) => {
             let t = Instant::now();
-            let (rs, report) = RenderScene::build(scene, builder);
+            let (rs, report) = build(1);
             let build_s = t.elapsed().as_secs_f64();
             detail = report.builder;
             let mut film = Film::new(rs.width, rs.height);
@@ -197,11 +229,10 @@ pub fn measure_curve(
                 progress(points.last().expect("just pushed"));
             }
         }
-        BuilderChoice::Auto => {
+        (BuilderChoice::Auto, ConvergeDevice::Cpu) => {
             for &spp in &steps {
                 let t = Instant::now();
-                let rays = RenderScene::estimated_rays(scene, spp, config.max_depth, 1);
-                let (rs, report) = RenderScene::build_auto(scene, rays);
+                let (rs, report) = build(spp);
                 let build_s = t.elapsed().as_secs_f64();
                 let mut film = Film::new(rs.width, rs.height);
                 rs.render(&mut film, config.seed, config.max_depth, 0..spp, &|_| {});
@@ -211,8 +242,37 @@ pub fn measure_curve(
                 progress(points.last().expect("just pushed"));
             }
         }
+        (_, ConvergeDevice::Gpu(ctx)) => {
+            use crate::gpu::trace::{self, GpuScene};
+            let mut fixed: Option<(GpuScene, f64)> = None;
+            for &spp in &steps {
+                let t = Instant::now();
+                let (uploaded, build_s) = match (&fixed, choice) {
+                    (Some(_), BuilderChoice::Fixed(_)) => (None, fixed.as_ref().map_or(0.0, |f| f.1)),
+                    _ => {
+                        let (rs, report) = build(spp);
+                        let gpu = GpuScene::upload(ctx, &rs)?;
+                        let build_s = t.elapsed().as_secs_f64();
+                        detail = report.builder;
+                        // Compiling is once per process and variant, not part of a render: done
+                        // after the build is timed, before the render is.
+                        trace::compile(ctx, &gpu)?;
+                        (Some((gpu, build_s)), build_s)
+                    }
+                };
+                if let Some(u) = uploaded {
+                    fixed = Some(u);
+                }
+                let gpu = &fixed.as_ref().expect("uploaded above").0;
+                let r = Instant::now();
+                let out = trace::render(ctx, gpu, config.seed, config.max_depth, spp, &mut |_| true)?;
+                let render_s = r.elapsed().as_secs_f64();
+                points.push(point(&out.film, reference, spp, build_s, build_s + render_s));
+                progress(points.last().expect("just pushed"));
+            }
+        }
     }
-    ConvergeCurve { builder: choice.to_string(), device: "cpu".into(), detail, points }
+    Ok(ConvergeCurve { builder: choice.to_string(), device: device.name().into(), detail, points })
 }
 
 fn point(film: &Film, reference: &Image, spp: u32, build_s: f64, time_s: f64) -> ConvergePoint {
@@ -313,9 +373,16 @@ pub fn spp_at(points: &[ConvergePoint], t: f64) -> Option<f64> {
 /// with each firefly, and because every builder renders the same samples, those jumps would
 /// shift with each curve's timing and be read as differences between builders. With the model,
 /// the ratio of relative MSEs is at most the ratio of samples per second, whatever the noise.
-pub fn compare_auto(curves: &[ConvergeCurve]) -> Option<AutoComparison> {
-    let auto = curves.iter().find(|c| c.builder == "auto")?;
-    let fixed: Vec<&ConvergeCurve> = curves.iter().filter(|c| c.builder != "auto").collect();
+pub fn compare_auto(curves: &[ConvergeCurve]) -> Vec<AutoComparison> {
+    let mut devices: Vec<&str> = curves.iter().map(|c| c.device.as_str()).collect();
+    devices.dedup();
+    devices.iter().filter_map(|d| compare_auto_on(curves.iter().filter(|c| c.device == *d).collect())).collect()
+}
+
+/// [`compare_auto`] for the curves of one device.
+fn compare_auto_on(curves: Vec<&ConvergeCurve>) -> Option<AutoComparison> {
+    let auto = *curves.iter().find(|c| c.builder == "auto")?;
+    let fixed: Vec<&ConvergeCurve> = curves.iter().filter(|c| c.builder != "auto").copied().collect();
     if fixed.is_empty() {
         return None;
     }
@@ -329,8 +396,9 @@ pub fn compare_auto(curves: &[ConvergeCurve]) -> Option<AutoComparison> {
     if from > to {
         return None;
     }
-    let mse = ErrorModel::fit(curves, 1.0, |p| p.rel_mse)?;
-    let mae = ErrorModel::fit(curves, 0.5, |p| p.mae)?;
+    let owned: Vec<ConvergeCurve> = curves.iter().map(|&c| c.clone()).collect();
+    let mse = ErrorModel::fit(&owned, 1.0, |p| p.rel_mse)?;
+    let mae = ErrorModel::fit(&owned, 0.5, |p| p.mae)?;
     let times: Vec<f64> =
         curves.iter().flat_map(|c| c.points.iter().map(|p| p.time_s)).filter(|t| (from..=to).contains(t)).collect();
     let mut result: Option<AutoComparison> = None;
@@ -348,6 +416,7 @@ pub fn compare_auto(curves: &[ConvergeCurve]) -> Option<AutoComparison> {
         worst_mae = worst_mae.max(mae.at(ours) / mae.at(best).max(1e-300));
         if result.as_ref().is_none_or(|r| r_mse > r.worst_ratio_rel_mse) {
             result = Some(AutoComparison {
+                device: auto.device.clone(),
                 worst_ratio_rel_mse: r_mse,
                 worst_at_time_s: t,
                 best_fixed_there: name,
@@ -414,7 +483,7 @@ mod tests {
         let best = curve("lbvh", steps.iter().map(|&n| q(n, n as f64)).collect());
         let slow = curve("binned-sah", steps.iter().map(|&n| q(n, 1.5 * n as f64)).collect());
         let auto = curve("auto", steps.iter().map(|&n| q(n, 2.0 * n as f64)).collect());
-        let c = compare_auto(&[best, slow, auto]).unwrap();
+        let c = compare_auto(&[best, slow, auto]).pop().unwrap();
         assert!((c.worst_ratio_rel_mse - 2.0).abs() < 1e-9, "{c:?}");
         assert!((c.worst_ratio_mae - 2f64.sqrt()).abs() < 1e-2, "{c:?}");
         assert_eq!(c.best_fixed_there, "lbvh");
@@ -429,7 +498,7 @@ mod tests {
             .to_vec();
         let mut late = pts.clone();
         late.iter_mut().for_each(|p| p.time_s *= 1.02);
-        let c = compare_auto(&[curve("lbvh", pts), curve("auto", late)]).unwrap();
+        let c = compare_auto(&[curve("lbvh", pts), curve("auto", late)]).pop().unwrap();
         assert!(c.worst_ratio_rel_mse < 1.03, "{c:?}");
     }
 
