@@ -113,10 +113,67 @@ fn assert_finite(film: &Film, what: &str) {
 /// here.
 fn render(scene: &Scene, seed: u64, spp: u32, max_depth: u32) -> Film {
     let (rs, _) = RenderScene::build(scene, &builder("lbvh"));
-    let mut film = Film::new(rs.width, rs.height);
-    rs.render(&mut film, seed, max_depth, 0..spp, &|_| {});
+    let film = render_built(&rs, seed, spp, max_depth);
     assert_finite(&film, &format!("{} (seed {seed})", scene.path.display()));
     film
+}
+
+/// Renders a built scene on the CPU, or on the GPU inside [`on_gpu`].
+fn render_built(rs: &RenderScene, seed: u64, spp: u32, max_depth: u32) -> Film {
+    match GPU.get() {
+        None => {
+            let mut film = Film::new(rs.width, rs.height);
+            rs.render(&mut film, seed, max_depth, 0..spp, &|_| {});
+            film
+        }
+        Some(ctx) => {
+            use arbor::gpu::trace::{self, GpuScene};
+            let gpu = GpuScene::upload(ctx, &rs).unwrap_or_else(|e| panic!("{e}"));
+            trace::render(ctx, &gpu, seed, max_depth, spp, &mut |_| true).unwrap_or_else(|e| panic!("{e}")).film
+        }
+    }
+}
+
+thread_local! {
+    /// The GPU context while a test runs on the GPU ([`on_gpu`]); `render` then renders there.
+    static GPU: std::cell::Cell<Option<&'static arbor::gpu::GpuContext>> = const { std::cell::Cell::new(None) };
+}
+
+/// Runs the test `body` with its renders on the GPU (the same scenes, criteria and reference
+/// images), or skips with a printed reason where there is no adapter (a failure under CI=true).
+fn on_gpu(name: &str, body: fn()) {
+    let Some(ctx) = gpu_or_skip(name) else { return };
+    GPU.set(Some(ctx));
+    body();
+    GPU.set(None);
+}
+
+/// The cases below whose renders apply to the GPU, rendered there (the leak and self-intersection
+/// controls test the CPU's traversal and offsets directly; the GPU ports the same code, and its
+/// goldens and furnaces check it).
+#[test]
+fn furnace_every_material_on_the_gpu() {
+    on_gpu("furnace_every_material_on_the_gpu", furnace_every_material);
+}
+
+#[test]
+fn cornell_box_scales_and_positions_on_the_gpu() {
+    on_gpu("cornell_box_scales_and_positions_on_the_gpu", || {
+        cornell_box_scaled_1e_minus_4();
+        cornell_box_scaled_1e4();
+        cornell_box_scaled_1e4_translated_1e5();
+        cornell_box_translated_1e5();
+    });
+}
+
+#[test]
+fn grazing_light_has_no_acne_on_the_gpu() {
+    on_gpu("grazing_light_has_no_acne_on_the_gpu", grazing_light_has_no_acne);
+}
+
+#[test]
+fn degenerate_scene_renders_finite_on_the_gpu() {
+    on_gpu("degenerate_scene_renders_finite_on_the_gpu", degenerate_scene_renders_finite);
 }
 
 /// Mean and standard error of the mean over the pixels `mask` selects, per channel (as in
@@ -1366,8 +1423,7 @@ fn degenerate_scene_renders_finite() {
             eprintln!("REPORT: external builder {name} panics on the degenerate scene; skipped");
             continue;
         };
-        let mut film = Film::new(rs.width, rs.height);
-        rs.render(&mut film, 1, 8, 0..16, &|_| {});
+        let film = render_built(&rs, 1, 16, 8);
         assert_finite(&film, &format!("degenerate scene, {name}"));
     }
 }

@@ -234,9 +234,21 @@ fn run_gpu(
         Ok(gpu_scene)
     };
     if !wants_instancing(scene) {
-        let (mut rs, build) = match builder {
-            Some(b) => RenderScene::build(scene, b),
-            None => {
+        // `lbvh` and `lbvh+prbvh` build on the GPU itself; other builders on the CPU.
+        let on_gpu = builder.and_then(|b| {
+            let name = b.to_string();
+            (name == "lbvh" || name == "lbvh+prbvh").then_some(name == "lbvh+prbvh")
+        });
+        let built_on_gpu = match on_gpu {
+            Some(optimize) => {
+                arbor::gpu::build_render_scene(ctx, scene, optimize).context("building the BVH on the GPU")?
+            }
+            None => None,
+        };
+        let (mut rs, build) = match (built_on_gpu, builder) {
+            (Some(built), _) => built,
+            (None, Some(b)) => RenderScene::build(scene, b),
+            (None, None) => {
                 let frame_count = frames.as_ref().map_or(1, |f| f.len());
                 let rays = RenderScene::estimated_rays(scene, settings.spp, settings.max_depth, frame_count);
                 RenderScene::build_auto(scene, rays)

@@ -16,3 +16,34 @@ pub mod prbvh;
 pub mod trace;
 
 pub use context::{AdapterPolicy, GpuContext, GpuError};
+
+use crate::render::{BuildReport, RenderScene};
+use crate::scene::Scene;
+
+/// A flat scene built with its BVH made on the GPU: the LBVH, then, when `optimize`, parallel
+/// reinsertion with the best locks the adapter has, read back once; the leaf collapse and the
+/// rest as for a CPU build ([`RenderScene::assemble`]). What `render --device gpu` does for the
+/// builders `lbvh` and `lbvh+prbvh`. `None` for scenes the GPU build does not take (fewer than
+/// two triangles).
+pub fn build_render_scene(
+    ctx: &GpuContext,
+    scene: &Scene,
+    optimize: bool,
+) -> Result<Option<(RenderScene, BuildReport)>, GpuError> {
+    let start = std::time::Instant::now();
+    let (triangles, material_of) = scene.world_triangles();
+    if triangles.len() < 2 {
+        return Ok(None);
+    }
+    let prims: Vec<crate::geometry::Aabb> = triangles.iter().map(crate::geometry::Triangle::aabb).collect();
+    let (gpu, _) = lbvh::build_on_device(ctx, &prims)?;
+    let mut label = "lbvh on the GPU".to_owned();
+    if optimize {
+        let scheme = prbvh::LockScheme::best_for(ctx);
+        let config = crate::bvh::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
+        let stats = prbvh::optimize_on_device(ctx, &gpu, &config, scheme)?;
+        label = format!("lbvh+prbvh on the GPU, {} iterations, {scheme:?} locks", stats.iterations.len());
+    }
+    let tree = gpu.read(ctx)?;
+    Ok(Some(RenderScene::assemble(scene, triangles, material_of, &tree, start, label)))
+}

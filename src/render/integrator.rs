@@ -216,8 +216,10 @@ impl RenderScene {
         (Self::with_geometry(scene, geometry, materials, lights), report)
     }
 
-    /// The rest of a flat build: leaf collapse, materials, lights, camera.
-    fn assemble(
+    /// The rest of a flat build from a tree with one primitive per leaf over `triangles` (built
+    /// here, or on the GPU: `arbor::gpu::build_render_scene`): leaf collapse, materials, lights,
+    /// camera. The report's time runs from `start`.
+    pub fn assemble(
         scene: &Scene,
         triangles: Vec<Triangle>,
         material_of: Vec<u32>,
