@@ -128,7 +128,7 @@ fn render_built(rs: &RenderScene, seed: u64, spp: u32, max_depth: u32) -> Film {
         }
         Some(ctx) => {
             use arbor::gpu::trace::{self, GpuScene};
-            let gpu = GpuScene::upload(ctx, &rs).unwrap_or_else(|e| panic!("{e}"));
+            let gpu = GpuScene::upload(ctx, rs).unwrap_or_else(|e| panic!("{e}"));
             trace::render(ctx, &gpu, seed, max_depth, spp, &mut |_| true).unwrap_or_else(|e| panic!("{e}")).film
         }
     }
