@@ -34,6 +34,8 @@
 
 mod common;
 
+use common::{two_sided_p, z_for_two_sided_p};
+
 use std::path::{Path, PathBuf};
 
 use arbor::bvh::builders::Builder;
@@ -494,44 +496,6 @@ fn golden_comparison_accepts_another_seed() {
     let cmp = compare(&render(&scene, 2), &golden);
     println!("cornell-box, seed 2: {}", cmp.summary());
     assert!(cmp.passed(), "cornell-box with seed 2 failed:\n{}", cmp.details(5));
-}
-
-/// Two-sided p-value of a standard normal z.
-fn two_sided_p(z: f64) -> f64 {
-    erfc(z.abs() / std::f64::consts::SQRT_2)
-}
-
-/// The |z| whose two-sided p-value is `p`, by bisection (p falls monotonically with |z|).
-fn z_for_two_sided_p(p: f64) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 40.0f64);
-    for _ in 0..100 {
-        let mid = 0.5 * (lo + hi);
-        if two_sided_p(mid) > p { lo = mid } else { hi = mid }
-    }
-    0.5 * (lo + hi)
-}
-
-/// Complementary error function, relative error below 1.2e-7 everywhere (Press et al.,
-/// Numerical Recipes, 2nd ed., §6.2, `erfcc`: a Chebyshev fit).
-fn erfc(x: f64) -> f64 {
-    let t = 1.0 / (1.0 + 0.5 * x.abs());
-    let poly = [
-        -1.265_512_23,
-        1.000_023_68,
-        0.374_091_96,
-        0.096_784_18,
-        -0.186_288_06,
-        0.278_868_07,
-        -1.135_203_98,
-        1.488_515_87,
-        -0.822_152_23,
-        0.170_872_77,
-    ]
-    .iter()
-    .rev()
-    .fold(0.0, |acc, c| c + t * acc);
-    let r = t * (-x * x + poly).exp();
-    if x >= 0.0 { r } else { 2.0 - r }
 }
 
 #[test]

@@ -19,7 +19,7 @@ use arbor::image_io::Image;
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
 use arbor::scene::Scene;
-use common::gpu_or_skip;
+use common::{gpu_or_skip, z_for_two_sided_p};
 use glam::Vec3;
 
 fn scene_path(name: &str) -> PathBuf {
@@ -192,33 +192,6 @@ fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
     }
     assert!(blocks >= 20, "only {blocks} blocks see the floor alone");
     eprintln!("GPU irradiance: {blocks} blocks, worst z {worst:.2}");
-}
-
-/// The |z| whose two-sided normal p-value is `p` (bisection on the Numerical Recipes erfc).
-fn z_for_two_sided_p(p: f64) -> f64 {
-    let erfc = |x: f64| {
-        let t = 1.0 / (1.0 + 0.5 * x.abs());
-        let c = [
-            -1.265_512_23,
-            1.000_023_68,
-            0.374_091_96,
-            0.096_784_18,
-            -0.186_288_06,
-            0.278_868_07,
-            -1.135_203_98,
-            1.488_515_87,
-            -0.822_152_23,
-            0.170_872_77,
-        ];
-        let poly = c.iter().rev().fold(0.0, |acc, c| c + t * acc);
-        t * (-x * x + poly).exp()
-    };
-    let (mut lo, mut hi) = (0.0f64, 40.0f64);
-    for _ in 0..100 {
-        let mid = 0.5 * (lo + hi);
-        if erfc(mid / std::f64::consts::SQRT_2) > p { lo = mid } else { hi = mid }
-    }
-    0.5 * (lo + hi)
 }
 
 /// 8x8 blocks of `a` against `b`: the worst |z| over blocks and channels and the Bonferroni

@@ -232,47 +232,9 @@ fn toml_matrix(m: Mat4) -> String {
 /// Family-wise false-alarm rate shared by the block tests of one comparison.
 const FAMILY_WISE_ALPHA: f64 = 1e-3;
 
-/// Two-sided p-value of a standard normal z.
-fn two_sided_p(z: f64) -> f64 {
-    erfc(z.abs() / std::f64::consts::SQRT_2)
-}
-
-/// The |z| whose two-sided p-value is `p`, by bisection.
-fn z_for_two_sided_p(p: f64) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 40.0f64);
-    for _ in 0..100 {
-        let mid = 0.5 * (lo + hi);
-        if two_sided_p(mid) > p { lo = mid } else { hi = mid }
-    }
-    0.5 * (lo + hi)
-}
-
 /// The one-sided z threshold for `tests` tests sharing [`FAMILY_WISE_ALPHA`].
 fn one_sided_bonferroni(tests: usize) -> f64 {
     z_for_two_sided_p(2.0 * FAMILY_WISE_ALPHA / tests as f64)
-}
-
-/// Complementary error function (Numerical Recipes, 2nd ed., §6.2, `erfcc`), relative error
-/// below 1.2e-7.
-fn erfc(x: f64) -> f64 {
-    let t = 1.0 / (1.0 + 0.5 * x.abs());
-    let poly = [
-        -1.265_512_23,
-        1.000_023_68,
-        0.374_091_96,
-        0.096_784_18,
-        -0.186_288_06,
-        0.278_868_07,
-        -1.135_203_98,
-        1.488_515_87,
-        -0.822_152_23,
-        0.170_872_77,
-    ]
-    .iter()
-    .rev()
-    .fold(0.0, |acc, c| c + t * acc);
-    let r = t * (-x * x + poly).exp();
-    if x >= 0.0 { r } else { 2.0 - r }
 }
 
 /// Two renders of the same picture compared as in `tests/golden.rs`: per 8x8 block and channel

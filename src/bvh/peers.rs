@@ -15,15 +15,7 @@ use crate::geometry::{Aabb, Triangle};
 
 /// Builds with the obvhs preset `preset` (one of [`super::builders::OBVHS_PRESETS`]).
 pub fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) -> Bvh {
-    let mut params = match preset {
-        "fastest" => BvhBuildParams::fastest_build(),
-        "very-fast" => BvhBuildParams::very_fast_build(),
-        "fast" => BvhBuildParams::fast_build(),
-        "medium" => BvhBuildParams::medium_build(),
-        "slow" => BvhBuildParams::slow_build(),
-        "very-slow" => BvhBuildParams::very_slow_build(),
-        other => panic!("unknown obvhs preset {other}"),
-    };
+    let mut params = preset_params(preset);
     params.max_prims_per_leaf = 1;
     params.pre_split = false;
     let tris: Vec<obvhs::triangle::Triangle> = triangles
@@ -41,15 +33,7 @@ pub fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) ->
 /// setting, no conversion to Arbor's layout), for memory comparisons. Returns the bytes it keeps
 /// to trace: its copy of the triangles and every vector of its `Bvh2` (by capacity).
 pub fn obvhs_native_bytes(preset: &str, triangles: &[Triangle]) -> (usize, usize) {
-    let params = match preset {
-        "fastest" => BvhBuildParams::fastest_build(),
-        "very-fast" => BvhBuildParams::very_fast_build(),
-        "fast" => BvhBuildParams::fast_build(),
-        "medium" => BvhBuildParams::medium_build(),
-        "slow" => BvhBuildParams::slow_build(),
-        "very-slow" => BvhBuildParams::very_slow_build(),
-        other => panic!("unknown obvhs preset {other}"),
-    };
+    let params = preset_params(preset);
     let tris = to_obvhs_triangles(triangles);
     let mut core_time = std::time::Duration::ZERO;
     let b = obvhs::bvh2::builder::build_bvh2_from_tris(&tris, params, &mut core_time);
@@ -60,6 +44,19 @@ pub fn obvhs_native_bytes(preset: &str, triangles: &[Triangle]) -> (usize, usize
         + bytes(b.primitives_to_nodes.capacity(), 4)
         + bytes(b.parents.capacity(), 4);
     (bytes(tris.capacity(), size_of::<obvhs::triangle::Triangle>()), bvh)
+}
+
+/// The obvhs preset `preset` names, as obvhs ships it.
+fn preset_params(preset: &str) -> BvhBuildParams {
+    match preset {
+        "fastest" => BvhBuildParams::fastest_build(),
+        "very-fast" => BvhBuildParams::very_fast_build(),
+        "fast" => BvhBuildParams::fast_build(),
+        "medium" => BvhBuildParams::medium_build(),
+        "slow" => BvhBuildParams::slow_build(),
+        "very-slow" => BvhBuildParams::very_slow_build(),
+        other => panic!("unknown obvhs preset {other}"),
+    }
 }
 
 /// Triangles in obvhs's type.

@@ -179,11 +179,9 @@ pub fn optimize_while(
         if !keep_going(&progress) {
             break;
         }
-        if previous - current < config.epsilon {
-            if mu == 1 {
-                break;
-            }
-            mu -= 1;
+        match next_mu(previous, current, mu, config.epsilon) {
+            Some(next) => mu = next,
+            None => break,
         }
         previous = current;
     }
@@ -196,6 +194,19 @@ pub fn optimize_while(
     }
     stats.final_sah = sah(bvh);
     stats
+}
+
+/// The sparsity after an iteration took the SAH from `previous` to `current` at sparsity `mu`
+/// (section 4.4.2): one less when it fell by less than `epsilon`, and `None` (stop) when that
+/// happens at `mu = 1`. Shared with the GPU optimiser.
+pub fn next_mu(previous: f64, current: f64, mu: u32, epsilon: f64) -> Option<u32> {
+    if previous - current >= epsilon {
+        Some(mu)
+    } else if mu > 1 {
+        Some(mu - 1)
+    } else {
+        None
+    }
 }
 
 /// One search-lock-reinsert round; returns (searched, candidates, reinsertions).

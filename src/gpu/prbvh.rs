@@ -171,11 +171,9 @@ pub fn optimize_on_device(
             elapsed: start.elapsed(),
         });
         iteration += 1;
-        if previous - current < config.epsilon {
-            if mu == 1 {
-                break;
-            }
-            mu -= 1;
+        match crate::bvh::prbvh::next_mu(previous, current, mu, config.epsilon) {
+            Some(next) => mu = next,
+            None => break,
         }
         previous = current;
     }
