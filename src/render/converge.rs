@@ -503,6 +503,28 @@ mod tests {
     }
 
     #[test]
+    fn auto_is_compared_with_its_own_device_only() {
+        let steps = [1u32, 2, 4, 8];
+        let on = |name: &str, device: &str, k: f64| ConvergeCurve {
+            device: device.into(),
+            ..curve(name, steps.iter().map(|&n| q(n, k * n as f64)).collect())
+        };
+        // The GPU's lbvh is 4x faster than anything on the CPU; the CPU's auto must still be
+        // compared with the CPU's lbvh (ratio 2), not with it.
+        let c = compare_auto(&[
+            on("lbvh", "cpu", 1.0),
+            on("auto", "cpu", 2.0),
+            on("lbvh", "gpu", 0.25),
+            on("auto", "gpu", 0.25),
+        ]);
+        assert_eq!(c.len(), 2);
+        assert_eq!(c[0].device, "cpu");
+        assert!((c[0].worst_ratio_rel_mse - 2.0).abs() < 1e-9, "{c:?}");
+        assert_eq!(c[1].device, "gpu");
+        assert!((c[1].worst_ratio_rel_mse - 1.0).abs() < 1e-9, "{c:?}");
+    }
+
+    #[test]
     fn runs_merge_to_the_median_time_point() {
         let run = |t: f64| vec![curve("lbvh", vec![q(1, t), q(2, 2.0 * t)])];
         let merged = median_of_runs(vec![run(3.0), run(1.0), run(2.0)]);
