@@ -136,12 +136,14 @@ impl RenderScene {
     ///    builds, about its cost on 10⁵–10⁶ triangles here) twice over, the binned-SAH tree is
     ///    built and probed too, and the tree with the shorter estimated render is kept.
     /// 3. Parallel reinsertion on the kept tree, in sweeps (μ iterations, which search every
-    ///    node once between them), while the last sweep saved more render time than it took.
-    ///    A sweep's saving is its SAH decrease, as a fraction, times the estimated render time
-    ///    times the trace speed gained per unit of SAH gained: measured between the two trees of
-    ///    step 2 when both were built (on the dragon scene, SAH fell 46% for 27% less time), else
-    ///    taken as ½. Judging single iterations instead stopped the dragon after 5 of its ~40:
-    ///    one iteration searches a ninth of the nodes, and its gain swings.
+    ///    node once between them), if a 20% gain could repay a sweep (about 8 LBVH builds). The first sweep's gain is measured by a second probe: it goes on only if the
+    ///    render got shorter by more than the sweep took, and that gain per unit of SAH gained
+    ///    calibrates the rest. Each later sweep's saving is its SAH decrease, as a fraction,
+    ///    times the estimated render time times that factor, and optimisation stops when the
+    ///    last sweep saved less than it took. (SAH alone overstates gains: on the dragon scene
+    ///    LBVH + PRBVH cut the SAH by 66% but traced 20% faster, and reinsertion on the
+    ///    binned-SAH tree cost more than it returned. Judging single iterations stopped the
+    ///    dragon after 5 of its ~40: one iteration searches a ninth of the nodes.)
     ///
     /// An instanced scene builds its meshes' BVHs with `lbvh+prbvh`: they are built once and
     /// serve every frame.
@@ -156,36 +158,47 @@ impl RenderScene {
         let lbvh_seconds = t.elapsed().as_secs_f64();
         let mut render_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
         let mut base = "lbvh";
-        let mut efficiency = 0.5;
         // A quarter of the render saved (binned SAH traced the dragon 27% faster) must repay the
         // binned build, estimated at 6 LBVH builds, twice over.
         if 0.25 * render_seconds > 2.0 * 6.0 * lbvh_seconds {
             let binned = crate::bvh::binned_sah::build(&prims, &Default::default());
             let binned_seconds = rays / probe_trace_speed(&binned, &triangles, &scene.camera);
-            let (sah_l, sah_b) = (sah_cost(&bvh), sah_cost(&binned));
-            let (time_gain, sah_gain) = (1.0 - binned_seconds / render_seconds, 1.0 - sah_b / sah_l);
-            if time_gain > 0.0 && sah_gain > 0.0 {
-                efficiency = (time_gain / sah_gain).clamp(0.1, 1.0);
-            }
             if binned_seconds < render_seconds {
                 (bvh, render_seconds, base) = (binned, binned_seconds, "binned-sah");
             }
         }
         let config = PrbvhConfig { collapse: None, ..Default::default() };
-        let mut sweep: std::collections::VecDeque<(f64, f64)> = std::collections::VecDeque::new();
-        let stats = prbvh::optimize_while(&mut bvh, &config, |p| {
-            let saved = (p.previous_sah - p.sah) / p.initial_sah * render_seconds * efficiency;
-            sweep.push_back((saved, p.iteration_time.as_secs_f64()));
-            if sweep.len() > config.mu as usize {
-                sweep.pop_front();
+        // The first sweep is measured, not predicted: SAH overstates trace gains on some scenes
+        // (the dragon's room), so its real gain, from a second probe, decides whether to go on
+        // and calibrates the SAH-to-time factor for the sweeps after it. A sweep costs about 8
+        // LBVH builds (dragon, 2 cores); none is tried when a 20% gain could not repay that.
+        let mut iterations = 0;
+        if 0.2 * render_seconds > 8.0 * lbvh_seconds {
+            let first = PrbvhConfig { max_iterations: config.mu, ..config };
+            let sweep_start = Instant::now();
+            let s1 = prbvh::optimize_while(&mut bvh, &first, |_| true);
+            iterations += s1.iterations.len();
+            let after = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
+            let (gained, spent) = (render_seconds - after, sweep_start.elapsed().as_secs_f64());
+            let sah_fraction = (s1.initial_sah - s1.sah_before_collapse) / s1.initial_sah;
+            if gained > spent && sah_fraction > 0.0 {
+                let efficiency = (gained / render_seconds / sah_fraction).clamp(0.05, 1.0);
+                render_seconds = after;
+                let mut sweep: std::collections::VecDeque<(f64, f64)> = std::collections::VecDeque::new();
+                let rest = prbvh::optimize_while(&mut bvh, &config, |p| {
+                    let saved = (p.previous_sah - p.sah) / p.initial_sah * render_seconds * efficiency;
+                    sweep.push_back((saved, p.iteration_time.as_secs_f64()));
+                    if sweep.len() > config.mu as usize {
+                        sweep.pop_front();
+                    }
+                    let (saved, spent): (f64, f64) = sweep.iter().fold((0.0, 0.0), |a, s| (a.0 + s.0, a.1 + s.1));
+                    saved > spent
+                });
+                iterations += rest.iterations.len();
             }
-            let (saved, spent): (f64, f64) = sweep.iter().fold((0.0, 0.0), |a, s| (a.0 + s.0, a.1 + s.1));
-            saved > spent
-        });
-        let label = format!(
-            "auto: {base}+prbvh, {} iterations for a render estimated at {render_seconds:.1} s",
-            stats.iterations.len()
-        );
+        }
+        let label =
+            format!("auto: {base}+prbvh, {iterations} iterations for a render estimated at {render_seconds:.1} s");
         Self::assemble(scene, triangles, material_of, &bvh, t, label)
     }
 
