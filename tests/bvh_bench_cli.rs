@@ -3,6 +3,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod common;
+
 fn bench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_bvh-bench"))
 }
@@ -305,9 +307,7 @@ fn convergence_against_a_given_reference() {
 /// fixed builders of its own device. Skips without a GPU adapter, except under `CI=true`.
 #[test]
 fn convergence_on_both_devices() {
-    if let Err(e) = arbor::gpu::GpuContext::shared() {
-        assert!(std::env::var("CI").map_or(true, |v| v != "true"), "no GPU adapter under CI=true: {e}");
-        eprintln!("skipping: {e}");
+    if common::gpu_or_skip("bvh-bench on the GPU").is_none() {
         return;
     }
     let dir = temp_dir("converge-gpu");
@@ -366,9 +366,7 @@ fn memory_report_per_builder() {
 /// without an adapter, except under `CI=true`.
 #[test]
 fn gpu_builds_are_reported_beside_the_cpu() {
-    if let Err(e) = arbor::gpu::GpuContext::shared() {
-        assert!(std::env::var("CI").map_or(true, |v| v != "true"), "no GPU adapter under CI=true: {e}");
-        eprintln!("skipping: {e}");
+    if common::gpu_or_skip("bvh-bench on the GPU").is_none() {
         return;
     }
     let dir = temp_dir("gpu");

@@ -3,6 +3,8 @@
 use std::path::PathBuf;
 use std::process::Command;
 
+mod common;
+
 fn render() -> Command {
     Command::new(env!("CARGO_BIN_EXE_render"))
 }
@@ -195,11 +197,7 @@ fn clamp_bounds_samples_only_when_asked() {
 /// adapter, except under `CI=true`.
 #[test]
 fn gpu_scene_over_the_binding_limit_is_a_clear_error() {
-    let Ok(ctx) = arbor::gpu::GpuContext::shared() else {
-        assert!(std::env::var("CI").map_or(true, |v| v != "true"), "no GPU adapter under CI=true");
-        eprintln!("skipping: no GPU adapter");
-        return;
-    };
+    let Some(ctx) = common::gpu_or_skip("gpu_scene_over_the_binding_limit_is_a_clear_error") else { return };
     let triangles: u64 = 3_000_000;
     let dir = temp_dir("gpu-limit");
     std::fs::write(
@@ -236,9 +234,7 @@ fn gpu_scene_over_the_binding_limit_is_a_clear_error() {
 /// adapter, except under `CI=true`.
 #[test]
 fn gpu_builds_its_own_bvh_for_lbvh_builders() {
-    if arbor::gpu::GpuContext::shared().is_err() {
-        assert!(std::env::var("CI").map_or(true, |v| v != "true"), "no GPU adapter under CI=true");
-        eprintln!("skipping: no GPU adapter");
+    if common::gpu_or_skip("gpu_builds_its_own_bvh_for_lbvh_builders").is_none() {
         return;
     }
     let dir = temp_dir("gpu-bvh");

@@ -68,14 +68,13 @@ use super::layout::{
     MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP, TraceParams,
     with_prelude,
 };
+use crate::bvh::Bvh;
 use crate::bvh::builders::Builder;
 use crate::bvh::prbvh::PrbvhConfig;
-use crate::bvh::{Bvh, CollapseConfig, MeshBvh, collapse_leaves, sah_cost};
 use crate::geometry::{Aabb, Triangle};
 use crate::render::bsdf::{Bsdf, ConductorFresnel};
-use crate::render::camera::CameraModel;
 use crate::render::film::{Film, PixelAccum};
-use crate::render::geometry::{Flat, Geometry, flat_lights};
+use crate::render::geometry::Geometry;
 use crate::render::integrator::{BuildReport, RenderMaterial, RenderScene};
 use crate::scene::Scene;
 
@@ -344,28 +343,8 @@ pub fn flatten(scene: &Scene, time: f32, builder: &Builder) -> (RenderScene, Bui
     let (triangles, material_of) = scene.world_triangles_at(time);
     let prims: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
-    let bvh = collapse_leaves(&built.bvh, &CollapseConfig::default());
-    let sah = sah_cost(&bvh);
-    let mesh = MeshBvh::new(bvh, &triangles);
-    let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
-    let lights = flat_lights(&triangles, &material_of, &materials);
-    let report = BuildReport {
-        build_ms: start.elapsed().as_secs_f64() * 1e3,
-        sah,
-        triangles: triangles.len(),
-        builder: format!("{builder}, flattened for the GPU"),
-    };
-    let render_scene = RenderScene {
-        geometry: Geometry::Flat(Flat { mesh, triangles, material_of }),
-        materials,
-        lights,
-        environment: scene.environment.filter(|e| e.max_element() > 0.0),
-        camera: CameraModel::new(&scene.camera),
-        width: scene.camera.width,
-        height: scene.camera.height,
-        sample_clamp: None,
-    };
-    (render_scene, report)
+    let label = format!("{builder}, flattened for the GPU");
+    RenderScene::assemble(scene, triangles, material_of, &built.bvh, start, label)
 }
 
 /// The pipeline of `scene`'s variant, compiled on first use and cached in `ctx`.
