@@ -106,6 +106,34 @@ fn reinsertion_keeps_every_tree_valid() {
     assert!(pairs > 500);
 }
 
+/// The refit restricted to stale paths gives the full refit's boxes after any batch of moves.
+#[test]
+fn refit_above_matches_a_full_refit() {
+    let mut r = rng(7);
+    let mut batches = 0;
+    for (tree, prims) in small_trees() {
+        for moves in 1..8 {
+            let mut bvh = tree.clone();
+            let mut starts = Vec::new();
+            for _ in 0..moves {
+                let input = 2 + rand::RngExt::random_range(&mut r, 0..bvh.nodes.len() as u32 - 2);
+                let outs = valid_outputs(&bvh, input);
+                let output = outs[rand::RngExt::random_range(&mut r, 0..outs.len())];
+                let parent = bvh.parents[input as usize];
+                reinsert(&mut bvh, input, output);
+                starts.extend([parent, if output == input ^ 1 { parent } else { output }]);
+            }
+            let mut full = bvh.clone();
+            refit_sequential(&mut full, &prims);
+            prbvh::refit_above(&mut bvh, &starts, &mut prbvh::RefitScratch::default());
+            assert_eq!(bvh.nodes, full.nodes, "{moves} moves");
+            validate(&bvh, &prims).unwrap();
+            batches += 1;
+        }
+    }
+    assert!(batches >= 100);
+}
+
 fn optimize_and_check(prims: &[Aabb], config: &PrbvhConfig) -> (Bvh, prbvh::PrbvhStats) {
     let mut bvh = lbvh::build(prims);
     let stats = prbvh::optimize(&mut bvh, config);

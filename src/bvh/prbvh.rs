@@ -14,7 +14,9 @@
 //!    and output, which makes the decreases of the winners add up exactly.
 //! 3. **Reinsert**: the winners, which share no node, are applied in parallel.
 //! 4. **Refit and SAH**: a parallel bottom-up refit (atomic visit counters), then the SAH by a
-//!    parallel reduction.
+//!    parallel reduction. The refit ([`refit_above`]) visits only the ancestors of the moved
+//!    nodes, counting per node its stale children instead of both: late iterations move a few
+//!    hundred nodes of several hundred thousand.
 //!
 //! Sparse search and termination (section 4.4.1–4.4.2): node `i` searches in iteration `I` when
 //! `I ≡ i (mod μ)`; when an iteration lowers the SAH by less than `ε`, `μ` drops by one, and at
@@ -29,16 +31,19 @@
 //!   links ([`reinsert`]): the sibling's content moves into the parent's slot, and the freed pair
 //!   holds the output and the input under a new node in the output's slot. The grandparent and
 //!   the output's parent keep their links; they are locked anyway, as the paper does.
+//! - The search stops climbing once the rest of the pivot encloses the input and the bound
+//!   `dbound + d` cannot beat the best found: no higher ancestor shrinks when the input leaves,
+//!   so nothing further up can do better. It returns the same result (the brute-force test).
 //! - Surface areas are half areas (`Aabb::half_area`): the decreases are all halved, which
 //!   changes no comparison.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
 use super::parallel::SharedSlice;
-use super::{Bvh, BvhNode, CollapseConfig, INVALID_INDEX, LeafBoxes, SahCosts, collapse_leaves, refit_with};
+use super::{Bvh, BvhNode, CollapseConfig, INVALID_INDEX, SahCosts, collapse_leaves};
 use crate::geometry::Aabb;
 
 /// Which nodes a reinsertion locks (section 4.3.3).
@@ -150,14 +155,14 @@ pub fn optimize_while(
     let mut mu = config.mu;
     let mut previous = stats.initial_sah;
     let mut locks: Vec<AtomicU64> = Vec::new();
-    let mut visits = Vec::new();
+    let mut refit = RefitScratch::default();
     // A tree of fewer than three nodes has nothing to reinsert.
     let mut iteration = 0u32;
     while bvh.nodes.len() > 3 && iteration < config.max_iterations {
         let iteration_start = Instant::now();
-        let (searched, candidates, reinsertions) = iterate(bvh, iteration, mu, config.strategy, &mut locks);
-        let leaves = bvh.leaf_indices();
-        refit_with(bvh, &[], &leaves, &mut visits, LeafBoxes::Keep);
+        let (searched, candidates, applied) = iterate(bvh, iteration, mu, config.strategy, &mut locks);
+        let reinsertions = applied.len();
+        refit_above(bvh, &changed_slots(&applied), &mut refit);
         #[cfg(debug_assertions)]
         debug_validate(bvh, iteration);
         let current = sah(bvh);
@@ -209,14 +214,14 @@ pub fn next_mu(previous: f64, current: f64, mu: u32, epsilon: f64) -> Option<u32
     }
 }
 
-/// One search-lock-reinsert round; returns (searched, candidates, reinsertions).
+/// One search-lock-reinsert round; returns (searched, candidates, what was applied).
 fn iterate(
     bvh: &mut Bvh,
     iteration: u32,
     mu: u32,
     strategy: LockStrategy,
     locks: &mut Vec<AtomicU64>,
-) -> (usize, usize, usize) {
+) -> (usize, usize, Vec<Reinsertion>) {
     let len = bvh.nodes.len();
     let phase = (iteration % mu) as usize;
     let moves = search(bvh, (2..len).into_par_iter().with_min_len(256).filter(|&i| i % mu as usize == phase));
@@ -224,7 +229,92 @@ fn iterate(
     let count_below = |end: usize| end / mu as usize + usize::from(end % mu as usize > phase);
     let searched = count_below(len) - count_below(2);
     let applied = lock_and_apply(bvh, &moves, strategy, locks);
-    (searched, moves.len(), applied.len())
+    (searched, moves.len(), applied)
+}
+
+/// The slots whose boxes are exact after `applied` but whose ancestors' boxes are stale: for
+/// each reinsertion, the input's old parent slot (now the old sibling) and the new internal node.
+pub fn changed_slots(applied: &[Reinsertion]) -> Vec<u32> {
+    applied
+        .iter()
+        .flat_map(|r| {
+            let new_node = if r.output == r.input ^ 1 { r.parent } else { r.output };
+            [r.parent, new_node]
+        })
+        .collect()
+}
+
+/// Scratch memory of [`refit_above`], all zero between calls.
+#[derive(Default)]
+pub struct RefitScratch {
+    /// 1 for a node whose box is stale.
+    stale: Vec<AtomicU32>,
+    /// A stale node's stale children not yet refitted.
+    pending: Vec<AtomicU32>,
+}
+
+/// Refits the strict ancestors of `starts`, and nothing else: every box not above a start must
+/// be exact already. The section 4.4 refit, restricted to the paths that changed: the stale set
+/// is marked by climbing from each start until a node another climb marked, then refitted bottom
+/// up with per-node counters of stale children (the Karras scheme, counting only stale ones).
+/// Costs the number of stale nodes, not the tree's size: late PRBVH iterations move few nodes.
+pub fn refit_above(bvh: &mut Bvh, starts: &[u32], scratch: &mut RefitScratch) {
+    let len = bvh.nodes.len();
+    for v in [&mut scratch.stale, &mut scratch.pending] {
+        if v.len() < len {
+            v.resize_with(len, || AtomicU32::new(0));
+        }
+    }
+    let RefitScratch { stale, pending } = &*scratch;
+    let parents = &bvh.parents;
+    // Mark: each climb stops where another has been, so every stale node is listed once.
+    let marked: Vec<u32> = starts
+        .par_iter()
+        .with_min_len(64)
+        .flat_map_iter(|&start| {
+            let mut path = Vec::new();
+            let mut n = parents[start as usize];
+            while n != INVALID_INDEX && stale[n as usize].swap(1, Ordering::Relaxed) == 0 {
+                path.push(n);
+                n = parents[n as usize];
+            }
+            path
+        })
+        .collect();
+    // Count each stale node's stale children; those with none start the climb.
+    marked.par_iter().with_min_len(256).for_each(|&n| {
+        let p = parents[n as usize];
+        if p != INVALID_INDEX {
+            pending[p as usize].fetch_add(1, Ordering::Relaxed);
+        }
+    });
+    let first: Vec<u32> = marked
+        .par_iter()
+        .with_min_len(256)
+        .copied()
+        .filter(|&n| pending[n as usize].load(Ordering::Relaxed) == 0)
+        .collect();
+    let Bvh { nodes, parents, .. } = bvh;
+    let nodes = SharedSlice::new(nodes);
+    first.par_iter().with_min_len(64).for_each(|&start| {
+        let mut n = start;
+        loop {
+            // SAFETY: node `n` is written by this thread only: it is the one that brought its
+            // stale-children count to zero (or `n` had none), after those children were written;
+            // the AcqRel decrement below makes their writes visible here.
+            unsafe {
+                let mut node = nodes.get(n as usize);
+                let l = node.first as usize;
+                node.set_aabb(nodes.get(l).aabb().union(nodes.get(l + 1).aabb()));
+                nodes.set(n as usize, node);
+            }
+            stale[n as usize].store(0, Ordering::Relaxed);
+            n = parents[n as usize];
+            if n == INVALID_INDEX || pending[n as usize].fetch_sub(1, Ordering::AcqRel) != 1 {
+                break;
+            }
+        }
+    });
 }
 
 /// A reinsertion that was applied: `input` became the sibling of `output`. `parent` was
@@ -392,7 +482,9 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
                     }
                     d += own;
                 }
-                if out == 0 {
+                // Once the rest of the pivot encloses the input, removing the input shrinks no
+                // higher ancestor, so no output further up can beat `d_bound + d`.
+                if out == 0 || (d_bound + d <= d_best && b_pivot.contains_box(&b_in)) {
                     break;
                 }
                 out = pivot ^ 1;
