@@ -4,7 +4,7 @@
 mod common;
 
 use arbor::bvh::{
-    self, Bvh, BvhNode, CollapseConfig, INVALID_INDEX, ValidationError, binned_sah, collapse_leaves, lbvh,
+    self, Bvh, BvhNode, CollapseConfig, INVALID_INDEX, ValidationError, binned_sah, collapse_leaves, lbvh, ploc,
     refit_sequential, sah_cost, validate,
 };
 use arbor::geometry::{Aabb, Triangle};
@@ -17,7 +17,9 @@ use glam::Vec3;
 fn build_all_and_validate(prims: &[Aabb]) -> Bvh {
     let lbvh = lbvh::build(prims);
     let binned = binned_sah::build(prims, &Default::default());
-    for (name, tree) in [("lbvh", &lbvh), ("binned-sah", &binned)] {
+    let ploc = ploc::build(prims, &Default::default());
+    let ploc1 = ploc::build(prims, &ploc::PlocConfig { radius: 1 });
+    for (name, tree) in [("lbvh", &lbvh), ("binned-sah", &binned), ("ploc", &ploc), ("ploc-1", &ploc1)] {
         let stats = validate(tree, prims).unwrap_or_else(|e| panic!("{name}: {e}"));
         if !prims.is_empty() {
             assert_eq!(stats.leaf_count, prims.len(), "{name}: one primitive per leaf");
@@ -107,9 +109,11 @@ fn every_shared_mesh() {
     for (name, mesh) in all_shared_models() {
         let prims = aabbs(&mesh.triangles());
         build_all_and_validate(&prims);
-        for (builder, tree) in
-            [("lbvh", lbvh::build(&prims)), ("binned-sah", binned_sah::build(&prims, &Default::default()))]
-        {
+        for (builder, tree) in [
+            ("lbvh", lbvh::build(&prims)),
+            ("binned-sah", binned_sah::build(&prims, &Default::default())),
+            ("ploc", ploc::build(&prims, &Default::default())),
+        ] {
             let stats = validate(&tree, &prims).unwrap();
             let collapsed = collapse_leaves(&tree, &CollapseConfig::default());
             eprintln!(
@@ -133,6 +137,18 @@ fn lbvh_does_not_depend_on_thread_count() {
     let one = build_with(1);
     assert_eq!(one, build_with(2));
     assert_eq!(one, build_with(5));
+}
+
+#[test]
+fn ploc_does_not_depend_on_thread_count() {
+    let prims = aabbs(&random_triangles(50_000, 0.02, &mut rng(16)));
+    let build_with = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| ploc::build(&prims, &Default::default()))
+    };
+    let one = build_with(1);
+    assert_eq!(one, build_with(2));
+    assert_eq!(one, build_with(3));
 }
 
 #[test]

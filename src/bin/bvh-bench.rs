@@ -30,7 +30,7 @@ struct Args {
     /// has at least N triangles). N may use k/M suffixes (e.g. city:2M).
     #[arg(long, value_name = "KIND:N")]
     procedural: Option<String>,
-    /// Builders to compare, comma-separated [default: lbvh,lbvh+prbvh,binned-sah and, with the
+    /// Builders to compare, comma-separated [default: lbvh,lbvh+prbvh,binned-sah,ploc and, with the
     /// peers feature, obvhs-medium; with --converge: lbvh,lbvh+prbvh,binned-sah,auto].
     #[arg(long, value_delimiter = ',')]
     builders: Option<Vec<String>>,
@@ -106,7 +106,7 @@ struct Args {
 }
 
 fn default_builders() -> Vec<String> {
-    let mut v = vec!["lbvh".to_string(), "lbvh+prbvh".into(), "binned-sah".into()];
+    let mut v = vec!["lbvh".to_string(), "lbvh+prbvh".into(), "binned-sah".into(), "ploc".into()];
     if cfg!(feature = "peers") {
         v.push("obvhs-medium".into());
     }

@@ -7,6 +7,8 @@
 //! | `lbvh+prbvh-conservative` | the same with conservative locks |
 //! | `binned-sah` | [`super::binned_sah`] |
 //! | `binned-sah+prbvh` | binned SAH optimised by PRBVH |
+//! | `ploc`, `ploc-R` | [`super::ploc`] with radius 16, or R |
+//! | `ploc+prbvh`, `ploc-R+prbvh` | PLOC optimised by PRBVH |
 //! | `obvhs-fastest` … `obvhs-very-slow` | the obvhs crate's presets (feature `peers`) |
 //!
 //! Every builder returns a tree with one primitive per leaf; the leaf collapse is applied by the
@@ -19,6 +21,7 @@ use std::time::{Duration, Instant};
 use super::prbvh::{self, LockStrategy, PrbvhConfig, PrbvhStats};
 use rayon::prelude::*;
 
+use super::ploc::{self, PlocConfig};
 use super::{Bvh, CollapseConfig, MeshBvh, binned_sah, collapse_leaves, lbvh};
 use crate::geometry::{Aabb, Triangle};
 
@@ -33,6 +36,8 @@ pub struct Builder {
 pub enum BaseBuilder {
     Lbvh,
     BinnedSah,
+    /// PLOC with this search radius.
+    Ploc(u32),
     /// An obvhs preset, by name (`fastest`, `very-fast`, `fast`, `medium`, `slow`, `very-slow`).
     Obvhs(&'static str),
 }
@@ -50,9 +55,10 @@ pub struct UnknownBuilder {
 impl Builder {
     /// Every name [`FromStr`] accepts (obvhs ones only with the `peers` feature).
     pub fn names() -> Vec<String> {
-        let mut v: Vec<String> = ["lbvh", "lbvh+prbvh", "lbvh+prbvh-conservative", "binned-sah", "binned-sah+prbvh"]
-            .map(String::from)
-            .to_vec();
+        let mut v: Vec<String> =
+            ["lbvh", "lbvh+prbvh", "lbvh+prbvh-conservative", "binned-sah", "binned-sah+prbvh", "ploc", "ploc+prbvh"]
+                .map(String::from)
+                .to_vec();
         if cfg!(feature = "peers") {
             v.extend(OBVHS_PRESETS.iter().map(|p| format!("obvhs-{p}")));
         }
@@ -74,6 +80,11 @@ impl FromStr for Builder {
         let base = match base {
             "lbvh" => BaseBuilder::Lbvh,
             "binned-sah" => BaseBuilder::BinnedSah,
+            "ploc" => BaseBuilder::Ploc(PlocConfig::default().radius as u32),
+            b if b.starts_with("ploc-") => match b["ploc-".len()..].parse::<u32>() {
+                Ok(r) if (1..=1024).contains(&r) => BaseBuilder::Ploc(r),
+                _ => return Err(unknown()),
+            },
             b if cfg!(feature = "peers") && optimize.is_none() => {
                 let preset = b.strip_prefix("obvhs-").ok_or_else(unknown)?;
                 BaseBuilder::Obvhs(OBVHS_PRESETS.iter().find(|&&p| p == preset).ok_or_else(unknown)?)
@@ -89,6 +100,8 @@ impl fmt::Display for Builder {
         match self.base {
             BaseBuilder::Lbvh => write!(f, "lbvh")?,
             BaseBuilder::BinnedSah => write!(f, "binned-sah")?,
+            BaseBuilder::Ploc(r) if r as usize == PlocConfig::default().radius => write!(f, "ploc")?,
+            BaseBuilder::Ploc(r) => write!(f, "ploc-{r}")?,
             BaseBuilder::Obvhs(p) => write!(f, "obvhs-{p}")?,
         }
         match self.optimize {
@@ -117,6 +130,7 @@ impl Builder {
         let mut bvh = match self.base {
             BaseBuilder::Lbvh => lbvh::build(prim_aabbs),
             BaseBuilder::BinnedSah => binned_sah::build(prim_aabbs, &Default::default()),
+            BaseBuilder::Ploc(radius) => ploc::build(prim_aabbs, &PlocConfig { radius: radius as usize }),
             BaseBuilder::Obvhs(preset) => obvhs_build(preset, triangles, prim_aabbs),
         };
         let build_time = t.elapsed();
@@ -161,6 +175,11 @@ mod tests {
             assert_eq!(b.to_string(), name);
         }
         assert!("lbvh+prbvh+prbvh".parse::<Builder>().is_err());
+        assert_eq!("ploc-100+prbvh".parse::<Builder>().unwrap().to_string(), "ploc-100+prbvh");
+        assert_eq!("ploc-16".parse::<Builder>().unwrap().to_string(), "ploc");
+        for bad in ["ploc-0", "ploc-x", "ploc-", "ploc-99999"] {
+            assert!(bad.parse::<Builder>().is_err(), "{bad}");
+        }
         let e = "nope".parse::<Builder>().unwrap_err().to_string();
         assert!(e.contains("unknown builder `nope`") && e.contains("lbvh+prbvh"), "{e}");
     }

@@ -14,6 +14,7 @@ mod node;
 mod parallel;
 #[cfg(feature = "peers")]
 pub mod peers;
+pub mod ploc;
 pub mod prbvh;
 pub mod sah;
 mod traverse;

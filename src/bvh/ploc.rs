@@ -1,0 +1,286 @@
+//! PLOC: Meister & Bittner, "Parallel Locally-Ordered Clustering for Bounding Volume Hierarchy
+//! Construction" (IEEE TVCG 2018).
+//!
+//! Bottom-up agglomerative clustering restricted to a window of the Morton order:
+//! 1. The primitives, sorted by the Morton codes of their box centres (the same codes and sort as
+//!    [`super::lbvh`]), are the first clusters.
+//! 2. Each iteration (section 4), in parallel:
+//!    - every cluster finds its nearest neighbour among the `radius` clusters on either side of
+//!      it, the distance being the surface area of the merged box;
+//!    - clusters that are each other's nearest neighbours merge; the merged cluster takes the
+//!      lower position, the higher one is removed;
+//!    - the array is compacted (a parallel prefix count) and the next iteration starts.
+//!
+//!    Until one cluster is left. Every iteration merges at least the globally closest pair
+//!    within the window, so it ends.
+//! 3. Ties between distances are broken by the pair's indices, so that "nearest" is a strict
+//!    order and the result does not depend on the thread count.
+//!
+//! Layout: a merge writes its two clusters into the next free sibling pair, taken from the end
+//! of the array downward in merge order (so the pairs of one iteration are contiguous), and the
+//! merged cluster refers to that pair; the last cluster becomes the root in slot 0. Parent links
+//! are written when a cluster is placed, so each pair's are written once.
+//!
+//! The radius trades quality for time: larger radii come closer to full agglomerative
+//! clustering. Default 16; the PRBVH paper's comparison used 100 (Meister & Bittner 2018,
+//! section 6), which `bvh-bench --builders ploc-100` measures. Each cluster computes its own `2r`
+//! distances, which parallelises without shared writes (each distance is computed twice).
+
+use bytemuck::Zeroable;
+use rayon::prelude::*;
+
+use super::parallel::SharedSlice;
+use super::{Bvh, BvhNode, INVALID_INDEX, Nodes};
+use crate::geometry::Aabb;
+
+/// Options of [`build`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PlocConfig {
+    /// How many clusters on each side a cluster looks at for its nearest neighbour. Default 16.
+    pub radius: usize,
+}
+
+impl Default for PlocConfig {
+    fn default() -> Self {
+        Self { radius: 16 }
+    }
+}
+
+/// Half surface area, without `Aabb::half_area`'s emptiness test: every box here is a union of
+/// primitive boxes.
+#[inline(always)]
+fn area(b: &Aabb) -> f32 {
+    let e = b.max - b.min;
+    e.x * e.y + e.y * e.z + e.z * e.x
+}
+
+/// Builds a PLOC tree over primitives given by their boxes, one primitive per leaf. Like
+/// [`super::lbvh::build`], the tree does not depend on the thread count.
+pub fn build(prim_aabbs: &[Aabb], config: &PlocConfig) -> Bvh {
+    let n = prim_aabbs.len();
+    assert!(n < (1 << 31), "PLOC supports fewer than 2^31 primitives, got {n}");
+    assert!(config.radius >= 1, "PLOC needs a radius of at least 1");
+    if n <= 1 {
+        return Bvh::single_leaf(prim_aabbs);
+    }
+    let (_, prim_ids) = super::lbvh::sorted_morton_codes(prim_aabbs);
+    let len = 2 * n;
+    let mut nodes = Nodes::default();
+    nodes.fill_pairs(n, len, |_| [BvhNode::zeroed(); 2]);
+    let mut parents = vec![INVALID_INDEX; len];
+    // Clusters not yet placed in the tree: node records whose children (if any) are placed.
+    let mut clusters: Vec<BvhNode> =
+        prim_ids.par_iter().enumerate().map(|(k, &p)| BvhNode::leaf(prim_aabbs[p as usize], k as u32, 1)).collect();
+    let mut next: Vec<BvhNode> = Vec::with_capacity(n);
+    let mut neighbours: Vec<u32> = Vec::with_capacity(n);
+    // Pairs are taken from the top: the next merge writes slots `top - 2` and `top - 1`.
+    let mut top = len as u32;
+    while clusters.len() > 1 {
+        nearest_neighbours(&clusters, config.radius, &mut neighbours);
+        let merged = {
+            let shared_nodes = SharedSlice::new(&mut nodes);
+            let shared_parents = SharedSlice::new(&mut parents);
+            merge(&clusters, &neighbours, top, &shared_nodes, &shared_parents, &mut next)
+        };
+        top -= 2 * merged as u32;
+        std::mem::swap(&mut clusters, &mut next);
+    }
+    debug_assert_eq!(top, 2);
+    let root = clusters[0];
+    nodes[0] = root;
+    parents[root.first as usize] = 0;
+    parents[root.first as usize + 1] = 0;
+    Bvh { nodes, parents, prim_ids }
+}
+
+/// For each cluster, the index of its nearest neighbour within `radius` positions: the one whose
+/// merged box has the smallest surface area, ties going to the pair with the smaller indices.
+fn nearest_neighbours(clusters: &[BvhNode], radius: usize, out: &mut Vec<u32>) {
+    let boxes: Vec<Aabb> = clusters.par_iter().with_min_len(4096).map(BvhNode::aabb).collect();
+    out.clear();
+    out.par_extend((0..clusters.len()).into_par_iter().with_min_len(1024).map(|i| {
+        let b = boxes[i];
+        let (lo, hi) = (i.saturating_sub(radius), (i + radius).min(boxes.len() - 1));
+        // Scanning j upward with a strict `<` keeps the smallest j among equal distances; for a
+        // fixed i that is also the smallest (min(i, j), max(i, j)) pair.
+        // NaN distances (from NaN boxes) count as infinite, so that every cluster has a
+        // neighbour and the order stays strict.
+        let mut best: Option<(f32, usize)> = None;
+        for (j, other) in boxes.iter().enumerate().take(hi + 1).skip(lo) {
+            if j != i {
+                let d = area(&b.union(*other));
+                let d = if d.is_nan() { f32::INFINITY } else { d };
+                if best.is_none_or(|(bd, _)| d < bd) {
+                    best = Some((d, j));
+                }
+            }
+        }
+        best.map_or(i, |(_, j)| j) as u32
+    }));
+}
+
+/// Merges the mutual nearest neighbours of `clusters` into `next` (compacted, in order), writing
+/// each merged pair to the tree below `top`; returns the number of merges.
+fn merge(
+    clusters: &[BvhNode],
+    neighbours: &[u32],
+    top: u32,
+    nodes: &SharedSlice<BvhNode>,
+    parents: &SharedSlice<u32>,
+    next: &mut Vec<BvhNode>,
+) -> usize {
+    // What becomes of cluster i: kept (0), merged with a higher neighbour (1), or absorbed by
+    // a lower one (2).
+    let fate = |i: usize| -> u8 {
+        let j = neighbours[i] as usize;
+        if neighbours[j] as usize != i {
+            0
+        } else if i < j {
+            1
+        } else {
+            2
+        }
+    };
+    // Chunked prefix counts: survivors (for `next`) and merges (for pairs), per chunk.
+    const CHUNK: usize = 4096;
+    let counts: Vec<(usize, usize)> = (0..clusters.len().div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let range = c * CHUNK..((c + 1) * CHUNK).min(clusters.len());
+            range.fold((0, 0), |(kept, merged), i| match fate(i) {
+                0 => (kept + 1, merged),
+                1 => (kept + 1, merged + 1),
+                _ => (kept, merged),
+            })
+        })
+        .collect();
+    let mut starts = Vec::with_capacity(counts.len());
+    let (mut kept_total, mut merged_total) = (0usize, 0usize);
+    for &(kept, merged) in &counts {
+        starts.push((kept_total, merged_total));
+        kept_total += kept;
+        merged_total += merged;
+    }
+    next.clear();
+    next.resize(kept_total, BvhNode::zeroed());
+    let out = SharedSlice::new(next);
+    // Places a cluster's record in `slot` and points its children there.
+    let place = |node: BvhNode, slot: u32| {
+        // SAFETY: every slot below `top` is handed to exactly one merge, and a placed cluster's
+        // children pair is the one its own merge wrote, so each parent entry is written once.
+        unsafe {
+            nodes.set(slot as usize, node);
+            if !node.is_leaf() {
+                parents.set(node.first as usize, slot);
+                parents.set(node.first as usize + 1, slot);
+            }
+        }
+    };
+    starts.par_iter().enumerate().for_each(|(c, &(mut k, mut m))| {
+        for i in c * CHUNK..((c + 1) * CHUNK).min(clusters.len()) {
+            let cluster = match fate(i) {
+                0 => clusters[i],
+                1 => {
+                    let other = clusters[neighbours[i] as usize];
+                    let pair = top - 2 * (m as u32 + 1);
+                    m += 1;
+                    place(clusters[i], pair);
+                    place(other, pair + 1);
+                    BvhNode::internal(clusters[i].aabb().union(other.aabb()), pair)
+                }
+                _ => continue,
+            };
+            // SAFETY: survivor k of the whole array is written by the one chunk that holds it.
+            unsafe { out.set(k, cluster) };
+            k += 1;
+        }
+    });
+    merged_total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    fn boxes(n: usize) -> Vec<Aabb> {
+        // A deterministic scatter of small boxes.
+        (0..n)
+            .map(|i| {
+                let f = i as f32;
+                let c = Vec3::new((f * 0.618).fract(), (f * 0.414).fract(), (f * 0.732).fract()) * 10.0;
+                Aabb::new(c, c + Vec3::splat(0.05 + 0.1 * (f * 0.3).fract()))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn builds_valid_trees() {
+        for n in [0, 1, 2, 3, 17, 1000] {
+            for radius in [1, 4, 16] {
+                let prims = boxes(n);
+                let bvh = build(&prims, &PlocConfig { radius });
+                crate::bvh::validate(&bvh, &prims).unwrap_or_else(|e| panic!("n = {n}, r = {radius}: {e}"));
+                assert_eq!(bvh.nodes.len(), if n <= 1 { n } else { 2 * n });
+            }
+        }
+    }
+
+    #[test]
+    fn nan_boxes_still_give_a_tree() {
+        let mut prims = boxes(50);
+        for b in prims.iter_mut().step_by(3) {
+            b.max.x = f32::NAN;
+        }
+        let bvh = build(&prims, &PlocConfig::default());
+        let mut ids = bvh.prim_ids.clone();
+        ids.sort_unstable();
+        assert_eq!(ids, (0..50).collect::<Vec<u32>>());
+        assert_eq!(bvh.leaf_count(), 50);
+    }
+
+    /// With a window covering every cluster, PLOC is exact agglomerative clustering (Walter et
+    /// al. 2008: merging mutual nearest neighbours gives the same tree as always merging the
+    /// globally closest pair, when merging never brings clusters closer, as for areas).
+    #[test]
+    fn a_full_window_equals_greedy_agglomerative_clustering() {
+        for n in [5, 20, 40] {
+            let prims = boxes(n);
+            let bvh = build(&prims, &PlocConfig { radius: n });
+            // The greedy reference: the sum of internal areas of the tree made by repeatedly
+            // merging the pair with the smallest merged area.
+            let mut clusters = prims.clone();
+            let mut internal = 0.0f64;
+            while clusters.len() > 1 {
+                let mut best = (f32::INFINITY, 0, 0);
+                for i in 0..clusters.len() {
+                    for j in i + 1..clusters.len() {
+                        let d = area(&clusters[i].union(clusters[j]));
+                        if d < best.0 {
+                            best = (d, i, j);
+                        }
+                    }
+                }
+                let (_, i, j) = best;
+                let merged = clusters[i].union(clusters.swap_remove(j));
+                clusters[i] = merged;
+                internal += area(&merged) as f64;
+            }
+            let got: f64 = bvh
+                .nodes
+                .iter()
+                .enumerate()
+                .filter(|(k, m)| *k != 1 && !m.is_leaf())
+                .map(|(_, m)| area(&m.aabb()) as f64)
+                .sum();
+            assert!((got - internal).abs() <= 1e-5 * internal, "n = {n}: PLOC {got}, greedy {internal}");
+        }
+    }
+
+    #[test]
+    fn identical_boxes() {
+        let prims = vec![Aabb::new(Vec3::ZERO, Vec3::ONE); 100];
+        let bvh = build(&prims, &PlocConfig::default());
+        crate::bvh::validate(&bvh, &prims).unwrap();
+    }
+}
