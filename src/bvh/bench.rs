@@ -152,9 +152,13 @@ fn measure(
     validate(&built.bvh, prim_aabbs).map_err(|e| format!("{builder}: invalid tree: {e}"))?;
     let sah_leaf1 = sah_cost(&built.bvh);
     let build_ms = median(builds);
-    let mut sah_curve = vec![[build_ms, built.prbvh.as_ref().map_or(sah_leaf1, |s| s.initial_sah)]];
+    let initial = built.prbvh.as_ref().map(|s| s.initial_sah).or(built.rbvh.as_ref().map(|s| s.initial_sah));
+    let mut sah_curve = vec![[build_ms, initial.unwrap_or(sah_leaf1)]];
     if let Some(stats) = &built.prbvh {
         sah_curve.extend(stats.iterations.iter().map(|i| [build_ms + i.elapsed.as_secs_f64() * 1e3, i.sah]));
+    }
+    if let Some(stats) = &built.rbvh {
+        sah_curve.extend(stats.batches.iter().map(|(t, sah)| [build_ms + t.as_secs_f64() * 1e3, *sah]));
     }
     let t = Instant::now();
     let collapsed = collapse_leaves(&built.bvh, &config.collapse);

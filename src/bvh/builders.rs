@@ -9,6 +9,7 @@
 //! | `binned-sah+prbvh` | binned SAH optimised by PRBVH |
 //! | `ploc`, `ploc-R` | [`super::ploc`] with radius 16, or R |
 //! | `ploc+prbvh`, `ploc-R+prbvh` | PLOC optimised by PRBVH |
+//! | `lbvh+rbvh` (any base `+rbvh`) | sequential reinsertion ([`super::rbvh`]), the paper's reference |
 //! | `obvhs-fastest` … `obvhs-very-slow` | the obvhs crate's presets (feature `peers`) |
 //!
 //! Every builder returns a tree with one primitive per leaf; the leaf collapse is applied by the
@@ -22,14 +23,24 @@ use super::prbvh::{self, LockStrategy, PrbvhConfig, PrbvhStats};
 use rayon::prelude::*;
 
 use super::ploc::{self, PlocConfig};
+use super::rbvh::{self, RbvhConfig, RbvhStats};
 use super::{Bvh, CollapseConfig, MeshBvh, binned_sah, collapse_leaves, lbvh};
 use crate::geometry::{Aabb, Triangle};
 
-/// A builder, optionally followed by parallel reinsertion.
+/// A builder, optionally followed by an optimiser.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Builder {
     pub base: BaseBuilder,
-    pub optimize: Option<LockStrategy>,
+    pub optimize: Option<Optimizer>,
+}
+
+/// What runs after the base builder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Optimizer {
+    /// Parallel reinsertion ([`super::prbvh`]) with these locks.
+    Prbvh(LockStrategy),
+    /// Sequential reinsertion ([`super::rbvh`]), the reference.
+    Rbvh,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -55,10 +66,18 @@ pub struct UnknownBuilder {
 impl Builder {
     /// Every name [`FromStr`] accepts (obvhs ones only with the `peers` feature).
     pub fn names() -> Vec<String> {
-        let mut v: Vec<String> =
-            ["lbvh", "lbvh+prbvh", "lbvh+prbvh-conservative", "binned-sah", "binned-sah+prbvh", "ploc", "ploc+prbvh"]
-                .map(String::from)
-                .to_vec();
+        let mut v: Vec<String> = [
+            "lbvh",
+            "lbvh+prbvh",
+            "lbvh+prbvh-conservative",
+            "lbvh+rbvh",
+            "binned-sah",
+            "binned-sah+prbvh",
+            "ploc",
+            "ploc+prbvh",
+        ]
+        .map(String::from)
+        .to_vec();
         if cfg!(feature = "peers") {
             v.extend(OBVHS_PRESETS.iter().map(|p| format!("obvhs-{p}")));
         }
@@ -73,8 +92,9 @@ impl FromStr for Builder {
         let unknown = || UnknownBuilder { name: s.to_owned(), known: Builder::names().join(", ") };
         let (base, optimize) = match s.split_once('+') {
             None => (s, None),
-            Some((b, "prbvh")) => (b, Some(LockStrategy::Aggressive)),
-            Some((b, "prbvh-conservative")) => (b, Some(LockStrategy::Conservative)),
+            Some((b, "prbvh")) => (b, Some(Optimizer::Prbvh(LockStrategy::Aggressive))),
+            Some((b, "prbvh-conservative")) => (b, Some(Optimizer::Prbvh(LockStrategy::Conservative))),
+            Some((b, "rbvh")) => (b, Some(Optimizer::Rbvh)),
             Some(_) => return Err(unknown()),
         };
         let base = match base {
@@ -106,8 +126,9 @@ impl fmt::Display for Builder {
         }
         match self.optimize {
             None => Ok(()),
-            Some(LockStrategy::Aggressive) => write!(f, "+prbvh"),
-            Some(LockStrategy::Conservative) => write!(f, "+prbvh-conservative"),
+            Some(Optimizer::Prbvh(LockStrategy::Aggressive)) => write!(f, "+prbvh"),
+            Some(Optimizer::Prbvh(LockStrategy::Conservative)) => write!(f, "+prbvh-conservative"),
+            Some(Optimizer::Rbvh) => write!(f, "+rbvh"),
         }
     }
 }
@@ -120,6 +141,7 @@ pub struct Built {
     pub build_time: Duration,
     pub optimize_time: Duration,
     pub prbvh: Option<PrbvhStats>,
+    pub rbvh: Option<RbvhStats>,
 }
 
 impl Builder {
@@ -134,12 +156,21 @@ impl Builder {
             BaseBuilder::Obvhs(preset) => obvhs_build(preset, triangles, prim_aabbs),
         };
         let build_time = t.elapsed();
-        let mut built = Built { bvh: Bvh::default(), build_time, optimize_time: Duration::ZERO, prbvh: None };
-        if let Some(strategy) = self.optimize {
-            let config = PrbvhConfig { strategy, collapse: None, ..*prbvh };
-            let stats = prbvh::optimize(&mut bvh, &config);
-            built.optimize_time = stats.optimize_time;
-            built.prbvh = Some(stats);
+        let mut built =
+            Built { bvh: Bvh::default(), build_time, optimize_time: Duration::ZERO, prbvh: None, rbvh: None };
+        match self.optimize {
+            Some(Optimizer::Prbvh(strategy)) => {
+                let config = PrbvhConfig { strategy, collapse: None, ..*prbvh };
+                let stats = prbvh::optimize(&mut bvh, &config);
+                built.optimize_time = stats.optimize_time;
+                built.prbvh = Some(stats);
+            }
+            Some(Optimizer::Rbvh) => {
+                let stats = rbvh::optimize(&mut bvh, &RbvhConfig { costs: prbvh.costs, ..Default::default() });
+                built.optimize_time = stats.time;
+                built.rbvh = Some(stats);
+            }
+            None => {}
         }
         built.bvh = bvh;
         built

@@ -16,6 +16,7 @@ mod parallel;
 pub mod peers;
 pub mod ploc;
 pub mod prbvh;
+pub mod rbvh;
 pub mod sah;
 mod traverse;
 mod validate;
