@@ -17,7 +17,8 @@ use crate::geometry::{Aabb, Ray, Triangle};
 #[derive(Clone, Debug)]
 pub struct BenchConfig {
     pub builders: Vec<Builder>,
-    /// Builds (and traces) per builder; the median time is reported. Default 3.
+    /// Builds per builder, and rounds of tracing (each round traces every builder once); the
+    /// median times are reported. Default 3.
     pub runs: usize,
     /// Primary rays are `resolution²`. Default 512.
     pub resolution: u32,
@@ -110,18 +111,42 @@ pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, Strin
         builders: Vec::new(),
         mismatches: Vec::new(),
     };
+    // Build everything first, then trace in rounds that visit every builder in turn: on a
+    // shared, noisy machine a slow spell then hits all builders alike instead of one of them.
+    let mut meshes = Vec::with_capacity(config.builders.len());
     for builder in &config.builders {
-        let r = measure(builder, triangles, &prim_aabbs, &rays, config)?;
-        if let Some(first) = report.builders.first() {
-            for (k, set) in ["primary", "shadow", "diffuse"].iter().enumerate() {
-                if r.checksums[k] != first.checksums[k] {
-                    report
-                        .mismatches
-                        .push(format!("{set} rays: {} and {} hit different triangles", first.name, r.name));
+        let (r, mesh) = measure(builder, triangles, &prim_aabbs, config)?;
+        report.builders.push(r);
+        meshes.push(mesh);
+    }
+    let sets: [(&[Ray], f32); 3] =
+        [(&rays.primary, f32::INFINITY), (&rays.shadow, 1.0), (&rays.diffuse, f32::INFINITY)];
+    let mut times = vec![[const { Vec::new() }; 3]; meshes.len()];
+    for round in 0..config.runs.max(1) {
+        for (b, mesh) in meshes.iter().enumerate() {
+            for (k, &(set, t_max)) in sets.iter().enumerate() {
+                let (time, checksum) = trace(mesh, set, t_max);
+                times[b][k].push(time);
+                if round == 0 {
+                    report.builders[b].checksums[k] = checksum;
                 }
             }
         }
-        report.builders.push(r);
+    }
+    for (r, times) in report.builders.iter_mut().zip(times) {
+        let [primary, shadow, diffuse] = times.map(median);
+        let mrays = |count: usize, ms: f64| if ms > 0.0 { count as f64 / ms / 1e3 } else { 0.0 };
+        r.primary_mrays = mrays(rays.primary.len(), primary);
+        r.shadow_mrays = mrays(rays.shadow.len(), shadow);
+        r.diffuse_mrays = mrays(rays.diffuse.len(), diffuse);
+    }
+    for r in &report.builders[1..] {
+        let first = &report.builders[0];
+        for (k, set) in ["primary", "shadow", "diffuse"].iter().enumerate() {
+            if r.checksums[k] != first.checksums[k] {
+                report.mismatches.push(format!("{set} rays: {} and {} hit different triangles", first.name, r.name));
+            }
+        }
     }
     Ok(report)
 }
@@ -131,13 +156,14 @@ fn median(mut v: Vec<Duration>) -> f64 {
     v[v.len() / 2].as_secs_f64() * 1e3
 }
 
+/// Builds with `builder` `runs` times and reports everything but the trace speeds and
+/// checksums, which [`run`] measures; returns the tree to trace.
 fn measure(
     builder: &Builder,
     triangles: &[Triangle],
     prim_aabbs: &[Aabb],
-    rays: &RaySets,
     config: &BenchConfig,
-) -> Result<BuilderReport, String> {
+) -> Result<(BuilderReport, MeshBvh), String> {
     let runs = config.runs.max(1);
     let mut builds = Vec::with_capacity(runs);
     let mut optimizations = Vec::with_capacity(runs);
@@ -166,10 +192,7 @@ fn measure(
     let stats = validate(&collapsed, prim_aabbs).map_err(|e| format!("{builder}: invalid collapsed tree: {e}"))?;
     let sah = sah_cost(&collapsed);
     let mesh = MeshBvh::new(collapsed, triangles);
-    let (primary_mrays, c0) = trace(&mesh, &rays.primary, f32::INFINITY, runs);
-    let (shadow_mrays, c1) = trace(&mesh, &rays.shadow, 1.0, runs);
-    let (diffuse_mrays, c2) = trace(&mesh, &rays.diffuse, f32::INFINITY, runs);
-    Ok(BuilderReport {
+    let report = BuilderReport {
         name: builder.to_string(),
         build_ms,
         optimize_ms: median(optimizations),
@@ -179,17 +202,18 @@ fn measure(
         nodes: stats.node_count,
         leaves: stats.leaf_count,
         depth: stats.depth,
-        primary_mrays,
-        shadow_mrays,
-        diffuse_mrays,
+        primary_mrays: 0.0,
+        shadow_mrays: 0.0,
+        diffuse_mrays: 0.0,
         sah_curve,
-        checksums: [c0, c1, c2],
-    })
+        checksums: [0; 3],
+    };
+    Ok((report, mesh))
 }
 
-/// Traces `rays` (closest hit, or any hit when `t_max` is finite: shadow rays) `runs` times;
-/// returns the median speed in Mrays/s and a checksum of the hits.
-fn trace(mesh: &MeshBvh, rays: &[Ray], t_max: f32, runs: usize) -> (f64, u64) {
+/// Traces `rays` once (closest hit, or any hit when `t_max` is finite: shadow rays); returns the
+/// time and a checksum of the hits.
+fn trace(mesh: &MeshBvh, rays: &[Ray], t_max: f32) -> (Duration, u64) {
     let shadow = t_max.is_finite();
     let hit_code = |r: &Ray| -> u64 {
         if shadow {
@@ -198,14 +222,8 @@ fn trace(mesh: &MeshBvh, rays: &[Ray], t_max: f32, runs: usize) -> (f64, u64) {
             mesh.closest_hit(r, t_max).map_or(0, |h| h.prim_id as u64 + 1)
         }
     };
-    let mut times = Vec::with_capacity(runs);
-    let mut codes = Vec::new();
-    for _ in 0..runs {
-        let t = Instant::now();
-        codes = rays.par_iter().with_min_len(64).map(hit_code).collect::<Vec<u64>>();
-        times.push(t.elapsed());
-    }
-    let checksum = codes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &c| (h ^ c).wrapping_mul(0x0100_0000_01b3));
-    let ms = median(times);
-    (if ms > 0.0 { rays.len() as f64 / ms / 1e3 } else { 0.0 }, checksum)
+    let t = Instant::now();
+    let codes = rays.par_iter().with_min_len(64).map(hit_code).collect::<Vec<u64>>();
+    let time = t.elapsed();
+    (time, codes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &c| (h ^ c).wrapping_mul(0x0100_0000_01b3)))
 }
