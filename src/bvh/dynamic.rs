@@ -64,6 +64,40 @@ fn is_hole(n: &BvhNode) -> bool {
     n.prim_count == 0 && n.first == INVALID_INDEX
 }
 
+/// The node a subtree with box `b` should become the sibling of, in the tree under `nodes[0]`:
+/// best-first branch and bound on the insertion cost (module docs), skipping nodes for which
+/// `skip` holds. Never the padding. Shared with [`super::rbvh`].
+pub(crate) fn best_sibling(nodes: &[BvhNode], b: &Aabb, skip: impl Fn(&BvhNode) -> bool) -> u32 {
+    let area_b = b.half_area();
+    // Min-heap on the induced cost: non-negative floats order like their bits.
+    let mut heap = BinaryHeap::new();
+    heap.push(std::cmp::Reverse((0f32.to_bits(), 0u32)));
+    let (mut best_cost, mut best) = (f32::INFINITY, 0u32);
+    while let Some(std::cmp::Reverse((induced_bits, n))) = heap.pop() {
+        let induced = f32::from_bits(induced_bits);
+        if induced + area_b >= best_cost {
+            break;
+        }
+        let node = nodes[n as usize];
+        if skip(&node) {
+            continue;
+        }
+        let merged = node.aabb().union(*b).half_area();
+        let cost = merged + induced;
+        if cost < best_cost {
+            (best_cost, best) = (cost, n);
+        }
+        if !node.is_leaf() {
+            let child_induced = (induced + merged - node.aabb().half_area()).max(0.0);
+            if child_induced + area_b < best_cost {
+                heap.push(std::cmp::Reverse((child_induced.to_bits(), node.first)));
+                heap.push(std::cmp::Reverse((child_induced.to_bits(), node.first + 1)));
+            }
+        }
+    }
+    best
+}
+
 /// Options of [`DynamicBvh::update`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DynamicConfig {
@@ -340,38 +374,10 @@ impl DynamicBvh {
         }
     }
 
-    /// The node the new leaf `b` should become the sibling of: best-first branch and bound on
-    /// the insertion cost (module docs). Never a hole or the padding.
+    /// The node the new leaf `b` should become the sibling of ([`best_sibling`]). Never a hole
+    /// or the padding.
     fn find_insertion(&self, b: &Aabb) -> u32 {
-        let nodes = &self.bvh.nodes;
-        let area_b = b.half_area();
-        // Min-heap on the induced cost: non-negative floats order like their bits.
-        let mut heap = BinaryHeap::new();
-        heap.push(std::cmp::Reverse((0f32.to_bits(), 0u32)));
-        let (mut best_cost, mut best) = (f32::INFINITY, 0u32);
-        while let Some(std::cmp::Reverse((induced_bits, n))) = heap.pop() {
-            let induced = f32::from_bits(induced_bits);
-            if induced + area_b >= best_cost {
-                break;
-            }
-            let node = nodes[n as usize];
-            if is_hole(&node) {
-                continue;
-            }
-            let merged = node.aabb().union(*b).half_area();
-            let cost = merged + induced;
-            if cost < best_cost {
-                (best_cost, best) = (cost, n);
-            }
-            if !node.is_leaf() {
-                let child_induced = (induced + merged - node.aabb().half_area()).max(0.0);
-                if child_induced + area_b < best_cost {
-                    heap.push(std::cmp::Reverse((child_induced.to_bits(), node.first)));
-                    heap.push(std::cmp::Reverse((child_induced.to_bits(), node.first + 1)));
-                }
-            }
-        }
-        best
+        best_sibling(&self.bvh.nodes, b, is_hole)
     }
 
     /// The batched clean (module docs); returns the number of nodes visited, which is the number

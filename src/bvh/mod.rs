@@ -103,3 +103,16 @@ pub fn refit_sequential(bvh: &mut Bvh, prim_aabbs: &[Aabb]) {
 fn leaf_bounds(prims: &[u32], prim_aabbs: &[Aabb]) -> Aabb {
     prims.iter().fold(Aabb::EMPTY, |b, &p| b.union(prim_aabbs[p as usize]))
 }
+
+/// `n` small boxes scattered deterministically over a 10-unit cube, sized 0.05 to
+/// `0.05 + max_extra`: test input for the builders' unit tests.
+#[cfg(test)]
+pub(crate) fn scattered_boxes(n: usize, max_extra: f32) -> Vec<Aabb> {
+    (0..n)
+        .map(|i| {
+            let f = i as f32;
+            let c = glam::Vec3::new((f * 0.618).fract(), (f * 0.414).fract(), (f * 0.732).fract()) * 10.0;
+            Aabb::new(c, c + glam::Vec3::splat(0.05 + max_extra * (f * 0.3).fract()))
+        })
+        .collect()
+}

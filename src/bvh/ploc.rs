@@ -204,14 +204,7 @@ mod tests {
     use glam::Vec3;
 
     fn boxes(n: usize) -> Vec<Aabb> {
-        // A deterministic scatter of small boxes.
-        (0..n)
-            .map(|i| {
-                let f = i as f32;
-                let c = Vec3::new((f * 0.618).fract(), (f * 0.414).fract(), (f * 0.732).fract()) * 10.0;
-                Aabb::new(c, c + Vec3::splat(0.05 + 0.1 * (f * 0.3).fract()))
-            })
-            .collect()
+        crate::bvh::scattered_boxes(n, 0.1)
     }
 
     #[test]

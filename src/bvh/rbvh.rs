@@ -25,10 +25,9 @@
 //! exact tree. It runs on one thread, as the paper's does: a reference, not a production
 //! builder (about 10 s for the dragon's 2 × 10^5 triangles).
 
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
 use std::time::{Duration, Instant};
 
+use super::dynamic::best_sibling;
 use super::{Bvh, BvhNode, INVALID_INDEX, SahCosts, sah_cost_with};
 use crate::geometry::Aabb;
 
@@ -178,7 +177,7 @@ fn remove_and_reinsert(bvh: &mut Bvh, n: u32) {
     refit_up(bvh, bvh.parents[p as usize]);
     let free = [n & !1, node.first];
     for (orphan, pair) in [(a, free[0]), (b, free[1])] {
-        let target = find_insertion(bvh, &orphan.aabb());
+        let target = best_sibling(&bvh.nodes, &orphan.aabb(), |_| false);
         let t = bvh.nodes[target as usize];
         place(bvh, pair, t);
         place(bvh, pair + 1, orphan);
@@ -189,52 +188,13 @@ fn remove_and_reinsert(bvh: &mut Bvh, n: u32) {
     }
 }
 
-/// The node whose sibling a subtree with box `b` should become: best-first branch and bound on
-/// the induced cost (the same search as [`super::dynamic`]'s insertion, over a tree without
-/// holes). Never the padding.
-fn find_insertion(bvh: &Bvh, b: &Aabb) -> u32 {
-    let nodes = &bvh.nodes;
-    let area_b = area(b);
-    // Min-heap on the induced cost: non-negative floats order like their bits.
-    let mut heap = BinaryHeap::new();
-    heap.push(Reverse((0f32.to_bits(), 0u32)));
-    let (mut best_cost, mut best) = (f32::INFINITY, 0u32);
-    while let Some(Reverse((induced_bits, n))) = heap.pop() {
-        let induced = f32::from_bits(induced_bits);
-        if induced + area_b >= best_cost {
-            break;
-        }
-        let node = nodes[n as usize];
-        let merged = area(&node.aabb().union(*b));
-        let cost = merged + induced;
-        if cost < best_cost {
-            (best_cost, best) = (cost, n);
-        }
-        if !node.is_leaf() {
-            let child_induced = (induced + merged - area(&node.aabb())).max(0.0);
-            if child_induced + area_b < best_cost {
-                heap.push(Reverse((child_induced.to_bits(), node.first)));
-                heap.push(Reverse((child_induced.to_bits(), node.first + 1)));
-            }
-        }
-    }
-    best
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::bvh::{lbvh, validate};
-    use glam::Vec3;
 
     fn boxes(n: usize) -> Vec<Aabb> {
-        (0..n)
-            .map(|i| {
-                let f = i as f32;
-                let c = Vec3::new((f * 0.618).fract(), (f * 0.414).fract(), (f * 0.732).fract()) * 10.0;
-                Aabb::new(c, c + Vec3::splat(0.05 + 0.3 * (f * 0.3).fract()))
-            })
-            .collect()
+        crate::bvh::scattered_boxes(n, 0.3)
     }
 
     #[test]
