@@ -40,6 +40,7 @@
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use glam::{Vec3A, Vec3Swizzles};
 use rayon::prelude::*;
 
 use super::parallel::SharedSlice;
@@ -224,10 +225,11 @@ fn iterate(
 ) -> (usize, usize, Vec<Reinsertion>) {
     let len = bvh.nodes.len();
     let phase = (iteration % mu) as usize;
-    let moves = search(bvh, (2..len).into_par_iter().with_min_len(256).filter(|&i| i % mu as usize == phase));
-    // Nodes i in 2..len with i ≡ phase (mod μ).
-    let count_below = |end: usize| end / mu as usize + usize::from(end % mu as usize > phase);
-    let searched = count_below(len) - count_below(2);
+    // Nodes i in 2..len with i ≡ phase (mod μ): the first is 2 + ((phase - 2) mod μ).
+    let mu = mu as usize;
+    let first = 2 + (phase + mu - 2 % mu) % mu;
+    let searched = len.saturating_sub(first).div_ceil(mu);
+    let moves = search(bvh, (0..searched).into_par_iter().with_min_len(64).map(|k| first + k * mu));
     let applied = lock_and_apply(bvh, &moves, strategy, locks);
     (searched, moves.len(), applied)
 }
@@ -426,26 +428,18 @@ fn locked_nodes(bvh: &Bvh, input: u32, output: u32, strategy: LockStrategy) -> V
     nodes
 }
 
-/// Half surface area without `Aabb::half_area`'s emptiness test: every box the search measures
-/// is a node's box or a union with one, never empty.
-#[inline(always)]
-fn area(b: &Aabb) -> f32 {
-    let e = b.max - b.min;
-    e.x * e.y + e.y * e.z + e.z * e.x
-}
-
 /// Algorithm 1: the output node `input` should become the sibling of, and the surface-area
 /// decrease that gives (0 and the current sibling when nothing is better). `input` must not be
 /// the root or the padding node.
 pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
     let nodes = &bvh.nodes;
     let parents = &bvh.parents;
-    let bbox = |n: u32| nodes[n as usize].aabb();
+    let bbox = |n: u32| Box4::of(&nodes[n as usize]);
     let b_in = bbox(input);
     let parent = parents[input as usize];
-    let a_parent = area(&bbox(parent));
-    let mut b_pivot = Aabb::EMPTY;
-    let d_bound = a_parent - area(&b_in);
+    let a_parent = bbox(parent).area();
+    let mut b_pivot = Box4::EMPTY;
+    let d_bound = a_parent - b_in.area();
     let (mut d_best, mut d) = (0.0f32, 0.0f32);
     let mut out = input ^ 1;
     let mut out_best = out;
@@ -455,27 +449,27 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
         let b_out = bbox(out);
         let b_merged = b_in.union(b_out);
         if down {
-            let d_direct = a_parent - area(&b_merged);
+            let d_direct = a_parent - b_merged.area();
             if d_best < d_direct + d {
                 d_best = d_direct + d;
                 out_best = out;
             }
-            d += area(&b_out) - area(&b_merged);
+            d += b_out.area() - b_merged.area();
             if nodes[out as usize].is_leaf() || d_bound + d <= d_best {
                 down = false;
             } else {
                 out = nodes[out as usize].first;
             }
         } else {
-            d -= area(&b_out) - area(&b_merged);
+            d -= b_out.area() - b_merged.area();
             if pivot == parents[out as usize] {
                 b_pivot = b_pivot.union(b_out);
                 out = pivot;
-                let a_out = area(&bbox(out));
+                let a_out = bbox(out).area();
                 if out != parent {
-                    let d_direct = a_parent - area(&b_in.union(b_pivot));
+                    let d_direct = a_parent - b_in.union(b_pivot).area();
                     // The pivot's own shrink (see the module docs).
-                    let own = a_out - area(&b_pivot);
+                    let own = a_out - b_pivot.area();
                     if d_best < d_direct + d + own {
                         d_best = d_direct + d + own;
                         out_best = out;
@@ -484,7 +478,7 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
                 }
                 // Once the rest of the pivot encloses the input, removing the input shrinks no
                 // higher ancestor, so no output further up can beat `d_bound + d`.
-                if out == 0 || (d_bound + d <= d_best && b_pivot.contains_box(&b_in)) {
+                if out == 0 || (d_bound + d <= d_best && b_pivot.contains(b_in)) {
                     break;
                 }
                 out = pivot ^ 1;
@@ -500,6 +494,41 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
         }
     }
     (out_best, d_best)
+}
+
+/// A node's box in SIMD registers, for [`find_best_output`]: the same arithmetic as [`area`] and
+/// `Aabb::union`, in the same order, so the results are bit for bit the scalar ones.
+#[derive(Clone, Copy)]
+struct Box4 {
+    min: Vec3A,
+    max: Vec3A,
+}
+
+impl Box4 {
+    const EMPTY: Self = Self { min: Vec3A::INFINITY, max: Vec3A::NEG_INFINITY };
+
+    #[inline(always)]
+    fn of(node: &BvhNode) -> Self {
+        let f = node.as_floats();
+        Self { min: Vec3A::new(f[0], f[1], f[2]), max: Vec3A::new(f[4], f[5], f[6]) }
+    }
+
+    #[inline(always)]
+    fn union(self, other: Self) -> Self {
+        Self { min: self.min.min(other.min), max: self.max.max(other.max) }
+    }
+
+    /// Half surface area: `(x y + y z) + z x`, as [`area`] sums it.
+    #[inline(always)]
+    fn area(self) -> f32 {
+        let e = self.max - self.min;
+        (e * e.yzx()).element_sum()
+    }
+
+    #[inline(always)]
+    fn contains(self, other: Self) -> bool {
+        self.min.cmple(other.min).all() && self.max.cmpge(other.max).all()
+    }
 }
 
 /// Moves `input` (with its subtree) to become the sibling of `output`, and refits nothing: the
@@ -574,5 +603,31 @@ fn debug_validate(bvh: &Bvh, iteration: u32) {
     }
     if let Err(e) = super::validate(bvh, &prim_aabbs) {
         panic!("PRBVH iteration {iteration} broke the tree: {e}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// The SIMD box arithmetic of the search gives the scalar `(x y + y z) + z x` bit for bit,
+    /// so the search's decisions do not depend on how it is vectorised.
+    #[test]
+    fn simd_areas_equal_scalar_areas() {
+        let scalar = |b: &Aabb| {
+            let e = b.max - b.min;
+            e.x * e.y + e.y * e.z + e.z * e.x
+        };
+        let boxes = crate::bvh::scattered_boxes(500, 3.0);
+        for pair in boxes.windows(2) {
+            let (a, b) = (pair[0], Aabb::new(pair[1].min * Vec3::new(0.3, 1.7, -2.1), pair[1].max * 1.3));
+            let node = |x: Aabb| BvhNode::leaf(x, 7, 1);
+            let (p, q) = (Box4::of(&node(a)), Box4::of(&node(b)));
+            assert_eq!(p.area().to_bits(), scalar(&a).to_bits());
+            assert_eq!(p.union(q).area().to_bits(), scalar(&a.union(b)).to_bits());
+            assert_eq!(p.union(q).contains(p), a.union(b).contains_box(&a));
+            assert_eq!(q.contains(p), b.contains_box(&a));
+        }
     }
 }
