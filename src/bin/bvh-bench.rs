@@ -850,7 +850,7 @@ fn write_plot(path: &Path, title: &str, labels: (&str, &str), series: &[Series],
 }
 
 /// One curve per series, with points marked; log-log axes when every value is positive and
-/// `log` is asked for.
+/// `log` is asked for, otherwise a logarithmic x axis when it spans more than a factor of 30.
 fn draw_chart<DB: plotters::prelude::DrawingBackend>(
     root: plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
     title: &str,
@@ -899,10 +899,16 @@ where
                 .build_cartesian_2d((x_min * 0.8..x_max * 1.25).log_scale(), (y_min * 0.8..y_max * 1.25).log_scale())
         );
     } else {
-        let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max) * 1.05;
+        let x_min = points.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
+        let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max);
         let y_min = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min) * 0.97;
         let y_max = points.iter().map(|p| p.1).fold(0.0, f64::max) * 1.03;
-        draw!(builder.build_cartesian_2d(0.0..x_max, y_min..y_max));
+        if x_min > 0.0 && x_max > 30.0 * x_min {
+            // Times spanning orders of magnitude (a sequential optimiser beside a parallel one).
+            draw!(builder.build_cartesian_2d((x_min * 0.8..x_max * 1.25).log_scale(), y_min..y_max));
+        } else {
+            draw!(builder.build_cartesian_2d(0.0..x_max * 1.05, y_min..y_max));
+        }
     }
     root.present().map_err(|e| err(&e))?;
     Ok(())

@@ -89,7 +89,10 @@ impl FromStr for Builder {
     type Err = UnknownBuilder;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let unknown = || UnknownBuilder { name: s.to_owned(), known: Builder::names().join(", ") };
+        let unknown = || UnknownBuilder {
+            name: s.to_owned(),
+            known: Builder::names().join(", ") + "; PLOC with another radius: ploc-R (R from 1 to 1024)",
+        };
         let (base, optimize) = match s.split_once('+') {
             None => (s, None),
             Some((b, "prbvh")) => (b, Some(Optimizer::Prbvh(LockStrategy::Aggressive))),
