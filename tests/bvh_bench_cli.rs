@@ -36,7 +36,7 @@ fn writes_table_json_csv_and_plot() {
     let (json, csv, svg) = (dir.join("r.json"), dir.join("r.csv"), dir.join("r.svg"));
     let out = bench()
         .arg(&obj)
-        .args(["--builders", "lbvh,lbvh+prbvh,binned-sah,obvhs-fastest,ploc", "--runs", "2", "--resolution", "64"])
+        .args(["--builders", "lbvh,lbvh+prbvh,binned-sah,obvhs-fastest,ploc,lbvh+rbvh", "--runs", "2", "--resolution", "64"])
         .arg("--json")
         .arg(&json)
         .arg("--csv")
@@ -53,7 +53,7 @@ fn writes_table_json_csv_and_plot() {
     assert_eq!(report["triangles"], 1600);
     assert!(report["threads"].as_u64().unwrap() >= 1);
     let builders = report["builders"].as_array().unwrap();
-    assert_eq!(builders.len(), 5);
+    assert_eq!(builders.len(), 6);
     for b in builders {
         for key in
             ["name", "build_ms", "optimize_ms", "sah", "sah_leaf1", "primary_mrays", "shadow_mrays", "diffuse_mrays"]
@@ -66,9 +66,12 @@ fn writes_table_json_csv_and_plot() {
     // PRBVH improves on its own LBVH.
     assert!(builders[1]["sah_leaf1"].as_f64().unwrap() < builders[0]["sah_leaf1"].as_f64().unwrap());
     assert!(builders[1]["sah_curve"].as_array().unwrap().len() > 2);
+    // So does the sequential reference, batch by batch.
+    assert!(builders[5]["sah_leaf1"].as_f64().unwrap() < builders[0]["sah_leaf1"].as_f64().unwrap());
+    assert!(builders[5]["sah_curve"].as_array().unwrap().len() > 2);
 
     let csv = std::fs::read_to_string(&csv).unwrap();
-    assert_eq!(csv.lines().count(), 6);
+    assert_eq!(csv.lines().count(), 7);
     assert!(csv.starts_with("name,build_ms,optimize_ms"));
     let svg = std::fs::read_to_string(&svg).unwrap();
     assert!(svg.contains("<svg") && svg.contains("lbvh+prbvh"));
