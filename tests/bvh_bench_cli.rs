@@ -36,7 +36,14 @@ fn writes_table_json_csv_and_plot() {
     let (json, csv, svg) = (dir.join("r.json"), dir.join("r.csv"), dir.join("r.svg"));
     let out = bench()
         .arg(&obj)
-        .args(["--builders", "lbvh,lbvh+prbvh,binned-sah,obvhs-fastest,ploc,lbvh+rbvh", "--runs", "2", "--resolution", "64"])
+        .args([
+            "--builders",
+            "lbvh,lbvh+prbvh,binned-sah,obvhs-fastest,ploc,lbvh+rbvh",
+            "--runs",
+            "2",
+            "--resolution",
+            "64",
+        ])
         .arg("--json")
         .arg(&json)
         .arg("--csv")
