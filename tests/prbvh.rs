@@ -4,8 +4,9 @@
 mod common;
 
 use arbor::bvh::prbvh::{self, LockStrategy, PrbvhConfig, find_best_output, reinsert};
-use arbor::bvh::{Bvh, INVALID_INDEX, binned_sah, lbvh, refit_sequential, sah_cost, validate};
+use arbor::bvh::{Bvh, BvhNode, INVALID_INDEX, binned_sah, lbvh, refit_sequential, sah_cost, validate};
 use arbor::geometry::{Aabb, Triangle};
+use bytemuck::Zeroable;
 use common::*;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -91,6 +92,43 @@ fn search_finds_the_best_reinsertion() {
         }
     }
     assert!(checked > 300, "only {checked} nodes checked");
+}
+
+/// A chain 150 leaves deep (each internal node holds one leaf and the rest of the chain): the
+/// search keeps per-depth values for 64 levels and recomputes below that; both must agree with
+/// brute force.
+#[test]
+fn search_is_exact_in_very_deep_trees() {
+    let n = 150usize;
+    let mut r = rng(31);
+    let prims = aabbs(&random_triangles(n, 0.3, &mut r));
+    let mut nodes = vec![BvhNode::internal(Aabb::EMPTY, 2), BvhNode::zeroed()];
+    let mut parents = vec![INVALID_INDEX, INVALID_INDEX];
+    for k in 0..n - 1 {
+        let right = if k == n - 2 {
+            BvhNode::leaf(prims[n - 1], (n - 1) as u32, 1)
+        } else {
+            BvhNode::internal(Aabb::EMPTY, (2 + 2 * (k + 1)) as u32)
+        };
+        nodes.extend([BvhNode::leaf(prims[k], k as u32, 1), right]);
+        let parent = if k == 0 { 0 } else { (3 + 2 * (k - 1)) as u32 };
+        parents.extend([parent, parent]);
+    }
+    let mut bvh = Bvh { nodes: nodes.into(), parents, prim_ids: (0..n as u32).collect() };
+    refit_sequential(&mut bvh, &prims);
+    assert!(validate(&bvh, &prims).unwrap().depth > 100);
+    let scale = bvh.nodes[0].aabb().half_area() as f64;
+    // Inputs near the top, in the middle and at the bottom of the chain.
+    for input in (2..bvh.nodes.len() as u32).step_by(23).chain([bvh.nodes.len() as u32 - 1]) {
+        let (_, d) = find_best_output(&bvh, input);
+        let best = valid_outputs(&bvh, input)
+            .into_iter()
+            .map(|o| true_decrease(&bvh, &prims, input, o))
+            .fold(0.0f64, f64::max);
+        // `d` sums one f32 term per level: the tolerance grows with the decrease itself.
+        let tolerance = 1e-5 * (scale + best.abs());
+        assert!((d as f64 - best).abs() <= tolerance, "node {input}: search {d}, brute force {best}");
+    }
 }
 
 #[test]

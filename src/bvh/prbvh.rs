@@ -445,25 +445,42 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
     let mut out_best = out;
     let mut pivot = parent;
     let mut down = true;
+    // The growth added to `d` at each depth below the pivot's child, to take back on the way up
+    // without reloading the node (the paper recomputes it; the values are the same bits).
+    // Deeper than the array, it is recomputed.
+    const KEPT: usize = 64;
+    let mut growth = [0.0f32; KEPT];
+    let mut depth = 0usize;
     loop {
-        let b_out = bbox(out);
-        let b_merged = b_in.union(b_out);
         if down {
-            let d_direct = a_parent - b_merged.area();
+            let node = &nodes[out as usize];
+            let b_out = Box4::of(node);
+            let a_merged = b_in.union(b_out).area();
+            let d_direct = a_parent - a_merged;
             if d_best < d_direct + d {
                 d_best = d_direct + d;
                 out_best = out;
             }
-            d += b_out.area() - b_merged.area();
-            if nodes[out as usize].is_leaf() || d_bound + d <= d_best {
+            let g = b_out.area() - a_merged;
+            if depth < KEPT {
+                growth[depth] = g;
+            }
+            d += g;
+            if node.is_leaf() || d_bound + d <= d_best {
                 down = false;
             } else {
-                out = nodes[out as usize].first;
+                out = node.first;
+                depth += 1;
             }
         } else {
-            d -= b_out.area() - b_merged.area();
+            d -= if depth < KEPT {
+                growth[depth]
+            } else {
+                let b_out = bbox(out);
+                b_out.area() - b_in.union(b_out).area()
+            };
             if pivot == parents[out as usize] {
-                b_pivot = b_pivot.union(b_out);
+                b_pivot = b_pivot.union(bbox(out));
                 out = pivot;
                 let a_out = bbox(out).area();
                 if out != parent {
@@ -484,12 +501,14 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
                 out = pivot ^ 1;
                 pivot = parents[out as usize];
                 down = true;
+                depth = 0;
             } else if out % 2 == 0 {
                 // Came up from a left child: its right sibling is next.
                 out += 1;
                 down = true;
             } else {
                 out = parents[out as usize];
+                depth -= 1;
             }
         }
     }
