@@ -91,10 +91,17 @@ impl FromStr for Builder {
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let unknown = || UnknownBuilder {
             name: s.to_owned(),
-            known: Builder::names().join(", ") + "; PLOC with another radius: ploc-R (R from 1 to 1024)",
+            known: Builder::names().join(", ")
+                + "; PLOC with another radius: ploc-R (R from 1 to 1024); `prbvh` and `rbvh` alone mean lbvh+prbvh and lbvh+rbvh",
         };
-        let (base, optimize) = match s.split_once('+') {
-            None => (s, None),
+        // The paper's names for its methods, which start from LBVH (section 6).
+        let s_full = match s {
+            "prbvh" => "lbvh+prbvh",
+            "rbvh" => "lbvh+rbvh",
+            other => other,
+        };
+        let (base, optimize) = match s_full.split_once('+') {
+            None => (s_full, None),
             Some((b, "prbvh")) => (b, Some(Optimizer::Prbvh(LockStrategy::Aggressive))),
             Some((b, "prbvh-conservative")) => (b, Some(Optimizer::Prbvh(LockStrategy::Conservative))),
             Some((b, "rbvh")) => (b, Some(Optimizer::Rbvh)),
@@ -211,6 +218,8 @@ mod tests {
         assert!("lbvh+prbvh+prbvh".parse::<Builder>().is_err());
         assert_eq!("ploc-100+prbvh".parse::<Builder>().unwrap().to_string(), "ploc-100+prbvh");
         assert_eq!("ploc-16".parse::<Builder>().unwrap().to_string(), "ploc");
+        assert_eq!("rbvh".parse::<Builder>().unwrap().to_string(), "lbvh+rbvh");
+        assert_eq!("prbvh".parse::<Builder>().unwrap().to_string(), "lbvh+prbvh");
         for bad in ["ploc-0", "ploc-x", "ploc-", "ploc-99999"] {
             assert!(bad.parse::<Builder>().is_err(), "{bad}");
         }
