@@ -82,6 +82,9 @@ pub fn build(prim_aabbs: &[Aabb], config: &PlocConfig) -> Bvh {
             let shared_parents = SharedSlice::new(&mut parents);
             merge(&clusters, &neighbours, top, &shared_nodes, &shared_parents, &mut next)
         };
+        // The closest pair in any window is always mutual (module docs), so this cannot fail
+        // unless that argument is broken; better a panic than an endless loop.
+        assert!(merged > 0, "PLOC: no mutual nearest neighbours among {} clusters", clusters.len());
         top -= 2 * merged as u32;
         std::mem::swap(&mut clusters, &mut next);
     }
