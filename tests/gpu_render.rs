@@ -15,10 +15,10 @@ use arbor::bvh::builders::Builder;
 use arbor::geometry::{Triangle, TriangleMesh};
 use arbor::gpu::GpuContext;
 use arbor::gpu::trace::{self, Features, GpuScene};
-use arbor::image_io::Image;
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
 use arbor::scene::Scene;
+use common::irradiance::{self, region};
 use common::{gpu_or_skip, z_for_two_sided_p};
 use glam::Vec3;
 
@@ -45,23 +45,6 @@ fn render_cpu(scene: &RenderScene, seed: u64, spp: u32, max_depth: u32) -> Film 
     scene.render(&mut film, seed, max_depth, 0..spp, &|_| {});
     assert_eq!(film.non_finite_count(), 0, "non-finite samples on the CPU");
     film
-}
-
-/// Mean and standard error of the mean over the pixels `mask` selects, per channel.
-fn region(mean: &Image, stderr: &Image, mask: impl Fn(u32, u32) -> bool) -> (Vec3, Vec3) {
-    let (mut sum, mut var, mut n) = (glam::DVec3::ZERO, glam::DVec3::ZERO, 0usize);
-    for y in 0..mean.height {
-        for x in 0..mean.width {
-            if mask(x, y) {
-                let i = (y * mean.width + x) as usize;
-                sum += Vec3::from(mean.pixels[i]).as_dvec3();
-                var += (Vec3::from(stderr.pixels[i]) * Vec3::from(stderr.pixels[i])).as_dvec3();
-                n += 1;
-            }
-        }
-    }
-    let n = n as f64;
-    ((sum / n).as_vec3(), (var.powf(0.5) / n).as_vec3())
 }
 
 /// A convex sphere of albedo 0.8 under environment radiance 1 reads exactly 0.8 (f32 on the GPU:
@@ -111,24 +94,12 @@ fn closed_shell_sums_the_geometric_series_on_the_gpu() {
         let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
         let (rs, _) = RenderScene::build(&scene, &lbvh());
         let film = render_gpu(ctx, &rs, 0, 64, depth);
-        let (mean, se) = region(&film.mean(), &film.stderr(), |_, _| true);
+        let (mean, se, _) = region(&film.mean(), &film.stderr(), |_, _| true);
         let expected = (1.0 - a.powi(depth as i32)) / (1.0 - a);
         let z = ((mean - Vec3::splat(expected)).abs() / se.max(Vec3::splat(1e-7))).max_element();
         eprintln!("GPU shell a = {a}, D = {depth}: mean {mean}, expected {expected}, standard error {se}, z {z:.2}");
         assert!(z <= 3.0, "a = {a}, D = {depth}: {mean} vs {expected} (standard error {se})");
     }
-}
-
-/// Irradiance from a polygon of radiance `l` at `p` with normal `n` (Lambert's formula).
-fn polygon_irradiance(p: Vec3, n: Vec3, vertices: &[Vec3], l: f32) -> f32 {
-    let u: Vec<Vec3> = vertices.iter().map(|v| (*v - p).normalize()).collect();
-    let mut sum = 0.0f64;
-    for i in 0..u.len() {
-        let (a, b) = (u[i], u[(i + 1) % u.len()]);
-        let theta = f64::from(a.dot(b)).clamp(-1.0, 1.0).acos();
-        sum += theta * f64::from(n.dot(a.cross(b).normalize()));
-    }
-    (0.5 * f64::from(l) * sum.abs()) as f32
 }
 
 /// A diffuse floor under a square light, direct light only: each 8x8 block matches `albedo/π · E`
@@ -138,59 +109,11 @@ fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
     let Some(ctx) = gpu_or_skip("irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu") else {
         return;
     };
-    let (albedo, radiance, half, height) = (0.5f32, 10.0f32, 0.25f32, 1.0f32);
-    let text = format!(
-        "[camera]\nposition = [0, 2.5, 3]\nlook_at = [0, 0, 0.5]\nfov = 30\nresolution = [48, 48]\n\n\
-         [materials.floor]\ntype = \"diffuse\"\nalbedo = [{albedo}, {albedo}, {albedo}]\n\n\
-         [materials.lamp]\ntype = \"emissive\"\nradiance = [{radiance}, {radiance}, {radiance}]\n\n\
-         [[objects]]\nshape = \"quad\"\nmaterial = \"floor\"\nrotate = [-90, 0, 0]\nscale = 10\n\n\
-         [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [0, {height}, 0]\nrotate = [90, 0, 0]\nscale = {half}\n"
-    );
-    let scene = Scene::parse(&text, std::env::temp_dir().join("arbor-gpu-irradiance.toml")).unwrap();
+    let scene =
+        Scene::parse(&irradiance::scene_text(), std::env::temp_dir().join("arbor-gpu-irradiance.toml")).unwrap();
     let (rs, _) = RenderScene::build(&scene, &lbvh());
     let film = render_gpu(ctx, &rs, 0, 256, 2);
-    let (image, stderr) = (film.mean(), film.stderr());
-    let camera = arbor::render::camera::CameraModel::new(&scene.camera);
-    let light = [
-        Vec3::new(-half, height, -half),
-        Vec3::new(half, height, -half),
-        Vec3::new(half, height, half),
-        Vec3::new(-half, height, half),
-    ];
-    let expected = |x: u32, y: u32| -> Option<f32> {
-        let mut sum = 0.0;
-        for k in 0..16 {
-            let film_pos =
-                glam::Vec2::new(x as f32 + (k % 4) as f32 * 0.25 + 0.125, y as f32 + (k / 4) as f32 * 0.25 + 0.125);
-            let ray = camera.ray(film_pos, glam::Vec2::ZERO);
-            let t_floor = -ray.origin.y / ray.dir.y;
-            let t_light = (height - ray.origin.y) / ray.dir.y;
-            let at_light = ray.at(t_light);
-            if t_light > 0.0 && at_light.x.abs() <= half * 1.05 && at_light.z.abs() <= half * 1.05 {
-                return None;
-            }
-            let p = ray.at(t_floor);
-            if t_floor.is_nan() || t_floor <= 0.0 || p.x.abs() > 10.0 || p.z.abs() > 10.0 {
-                return None;
-            }
-            sum += albedo / std::f32::consts::PI * polygon_irradiance(p, Vec3::Y, &light, radiance);
-        }
-        Some(sum / 16.0)
-    };
-    let (mut worst, mut blocks) = (0.0f32, 0);
-    for by in 0..6 {
-        for bx in 0..6 {
-            let pixels: Vec<(u32, u32)> = (0..64).map(|k| (bx * 8 + k % 8, by * 8 + k / 8)).collect();
-            let Some(want): Option<Vec<f32>> = pixels.iter().map(|&(x, y)| expected(x, y)).collect() else { continue };
-            let want = want.iter().sum::<f32>() / 64.0;
-            let (got, se) = region(&image, &stderr, |x, y| x / 8 == bx && y / 8 == by);
-            let z = (got.x - want).abs() / se.x.max(1e-7);
-            worst = worst.max(z);
-            blocks += 1;
-            assert!(z <= 3.0, "block ({bx}, {by}): {} vs closed form {want} (standard error {})", got.x, se.x);
-        }
-    }
-    assert!(blocks >= 20, "only {blocks} blocks see the floor alone");
+    let (blocks, worst) = irradiance::check(&scene, &film);
     eprintln!("GPU irradiance: {blocks} blocks, worst z {worst:.2}");
 }
 

@@ -5,11 +5,13 @@
 
 mod common;
 
+use common::irradiance::{self, region};
+
 use std::path::{Path, PathBuf};
 
 use arbor::bvh::builders::Builder;
 use arbor::geometry::TriangleMesh;
-use arbor::image_io::{Image, read_exr};
+use arbor::image_io::read_exr;
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
 use arbor::scene::Scene;
@@ -21,23 +23,6 @@ fn render(scene: &Scene, spp: u32, max_depth: u32) -> Film {
     rs.render(&mut film, scene.render.seed, max_depth, 0..spp, &|_| {});
     assert_eq!(film.non_finite_count(), 0, "non-finite samples");
     film
-}
-
-/// Mean and standard error of the mean over the pixels `mask` selects, per channel.
-fn region(mean: &Image, stderr: &Image, mask: impl Fn(u32, u32) -> bool) -> (Vec3, Vec3, usize) {
-    let (mut sum, mut var, mut n) = (Vec3::ZERO.as_dvec3(), Vec3::ZERO.as_dvec3(), 0usize);
-    for y in 0..mean.height {
-        for x in 0..mean.width {
-            if mask(x, y) {
-                let i = (y * mean.width + x) as usize;
-                sum += Vec3::from(mean.pixels[i]).as_dvec3();
-                var += (Vec3::from(stderr.pixels[i]) * Vec3::from(stderr.pixels[i])).as_dvec3();
-                n += 1;
-            }
-        }
-    }
-    let n_f = n as f64;
-    ((sum / n_f).as_vec3(), (var.powf(0.5) / n_f).as_vec3(), n)
 }
 
 /// Which pixels a region covers.
@@ -171,80 +156,13 @@ fn closed_shell_sums_the_geometric_series() {
     }
 }
 
-/// Irradiance from a polygon of radiance `l` at point `p` with normal `n` (Lambert's formula):
-/// `E = l/2 Σ θ_i n·(u_i × u_{i+1})/|u_i × u_{i+1}|`, `u_i` the unit directions to the vertices.
-fn polygon_irradiance(p: Vec3, n: Vec3, vertices: &[Vec3], l: f32) -> f32 {
-    let u: Vec<Vec3> = vertices.iter().map(|v| (*v - p).normalize()).collect();
-    let mut sum = 0.0f64;
-    for i in 0..u.len() {
-        let (a, b) = (u[i], u[(i + 1) % u.len()]);
-        let theta = (a.dot(b) as f64).clamp(-1.0, 1.0).acos();
-        sum += theta * n.dot(a.cross(b).normalize()) as f64;
-    }
-    (0.5 * l as f64 * sum.abs()) as f32
-}
-
 /// A diffuse floor under a square area light, direct light only: each 8x8 block of pixels
 /// must match `albedo/π · E` from the closed form, within 3 standard errors.
 #[test]
 fn irradiance_under_a_square_light_matches_the_closed_form() {
-    let (albedo, radiance, half, height) = (0.5f32, 10.0f32, 0.25f32, 1.0f32);
-    let scene = scene_from(
-        &format!(
-            "[camera]\nposition = [0, 2.5, 3]\nlook_at = [0, 0, 0.5]\nfov = 30\nresolution = [48, 48]\n\n\
-             [materials.floor]\ntype = \"diffuse\"\nalbedo = [{albedo}, {albedo}, {albedo}]\n\n\
-             [materials.lamp]\ntype = \"emissive\"\nradiance = [{radiance}, {radiance}, {radiance}]\n\n\
-             [[objects]]\nshape = \"quad\"\nmaterial = \"floor\"\nrotate = [-90, 0, 0]\nscale = 10\n\n\
-             [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [0, {height}, 0]\nrotate = [90, 0, 0]\nscale = {half}\n"
-        ),
-        "irradiance",
-    );
+    let scene = scene_from(&irradiance::scene_text(), "irradiance");
     let film = render(&scene, 256, 2);
-    let (image, stderr) = (film.mean(), film.stderr());
-    let camera = arbor::render::camera::CameraModel::new(&scene.camera);
-    let light = [
-        Vec3::new(-half, height, -half),
-        Vec3::new(half, height, -half),
-        Vec3::new(half, height, half),
-        Vec3::new(-half, height, half),
-    ];
-    // Expected pixel value: the floor's radiance averaged over 4x4 points of the pixel, or None
-    // where the pixel sees the light or misses the floor.
-    let expected = |x: u32, y: u32| -> Option<f32> {
-        let mut sum = 0.0;
-        for k in 0..16 {
-            let film_pos =
-                glam::Vec2::new(x as f32 + (k % 4) as f32 * 0.25 + 0.125, y as f32 + (k / 4) as f32 * 0.25 + 0.125);
-            let ray = camera.ray(film_pos, glam::Vec2::ZERO);
-            let t_floor = -ray.origin.y / ray.dir.y;
-            let t_light = (height - ray.origin.y) / ray.dir.y;
-            let at_light = ray.at(t_light);
-            if t_light > 0.0 && at_light.x.abs() <= half * 1.05 && at_light.z.abs() <= half * 1.05 {
-                return None;
-            }
-            let p = ray.at(t_floor);
-            if t_floor.is_nan() || t_floor <= 0.0 || p.x.abs() > 10.0 || p.z.abs() > 10.0 {
-                return None;
-            }
-            sum += albedo / std::f32::consts::PI * polygon_irradiance(p, Vec3::Y, &light, radiance);
-        }
-        Some(sum / 16.0)
-    };
-    let mut worst = 0.0f32;
-    let mut blocks = 0;
-    for by in 0..6 {
-        for bx in 0..6 {
-            let pixels: Vec<(u32, u32)> = (0..64).map(|k| (bx * 8 + k % 8, by * 8 + k / 8)).collect();
-            let Some(want): Option<Vec<f32>> = pixels.iter().map(|&(x, y)| expected(x, y)).collect() else { continue };
-            let want = want.iter().sum::<f32>() / 64.0;
-            let (got, se, _) = region(&image, &stderr, |x, y| x / 8 == bx && y / 8 == by);
-            let z = (got.x - want).abs() / se.x.max(1e-7);
-            worst = worst.max(z);
-            blocks += 1;
-            assert!(z <= 3.0, "block ({bx}, {by}): {} vs closed form {want} (standard error {})", got.x, se.x);
-        }
-    }
-    assert!(blocks >= 20, "only {blocks} blocks see the floor alone");
+    let (blocks, worst) = irradiance::check(&scene, &film);
     eprintln!("irradiance: {blocks} blocks, worst z {worst:.2}");
 }
 

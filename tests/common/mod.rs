@@ -2,6 +2,8 @@
 //! meshes.
 #![allow(dead_code)]
 
+pub mod irradiance;
+
 use std::path::PathBuf;
 
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};

@@ -1,0 +1,108 @@
+//! The analytic-irradiance check shared by the CPU and GPU render tests: a diffuse floor under a
+//! square area light, direct light only, against Lambert's closed form for a polygon's
+//! irradiance.
+
+use arbor::image_io::Image;
+use arbor::render::film::Film;
+use arbor::scene::Scene;
+use glam::Vec3;
+
+const ALBEDO: f32 = 0.5;
+const RADIANCE: f32 = 10.0;
+/// The light's half width and height above the floor.
+const HALF: f32 = 0.25;
+const HEIGHT: f32 = 1.0;
+
+/// The scene, 48×48 pixels: render it with max depth 2 (direct light only).
+pub fn scene_text() -> String {
+    let (albedo, radiance, half, height) = (ALBEDO, RADIANCE, HALF, HEIGHT);
+    format!(
+        "[camera]\nposition = [0, 2.5, 3]\nlook_at = [0, 0, 0.5]\nfov = 30\nresolution = [48, 48]\n\n\
+         [materials.floor]\ntype = \"diffuse\"\nalbedo = [{albedo}, {albedo}, {albedo}]\n\n\
+         [materials.lamp]\ntype = \"emissive\"\nradiance = [{radiance}, {radiance}, {radiance}]\n\n\
+         [[objects]]\nshape = \"quad\"\nmaterial = \"floor\"\nrotate = [-90, 0, 0]\nscale = 10\n\n\
+         [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [0, {height}, 0]\nrotate = [90, 0, 0]\nscale = {half}\n"
+    )
+}
+
+/// Irradiance from a polygon of radiance `l` at point `p` with normal `n` (Lambert's formula):
+/// `E = l/2 Σ θ_i n·(u_i × u_{i+1})/|u_i × u_{i+1}|`, `u_i` the unit directions to the vertices.
+pub fn polygon_irradiance(p: Vec3, n: Vec3, vertices: &[Vec3], l: f32) -> f32 {
+    let u: Vec<Vec3> = vertices.iter().map(|v| (*v - p).normalize()).collect();
+    let mut sum = 0.0f64;
+    for i in 0..u.len() {
+        let (a, b) = (u[i], u[(i + 1) % u.len()]);
+        let theta = f64::from(a.dot(b)).clamp(-1.0, 1.0).acos();
+        sum += theta * f64::from(n.dot(a.cross(b).normalize()));
+    }
+    (0.5 * f64::from(l) * sum.abs()) as f32
+}
+
+/// Mean and standard error of the mean over the pixels `mask` selects, per channel, and their
+/// number.
+pub fn region(mean: &Image, stderr: &Image, mask: impl Fn(u32, u32) -> bool) -> (Vec3, Vec3, usize) {
+    let (mut sum, mut var, mut n) = (glam::DVec3::ZERO, glam::DVec3::ZERO, 0usize);
+    for y in 0..mean.height {
+        for x in 0..mean.width {
+            if mask(x, y) {
+                let i = (y * mean.width + x) as usize;
+                sum += Vec3::from(mean.pixels[i]).as_dvec3();
+                var += (Vec3::from(stderr.pixels[i]) * Vec3::from(stderr.pixels[i])).as_dvec3();
+                n += 1;
+            }
+        }
+    }
+    let n_f = n as f64;
+    ((sum / n_f).as_vec3(), (var.powf(0.5) / n_f).as_vec3(), n)
+}
+
+/// Asserts that every 8×8 block of `film` that sees only the floor matches `albedo/π · E` from
+/// the closed form within 3 standard errors, and that at least 20 blocks do; returns the number
+/// of blocks and the worst |z|.
+pub fn check(scene: &Scene, film: &Film) -> (usize, f32) {
+    let (image, stderr) = (film.mean(), film.stderr());
+    let camera = arbor::render::camera::CameraModel::new(&scene.camera);
+    let light = [
+        Vec3::new(-HALF, HEIGHT, -HALF),
+        Vec3::new(HALF, HEIGHT, -HALF),
+        Vec3::new(HALF, HEIGHT, HALF),
+        Vec3::new(-HALF, HEIGHT, HALF),
+    ];
+    // Expected pixel value: the floor's radiance averaged over 4x4 points of the pixel, or None
+    // where the pixel sees the light or misses the floor.
+    let expected = |x: u32, y: u32| -> Option<f32> {
+        let mut sum = 0.0;
+        for k in 0..16 {
+            let film_pos =
+                glam::Vec2::new(x as f32 + (k % 4) as f32 * 0.25 + 0.125, y as f32 + (k / 4) as f32 * 0.25 + 0.125);
+            let ray = camera.ray(film_pos, glam::Vec2::ZERO);
+            let t_floor = -ray.origin.y / ray.dir.y;
+            let t_light = (HEIGHT - ray.origin.y) / ray.dir.y;
+            let at_light = ray.at(t_light);
+            if t_light > 0.0 && at_light.x.abs() <= HALF * 1.05 && at_light.z.abs() <= HALF * 1.05 {
+                return None;
+            }
+            let p = ray.at(t_floor);
+            if t_floor.is_nan() || t_floor <= 0.0 || p.x.abs() > 10.0 || p.z.abs() > 10.0 {
+                return None;
+            }
+            sum += ALBEDO / std::f32::consts::PI * polygon_irradiance(p, Vec3::Y, &light, RADIANCE);
+        }
+        Some(sum / 16.0)
+    };
+    let (mut worst, mut blocks) = (0.0f32, 0);
+    for by in 0..6 {
+        for bx in 0..6 {
+            let pixels: Vec<(u32, u32)> = (0..64).map(|k| (bx * 8 + k % 8, by * 8 + k / 8)).collect();
+            let Some(want): Option<Vec<f32>> = pixels.iter().map(|&(x, y)| expected(x, y)).collect() else { continue };
+            let want = want.iter().sum::<f32>() / 64.0;
+            let (got, se, _) = region(&image, &stderr, |x, y| x / 8 == bx && y / 8 == by);
+            let z = (got.x - want).abs() / se.x.max(1e-7);
+            worst = worst.max(z);
+            blocks += 1;
+            assert!(z <= 3.0, "block ({bx}, {by}): {} vs closed form {want} (standard error {})", got.x, se.x);
+        }
+    }
+    assert!(blocks >= 20, "only {blocks} blocks see the floor alone");
+    (blocks, worst)
+}
