@@ -12,13 +12,13 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use arbor::bvh::builders::Builder;
-use arbor::geometry::{Triangle, TriangleMesh};
+use arbor::geometry::Triangle;
 use arbor::gpu::GpuContext;
 use arbor::gpu::trace::{self, Features, GpuScene};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
 use arbor::scene::Scene;
-use common::irradiance::{self, region};
+use common::analytic::{self, region};
 use common::{gpu_or_skip, z_for_two_sided_p};
 use glam::Vec3;
 
@@ -68,38 +68,14 @@ fn furnace_sphere_is_exactly_its_albedo_on_the_gpu() {
     }
 }
 
-/// A camera inside a closed diffuse shell of albedo `a` emitting 1 sees `(1 - a^D) / (1 - a)` at
-/// max depth D, within 3 standard errors.
+/// A camera inside a closed emitting shell sees a geometric series (`analytic::check_closed_shell`).
 #[test]
 fn closed_shell_sums_the_geometric_series_on_the_gpu() {
     let Some(ctx) = gpu_or_skip("closed_shell_sums_the_geometric_series_on_the_gpu") else { return };
-    let dir = std::env::temp_dir().join(format!("arbor-gpu-shell-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let sphere = TriangleMesh::icosphere(3);
-    let mut obj = String::new();
-    for p in &sphere.positions {
-        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &sphere.indices {
-        obj += &format!("f {} {} {}\n", t[0] + 1, t[2] + 1, t[1] + 1);
-    }
-    std::fs::write(dir.join("shell.obj"), obj).unwrap();
-    for (a, depth) in [(0.5f32, 4u32), (0.8, 3), (0.3, 1)] {
-        let text = format!(
-            "[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nfov = 60\nresolution = [24, 24]\n\n\
-             [materials.shell]\ntype = \"emissive\"\nradiance = [1, 1, 1]\nalbedo = [{a}, {a}, {a}]\n\n\
-             [[objects]]\nmesh = \"shell.obj\"\nmaterial = \"shell\"\n"
-        );
-        std::fs::write(dir.join("scene.toml"), text).unwrap();
-        let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
-        let (rs, _) = RenderScene::build(&scene, &lbvh());
-        let film = render_gpu(ctx, &rs, 0, 64, depth);
-        let (mean, se, _) = region(&film.mean(), &film.stderr(), |_, _| true);
-        let expected = (1.0 - a.powi(depth as i32)) / (1.0 - a);
-        let z = ((mean - Vec3::splat(expected)).abs() / se.max(Vec3::splat(1e-7))).max_element();
-        eprintln!("GPU shell a = {a}, D = {depth}: mean {mean}, expected {expected}, standard error {se}, z {z:.2}");
-        assert!(z <= 3.0, "a = {a}, D = {depth}: {mean} vs {expected} (standard error {se})");
-    }
+    analytic::check_closed_shell("gpu", |scene, depth| {
+        let (rs, _) = RenderScene::build(scene, &lbvh());
+        render_gpu(ctx, &rs, 0, 64, depth)
+    });
 }
 
 /// A diffuse floor under a square light, direct light only: each 8x8 block matches `albedo/π · E`
@@ -110,10 +86,11 @@ fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
         return;
     };
     let scene =
-        Scene::parse(&irradiance::scene_text(), std::env::temp_dir().join("arbor-gpu-irradiance.toml")).unwrap();
+        Scene::parse(&analytic::irradiance_scene_text(), std::env::temp_dir().join("arbor-gpu-irradiance.toml"))
+            .unwrap();
     let (rs, _) = RenderScene::build(&scene, &lbvh());
     let film = render_gpu(ctx, &rs, 0, 256, 2);
-    let (blocks, worst) = irradiance::check(&scene, &film);
+    let (blocks, worst) = analytic::check_irradiance(&scene, &film);
     eprintln!("GPU irradiance: {blocks} blocks, worst z {worst:.2}");
 }
 

@@ -5,12 +5,11 @@
 
 mod common;
 
-use common::irradiance::{self, region};
+use common::analytic::{self, region};
 
 use std::path::{Path, PathBuf};
 
 use arbor::bvh::builders::Builder;
-use arbor::geometry::TriangleMesh;
 use arbor::image_io::read_exr;
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
@@ -122,47 +121,19 @@ fn furnace_sphere_is_exactly_its_albedo() {
     }
 }
 
-/// A camera inside a closed diffuse shell of albedo `a` that emits radiance 1 inward sees
-/// `1 + a + ... + a^(D-1) = (1 - a^D) / (1 - a)` at max depth D. The mean over the image must be
-/// within 3 standard errors of it.
+/// A camera inside a closed emitting shell sees a geometric series (`analytic::check_closed_shell`).
 #[test]
 fn closed_shell_sums_the_geometric_series() {
-    let dir = std::env::temp_dir().join(format!("arbor-shell-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    // An icosphere with its triangles turned inward.
-    let sphere = TriangleMesh::icosphere(3);
-    let mut obj = String::new();
-    for p in &sphere.positions {
-        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &sphere.indices {
-        obj += &format!("f {} {} {}\n", t[0] + 1, t[2] + 1, t[1] + 1);
-    }
-    std::fs::write(dir.join("shell.obj"), obj).unwrap();
-    for (a, depth) in [(0.5f32, 4u32), (0.8, 3), (0.3, 1)] {
-        let text = format!(
-            "[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nfov = 60\nresolution = [24, 24]\n\n\
-             [materials.shell]\ntype = \"emissive\"\nradiance = [1, 1, 1]\nalbedo = [{a}, {a}, {a}]\n\n\
-             [[objects]]\nmesh = \"shell.obj\"\nmaterial = \"shell\"\n"
-        );
-        std::fs::write(dir.join("scene.toml"), text).unwrap();
-        let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
-        let film = render(&scene, 64, depth);
-        let (mean, se, _) = region(&film.mean(), &film.stderr(), |_, _| true);
-        let expected = (1.0 - a.powi(depth as i32)) / (1.0 - a);
-        let z = ((mean - Vec3::splat(expected)).abs() / se.max(Vec3::splat(1e-7))).max_element();
-        eprintln!("shell a = {a}, D = {depth}: mean {mean}, expected {expected}, standard error {se}, z {z:.2}");
-        assert!(z <= 3.0, "a = {a}, D = {depth}: {mean} vs {expected} (standard error {se})");
-    }
+    analytic::check_closed_shell("cpu", |scene, depth| render(scene, 64, depth));
 }
 
 /// A diffuse floor under a square area light, direct light only: each 8x8 block of pixels
 /// must match `albedo/π · E` from the closed form, within 3 standard errors.
 #[test]
 fn irradiance_under_a_square_light_matches_the_closed_form() {
-    let scene = scene_from(&irradiance::scene_text(), "irradiance");
+    let scene = scene_from(&analytic::irradiance_scene_text(), "irradiance");
     let film = render(&scene, 256, 2);
-    let (blocks, worst) = irradiance::check(&scene, &film);
+    let (blocks, worst) = analytic::check_irradiance(&scene, &film);
     eprintln!("irradiance: {blocks} blocks, worst z {worst:.2}");
 }
 

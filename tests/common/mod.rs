@@ -2,7 +2,7 @@
 //! meshes.
 #![allow(dead_code)]
 
-pub mod irradiance;
+pub mod analytic;
 
 use std::path::PathBuf;
 

@@ -1,6 +1,6 @@
-//! The analytic-irradiance check shared by the CPU and GPU render tests: a diffuse floor under a
-//! square area light, direct light only, against Lambert's closed form for a polygon's
-//! irradiance.
+//! Exact answers shared by the CPU and GPU render tests: a closed emitting shell (a geometric
+//! series), and a diffuse floor under a square area light (Lambert's closed form for a polygon's
+//! irradiance).
 
 use arbor::image_io::Image;
 use arbor::render::film::Film;
@@ -13,8 +13,8 @@ const RADIANCE: f32 = 10.0;
 const HALF: f32 = 0.25;
 const HEIGHT: f32 = 1.0;
 
-/// The scene, 48×48 pixels: render it with max depth 2 (direct light only).
-pub fn scene_text() -> String {
+/// The irradiance scene, 48×48 pixels: render it with max depth 2 (direct light only).
+pub fn irradiance_scene_text() -> String {
     let (albedo, radiance, half, height) = (ALBEDO, RADIANCE, HALF, HEIGHT);
     format!(
         "[camera]\nposition = [0, 2.5, 3]\nlook_at = [0, 0, 0.5]\nfov = 30\nresolution = [48, 48]\n\n\
@@ -59,7 +59,7 @@ pub fn region(mean: &Image, stderr: &Image, mask: impl Fn(u32, u32) -> bool) -> 
 /// Asserts that every 8×8 block of `film` that sees only the floor matches `albedo/π · E` from
 /// the closed form within 3 standard errors, and that at least 20 blocks do; returns the number
 /// of blocks and the worst |z|.
-pub fn check(scene: &Scene, film: &Film) -> (usize, f32) {
+pub fn check_irradiance(scene: &Scene, film: &Film) -> (usize, f32) {
     let (image, stderr) = (film.mean(), film.stderr());
     let camera = arbor::render::camera::CameraModel::new(&scene.camera);
     let light = [
@@ -105,4 +105,39 @@ pub fn check(scene: &Scene, film: &Film) -> (usize, f32) {
     }
     assert!(blocks >= 20, "only {blocks} blocks see the floor alone");
     (blocks, worst)
+}
+
+/// A camera inside a closed diffuse shell of albedo `a` that emits radiance 1 inward sees
+/// `1 + a + ... + a^(D-1) = (1 - a^D) / (1 - a)` at max depth D. Renders the shell for three
+/// (a, D) with `render(scene, D)` and asserts that the image mean is within 3 standard errors of
+/// that. `tag` names the temporary folder and the printed lines.
+pub fn check_closed_shell(tag: &str, mut render: impl FnMut(&Scene, u32) -> Film) {
+    let dir = std::env::temp_dir().join(format!("arbor-shell-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // An icosphere with its triangles turned inward.
+    let sphere = arbor::geometry::TriangleMesh::icosphere(3);
+    let mut obj = String::new();
+    for p in &sphere.positions {
+        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &sphere.indices {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[2] + 1, t[1] + 1);
+    }
+    std::fs::write(dir.join("shell.obj"), obj).unwrap();
+    for (a, depth) in [(0.5f32, 4u32), (0.8, 3), (0.3, 1)] {
+        let text = format!(
+            "[camera]\nposition = [0, 0, 0]\nlook_at = [0, 0, 1]\nfov = 60\nresolution = [24, 24]\n\n\
+             [materials.shell]\ntype = \"emissive\"\nradiance = [1, 1, 1]\nalbedo = [{a}, {a}, {a}]\n\n\
+             [[objects]]\nmesh = \"shell.obj\"\nmaterial = \"shell\"\n"
+        );
+        std::fs::write(dir.join("scene.toml"), text).unwrap();
+        let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
+        let film = render(&scene, depth);
+        let (mean, se, _) = region(&film.mean(), &film.stderr(), |_, _| true);
+        let expected = (1.0 - a.powi(depth as i32)) / (1.0 - a);
+        let z = ((mean - Vec3::splat(expected)).abs() / se.max(Vec3::splat(1e-7))).max_element();
+        eprintln!("{tag} shell a = {a}, D = {depth}: mean {mean}, expected {expected}, standard error {se}, z {z:.2}");
+        assert!(z <= 3.0, "{tag}: a = {a}, D = {depth}: {mean} vs {expected} (standard error {se})");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
