@@ -114,6 +114,29 @@ fn procedural_meshes() {
     }
 }
 
+/// `--threads` sets the worker count the report gives, and the same trees come out.
+#[test]
+fn threads_option() {
+    let dir = temp_dir("threads");
+    let mut sah = Vec::new();
+    for threads in [1, 2] {
+        let json = dir.join(format!("t{threads}.json"));
+        let out = bench()
+            .args(["--procedural", "city:3000", "--builders", "lbvh+prbvh,ploc", "--runs", "1", "--resolution", "32"])
+            .args(["--threads", &threads.to_string(), "--json"])
+            .arg(&json)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(report["threads"], threads);
+        sah.push([report["builders"][0]["sah_leaf1"].clone(), report["builders"][1]["sah_leaf1"].clone()]);
+    }
+    assert_eq!(sah[0], sah[1], "the trees depend on the thread count");
+    let out = bench().args(["--procedural", "city:1000", "--threads", "0"]).output().unwrap();
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("--threads"));
+}
+
 /// Each bad input exits non-zero with a message naming what is wrong, and writes nothing.
 #[test]
 fn bad_input_is_a_clear_error() {

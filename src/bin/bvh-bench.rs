@@ -49,6 +49,10 @@ struct Args {
     /// Seed of procedural meshes.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Worker threads for building and tracing (default: all cores), e.g. 1 and then 2 to
+    /// measure how a builder scales.
+    #[arg(long)]
+    threads: Option<usize>,
     /// Write the report as JSON.
     #[arg(long, value_name = "OUT")]
     json: Option<PathBuf>,
@@ -122,6 +126,12 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = Args::parse();
+    if let Some(n) = args.threads {
+        if n == 0 {
+            bail!("--threads must be at least 1");
+        }
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
+    }
     if args.converge.is_some() {
         return run_converge(&args);
     }
@@ -587,6 +597,9 @@ fn run_memory(args: &Args) -> Result<()> {
         cmd.args(args.input.iter()).args(["--seed", &args.seed.to_string(), "--memory-child", name.trim()]);
         if let Some(p) = &args.procedural {
             cmd.args(["--procedural", p]);
+        }
+        if let Some(n) = args.threads {
+            cmd.args(["--threads", &n.to_string()]);
         }
         let out = cmd.stderr(std::process::Stdio::inherit()).output().context("running a --memory process")?;
         if !out.status.success() {
