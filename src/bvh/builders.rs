@@ -53,6 +53,9 @@ pub enum BaseBuilder {
     Obvhs(&'static str),
 }
 
+/// The largest radius `ploc-R` accepts.
+pub const PLOC_MAX_RADIUS: u32 = 1024;
+
 /// The obvhs presets' names, fastest first.
 pub const OBVHS_PRESETS: [&str; 6] = ["fastest", "very-fast", "fast", "medium", "slow", "very-slow"];
 
@@ -92,7 +95,9 @@ impl FromStr for Builder {
         let unknown = || UnknownBuilder {
             name: s.to_owned(),
             known: Builder::names().join(", ")
-                + "; PLOC with another radius: ploc-R (R from 1 to 1024); `prbvh` and `rbvh` alone mean lbvh+prbvh and lbvh+rbvh",
+                + &format!(
+                    "; PLOC with another radius: ploc-R (R from 1 to {PLOC_MAX_RADIUS}); `prbvh` and `rbvh` alone mean lbvh+prbvh and lbvh+rbvh"
+                ),
         };
         // The paper's names for its methods, which start from LBVH (section 6).
         let s_full = match s {
@@ -112,7 +117,7 @@ impl FromStr for Builder {
             "binned-sah" => BaseBuilder::BinnedSah,
             "ploc" => BaseBuilder::Ploc(PlocConfig::default().radius as u32),
             b if b.starts_with("ploc-") => match b["ploc-".len()..].parse::<u32>() {
-                Ok(r) if (1..=1024).contains(&r) => BaseBuilder::Ploc(r),
+                Ok(r) if (1..=PLOC_MAX_RADIUS).contains(&r) => BaseBuilder::Ploc(r),
                 _ => return Err(unknown()),
             },
             b if cfg!(feature = "peers") && optimize.is_none() => {

@@ -563,7 +563,7 @@ impl DynamicBvh {
         let applied = prbvh::reinsert_candidates(&mut self.bvh, &candidates, strategy, &mut self.locks);
         for r in &applied {
             let e = (r.input & !1) as usize;
-            let new_node = if r.output == r.input ^ 1 { r.parent } else { r.output } as usize;
+            let new_node = r.new_node() as usize;
             // The contents moved between slots keep their boxes; the input's old parent left
             // the tree and the new internal node joined it.
             self.area_internal += self.bvh.nodes[new_node].aabb().half_area() as f64 - r.parent_box.half_area() as f64;
@@ -576,7 +576,7 @@ impl DynamicBvh {
         }
         // Mark after every move is applied: the parent links are final.
         for r in &applied {
-            let new_node = if r.output == r.input ^ 1 { r.parent } else { r.output };
+            let new_node = r.new_node();
             for from in [self.bvh.parents[r.parent as usize], self.bvh.parents[new_node as usize]] {
                 self.mark_dirty_from(from);
             }

@@ -46,14 +46,6 @@ impl Default for PlocConfig {
     }
 }
 
-/// Half surface area, without `Aabb::half_area`'s emptiness test: every box here is a union of
-/// primitive boxes.
-#[inline(always)]
-fn area(b: &Aabb) -> f32 {
-    let e = b.max - b.min;
-    e.x * e.y + e.y * e.z + e.z * e.x
-}
-
 /// Builds a PLOC tree over primitives given by their boxes, one primitive per leaf. Like
 /// [`super::lbvh::build`], the tree does not depend on the thread count.
 pub fn build(prim_aabbs: &[Aabb], config: &PlocConfig) -> Bvh {
@@ -111,7 +103,7 @@ fn nearest_neighbours(clusters: &[BvhNode], radius: usize, out: &mut Vec<u32>) {
         let mut best: Option<(f32, usize)> = None;
         for (j, other) in boxes.iter().enumerate().take(hi + 1).skip(lo) {
             if j != i {
-                let d = area(&b.union(*other));
+                let d = b.union(*other).half_area_nonempty();
                 let d = if d.is_nan() { f32::INFINITY } else { d };
                 if best.is_none_or(|(bd, _)| d < bd) {
                     best = Some((d, j));
@@ -251,7 +243,7 @@ mod tests {
                 let mut best = (f32::INFINITY, 0, 0);
                 for i in 0..clusters.len() {
                     for j in i + 1..clusters.len() {
-                        let d = area(&clusters[i].union(clusters[j]));
+                        let d = clusters[i].union(clusters[j]).half_area_nonempty();
                         if d < best.0 {
                             best = (d, i, j);
                         }
@@ -260,14 +252,14 @@ mod tests {
                 let (_, i, j) = best;
                 let merged = clusters[i].union(clusters.swap_remove(j));
                 clusters[i] = merged;
-                internal += area(&merged) as f64;
+                internal += merged.half_area_nonempty() as f64;
             }
             let got: f64 = bvh
                 .nodes
                 .iter()
                 .enumerate()
                 .filter(|(k, m)| *k != 1 && !m.is_leaf())
-                .map(|(_, m)| area(&m.aabb()) as f64)
+                .map(|(_, m)| m.aabb().half_area_nonempty() as f64)
                 .sum();
             assert!((got - internal).abs() <= 1e-5 * internal, "n = {n}: PLOC {got}, greedy {internal}");
         }

@@ -237,13 +237,7 @@ fn iterate(
 /// The slots whose boxes are exact after `applied` but whose ancestors' boxes are stale: for
 /// each reinsertion, the input's old parent slot (now the old sibling) and the new internal node.
 pub fn changed_slots(applied: &[Reinsertion]) -> Vec<u32> {
-    applied
-        .iter()
-        .flat_map(|r| {
-            let new_node = if r.output == r.input ^ 1 { r.parent } else { r.output };
-            [r.parent, new_node]
-        })
-        .collect()
+    applied.iter().flat_map(|r| [r.parent, r.new_node()]).collect()
 }
 
 /// Scratch memory of [`refit_above`], all zero between calls.
@@ -330,6 +324,14 @@ pub struct Reinsertion {
     pub output: u32,
     pub parent: u32,
     pub parent_box: Aabb,
+}
+
+impl Reinsertion {
+    /// The slot of the new internal node: the output's, or the parent's when the output was the
+    /// input's sibling (whose content moved there).
+    pub fn new_node(&self) -> u32 {
+        if self.output == self.input ^ 1 { self.parent } else { self.output }
+    }
 }
 
 /// One round restricted to `candidates` (distinct nodes, none the root or the padding): each
@@ -515,8 +517,9 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
     (out_best, d_best)
 }
 
-/// A node's box in SIMD registers, for [`find_best_output`]: the same arithmetic as [`area`] and
-/// `Aabb::union`, in the same order, so the results are bit for bit the scalar ones.
+/// A node's box in SIMD registers, for [`find_best_output`]: the same arithmetic as
+/// [`Aabb::half_area_nonempty`] and [`Aabb::union`], in the same order, so the results are bit
+/// for bit the scalar ones.
 #[derive(Clone, Copy)]
 struct Box4 {
     min: Vec3A,
@@ -537,7 +540,7 @@ impl Box4 {
         Self { min: self.min.min(other.min), max: self.max.max(other.max) }
     }
 
-    /// Half surface area: `(x y + y z) + z x`, as [`area`] sums it.
+    /// Half surface area: `(x y + y z) + z x`, as [`Aabb::half_area_nonempty`] sums it.
     #[inline(always)]
     fn area(self) -> f32 {
         let e = self.max - self.min;
@@ -634,10 +637,7 @@ mod tests {
     /// so the search's decisions do not depend on how it is vectorised.
     #[test]
     fn simd_areas_equal_scalar_areas() {
-        let scalar = |b: &Aabb| {
-            let e = b.max - b.min;
-            e.x * e.y + e.y * e.z + e.z * e.x
-        };
+        let scalar = Aabb::half_area_nonempty;
         let boxes = crate::bvh::scattered_boxes(500, 3.0);
         for pair in boxes.windows(2) {
             let (a, b) = (pair[0], Aabb::new(pair[1].min * Vec3::new(0.3, 1.7, -2.1), pair[1].max * 1.3));

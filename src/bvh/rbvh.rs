@@ -29,7 +29,6 @@ use std::time::{Duration, Instant};
 
 use super::dynamic::best_sibling;
 use super::{Bvh, BvhNode, INVALID_INDEX, SahCosts, sah_cost_with};
-use crate::geometry::Aabb;
 
 /// Options of [`optimize`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -61,12 +60,6 @@ pub struct RbvhStats {
     pub batches: Vec<(Duration, f64)>,
     pub final_sah: f64,
     pub time: Duration,
-}
-
-#[inline(always)]
-fn area(b: &Aabb) -> f32 {
-    let e = b.max - b.min;
-    e.x * e.y + e.y * e.z + e.z * e.x
 }
 
 /// Optimises `bvh` (one primitive per leaf or not; leaves move whole) by sequential
@@ -123,8 +116,11 @@ fn select(bvh: &Bvh, count: usize, excluded: impl Fn(u32) -> bool) -> Vec<u32> {
         .filter(|&i| !nodes[i as usize].is_leaf() && !excluded(i))
         .map(|i| {
             let n = &nodes[i as usize];
-            let a = area(&n.aabb());
-            let (l, r) = (area(&nodes[n.first as usize].aabb()), area(&nodes[n.first as usize + 1].aabb()));
+            let a = n.aabb().half_area_nonempty();
+            let (l, r) = (
+                nodes[n.first as usize].aabb().half_area_nonempty(),
+                nodes[n.first as usize + 1].aabb().half_area_nonempty(),
+            );
             let m_sum = a / (0.5 * (l + r)).max(f32::MIN_POSITIVE);
             let m_min = a / l.min(r).max(f32::MIN_POSITIVE);
             (m_sum * m_min * a, i)
@@ -168,7 +164,7 @@ fn remove_and_reinsert(bvh: &mut Bvh, n: u32) {
     let s = n ^ 1;
     // The orphans, larger first.
     let (mut a, mut b) = (bvh.nodes[node.first as usize], bvh.nodes[node.first as usize + 1]);
-    if area(&b.aabb()) > area(&a.aabb()) {
+    if b.aabb().half_area_nonempty() > a.aabb().half_area_nonempty() {
         std::mem::swap(&mut a, &mut b);
     }
     // The sibling takes the parent's slot; the pair {n, s} and the orphans' pair are free.
@@ -192,6 +188,7 @@ fn remove_and_reinsert(bvh: &mut Bvh, n: u32) {
 mod tests {
     use super::*;
     use crate::bvh::{lbvh, validate};
+    use crate::geometry::Aabb;
 
     fn boxes(n: usize) -> Vec<Aabb> {
         crate::bvh::scattered_boxes(n, 0.3)

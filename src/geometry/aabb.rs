@@ -82,6 +82,13 @@ impl Aabb {
         if self.is_empty() {
             return 0.0;
         }
+        self.half_area_nonempty()
+    }
+
+    /// [`Aabb::half_area`] without the emptiness test, for boxes known to be non-empty (a node's
+    /// box, or a union with one): `(x y + y z) + z x`, summed in that order.
+    #[inline(always)]
+    pub fn half_area_nonempty(&self) -> f32 {
         let e = self.extent();
         e.x * e.y + e.y * e.z + e.z * e.x
     }
