@@ -236,27 +236,12 @@ fn radix_tree(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     }
 }
 
-// Boxes bottom-up: each leaf's thread climbs; the second child to arrive at a node computes its
-// box, the first stops (Karras 2012, section 4.2).
+// Boxes bottom-up from every leaf (`_refit.wgsl`).
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn refit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let k = linear_index(gid, groups);
     if (k >= params.prim_count) {
         return;
     }
-    var node = leaf_slots[k];
-    loop {
-        if (node == 0u) {
-            break;
-        }
-        let p = parents[node];
-        if (atomicAdd(&visits[p], 1u) == 0u) {
-            break;
-        }
-        let l = nodes[nodes[p].first];
-        let r = nodes[nodes[p].first + 1u];
-        nodes[p].aabb_min = min(l.aabb_min, r.aabb_min);
-        nodes[p].aabb_max = max(l.aabb_max, r.aabb_max);
-        node = p;
-    }
+    refit_from(leaf_slots[k]);
 }

@@ -232,21 +232,7 @@ fn refit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
     if (i >= params.node_count || i == 1u || !is_leaf(i)) {
         return;
     }
-    var node = i;
-    loop {
-        if (node == 0u) {
-            break;
-        }
-        let p = parents[node];
-        if (atomicAdd(&visits[p], 1u) == 0u) {
-            break;
-        }
-        let l = nodes[nodes[p].first];
-        let r = nodes[nodes[p].first + 1u];
-        nodes[p].aabb_min = min(l.aabb_min, r.aabb_min);
-        nodes[p].aabb_max = max(l.aabb_max, r.aabb_max);
-        node = p;
-    }
+    refit_from(i);
 }
 
 fn reduce_sum(lid: u32) {

@@ -28,8 +28,9 @@ use crate::bvh::{Bvh, Nodes};
 use crate::geometry::Aabb;
 use crate::geometry::morton::MortonQuantizer;
 
-fn source() -> String {
-    with_prelude(include_str!("../../shaders/lbvh.wgsl"))
+/// The LBVH shader with the shared refit (`_refit.wgsl`) appended.
+pub fn source() -> String {
+    with_prelude(&[include_str!("../../shaders/lbvh.wgsl"), include_str!("../../shaders/_refit.wgsl")].concat())
 }
 
 /// What a GPU build cost: upload, the kernels (sort included), readback.

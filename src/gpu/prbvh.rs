@@ -46,9 +46,9 @@ impl LockScheme {
     }
 }
 
-/// The PRBVH shader, with the 64-bit lock kernels appended when asked.
+/// The PRBVH shader with the shared refit, and the 64-bit lock kernels appended when asked.
 pub fn source(int64: bool) -> String {
-    let mut kernel = include_str!("../../shaders/prbvh.wgsl").to_owned();
+    let mut kernel = [include_str!("../../shaders/prbvh.wgsl"), include_str!("../../shaders/_refit.wgsl")].concat();
     if int64 {
         kernel += include_str!("../../shaders/_prbvh_lock64.wgsl");
     }
