@@ -164,6 +164,9 @@ fn bad_input_is_a_clear_error() {
         assert!(!out.status.success(), "{args:?} should fail");
         assert!(stderr.contains(expected), "{args:?}: expected `{expected}` in: {stderr}");
         assert!(!json.exists(), "{args:?} wrote output");
+        // The reason once, not once per level of the error chain.
+        let reason = "(os error 2)";
+        assert!(stderr.matches(reason).count() <= 1, "{args:?}: repeated reason in: {stderr}");
     }
 }
 

@@ -73,6 +73,7 @@ fn errors_are_clear_and_leave_nothing_behind() {
         assert!(!o.status.success(), "{args:?} should fail");
         assert!(stderr.contains(expected), "{args:?}: expected `{expected}` in {stderr}");
         assert!(!out.exists(), "{args:?} wrote an image");
+        assert!(stderr.matches("(os error 2)").count() <= 1, "{args:?}: repeated reason in {stderr}");
     }
     let o = render().arg(scene("furnace.toml")).arg("-o").arg(dir.join("out.jpg")).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("supported: .exr, .png"));

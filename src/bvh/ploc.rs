@@ -13,8 +13,14 @@
 //!
 //!    Until one cluster is left. Every iteration merges at least the globally closest pair
 //!    within the window, so it ends.
-//! 3. Ties between distances are broken by the pair's indices, so that "nearest" is a strict
-//!    order and the result does not depend on the thread count.
+//! 3. Ties between distances are broken first by the pair's distance in the order, then by a
+//!    hash of the pair's indices, so that "nearest" is a strict order on pairs and the result
+//!    does not depend on the thread count. The hash is what keeps degenerate input fast: where
+//!    many merged areas are equal (duplicated triangles, or boxes flat in two axes, whose merged
+//!    boxes all have area 0), breaking ties by the lower index makes every cluster pick its left
+//!    neighbour, so that one pair per iteration is mutual and the build takes O(n) iterations.
+//!    With the hash, each cluster picks the adjacent pair with the lower hash, about a third of
+//!    the pairs are mutual, and the build takes O(log n) iterations again.
 //!
 //! Layout: a merge writes its two clusters into the next free sibling pair, taken from the end
 //! of the array downward in merge order (so the pairs of one iteration are contiguous), and the
@@ -49,11 +55,16 @@ impl Default for PlocConfig {
 /// Builds a PLOC tree over primitives given by their boxes, one primitive per leaf. Like
 /// [`super::lbvh::build`], the tree does not depend on the thread count.
 pub fn build(prim_aabbs: &[Aabb], config: &PlocConfig) -> Bvh {
+    build_counting(prim_aabbs, config).0
+}
+
+/// [`build`], also returning the number of clustering iterations.
+fn build_counting(prim_aabbs: &[Aabb], config: &PlocConfig) -> (Bvh, usize) {
     let n = prim_aabbs.len();
     assert!(n < (1 << 31), "PLOC supports fewer than 2^31 primitives, got {n}");
     assert!(config.radius >= 1, "PLOC needs a radius of at least 1");
     if n <= 1 {
-        return Bvh::single_leaf(prim_aabbs);
+        return (Bvh::single_leaf(prim_aabbs), 0);
     }
     let (_, prim_ids) = super::lbvh::sorted_morton_codes(prim_aabbs);
     let len = 2 * n;
@@ -67,7 +78,9 @@ pub fn build(prim_aabbs: &[Aabb], config: &PlocConfig) -> Bvh {
     let mut neighbours: Vec<u32> = Vec::with_capacity(n);
     // Pairs are taken from the top: the next merge writes slots `top - 2` and `top - 1`.
     let mut top = len as u32;
+    let mut iterations = 0usize;
     while clusters.len() > 1 {
+        iterations += 1;
         nearest_neighbours(&clusters, config.radius, &mut neighbours);
         let merged = {
             let shared_nodes = SharedSlice::new(&mut nodes);
@@ -85,19 +98,17 @@ pub fn build(prim_aabbs: &[Aabb], config: &PlocConfig) -> Bvh {
     nodes[0] = root;
     parents[root.first as usize] = 0;
     parents[root.first as usize + 1] = 0;
-    Bvh { nodes, parents, prim_ids }
+    (Bvh { nodes, parents, prim_ids }, iterations)
 }
 
 /// For each cluster, the index of its nearest neighbour within `radius` positions: the one whose
-/// merged box has the smallest surface area, ties going to the pair with the smaller indices.
+/// merged box has the smallest surface area, ties broken by [`tie_key`].
 fn nearest_neighbours(clusters: &[BvhNode], radius: usize, out: &mut Vec<u32>) {
     let boxes: Vec<Aabb> = clusters.par_iter().with_min_len(4096).map(BvhNode::aabb).collect();
     out.clear();
     out.par_extend((0..clusters.len()).into_par_iter().with_min_len(1024).map(|i| {
         let b = boxes[i];
         let (lo, hi) = (i.saturating_sub(radius), (i + radius).min(boxes.len() - 1));
-        // Scanning j upward with a strict `<` keeps the smallest j among equal distances; for a
-        // fixed i that is also the smallest (min(i, j), max(i, j)) pair.
         // NaN distances (from NaN boxes) count as infinite, so that every cluster has a
         // neighbour and the order stays strict.
         let mut best: Option<(f32, usize)> = None;
@@ -105,13 +116,27 @@ fn nearest_neighbours(clusters: &[BvhNode], radius: usize, out: &mut Vec<u32>) {
             if j != i {
                 let d = b.union(*other).half_area_nonempty();
                 let d = if d.is_nan() { f32::INFINITY } else { d };
-                if best.is_none_or(|(bd, _)| d < bd) {
+                let better = best.is_none_or(|(bd, bj)| d < bd || (d == bd && tie_key(i, j) < tie_key(i, bj)));
+                if better {
                     best = Some((d, j));
                 }
             }
         }
         best.map_or(i, |(_, j)| j) as u32
     }));
+}
+
+/// The order among pairs at equal distance: nearer in the Morton order first, then by a hash of
+/// the pair, then by the indices. Symmetric in `i` and `j`, so that with the distance it is a
+/// strict order on pairs, which is what makes the closest pair of any window mutual.
+#[inline]
+fn tie_key(i: usize, j: usize) -> (usize, u64, usize) {
+    let (a, b) = (i.min(j), i.max(j));
+    // SplitMix64's finaliser over both indices.
+    let mut h = ((a as u64) << 32 | b as u64).wrapping_add(0x9e37_79b9_7f4a_7c15);
+    h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    (b - a, h ^ (h >> 31), a)
 }
 
 /// Merges the mutual nearest neighbours of `clusters` into `next` (compacted, in order), writing
@@ -270,5 +295,23 @@ mod tests {
         let prims = vec![Aabb::new(Vec3::ZERO, Vec3::ONE); 100];
         let bvh = build(&prims, &PlocConfig::default());
         crate::bvh::validate(&bvh, &prims).unwrap();
+    }
+
+    /// Where every merged area ties (identical boxes; boxes flat in two axes, whose merges all
+    /// have area 0), clustering still takes a logarithmic number of iterations, not one per
+    /// primitive. Breaking ties by the lower index instead takes n - 1 iterations here.
+    #[test]
+    fn ties_still_merge_many_pairs_per_iteration() {
+        let n = 20_000;
+        let identical = vec![Aabb::new(Vec3::ZERO, Vec3::ONE); n];
+        let collinear: Vec<Aabb> =
+            (0..n).map(|i| Aabb::new(Vec3::new(i as f32, 0.0, 0.0), Vec3::new(i as f32 + 1.0, 0.0, 0.0))).collect();
+        for (name, prims) in [("identical", identical), ("collinear", collinear)] {
+            for radius in [1, 16] {
+                let (bvh, iterations) = build_counting(&prims, &PlocConfig { radius });
+                crate::bvh::validate(&bvh, &prims).unwrap_or_else(|e| panic!("{name}, r = {radius}: {e}"));
+                assert!(iterations <= 200, "{name}, r = {radius}: {iterations} iterations for {n} boxes");
+            }
+        }
     }
 }

@@ -69,11 +69,22 @@ pub fn sah_cost_with(bvh: &Bvh, costs: &SahCosts) -> f64 {
             .collect();
         partial.iter().sum()
     };
-    let root_area = bvh.nodes[0].aabb().half_area() as f64;
+    let root_area = half_area_f64(&bvh.nodes[0]);
     if root_area == 0.0 {
         return sum_by(&weight);
     }
-    sum_by(&|n| weight(n) * n.aabb().half_area() as f64) / root_area
+    sum_by(&|n| weight(n) * half_area_f64(n)) / root_area
+}
+
+/// A node's half surface area in f64: for boxes of extent beyond about 1.8e19, the f32 area
+/// overflows to infinity, and the cost would be infinity over infinity.
+fn half_area_f64(n: &BvhNode) -> f64 {
+    let b = n.aabb();
+    if b.is_empty() {
+        return 0.0;
+    }
+    let e = b.max.as_dvec3() - b.min.as_dvec3();
+    e.x * e.y + e.y * e.z + e.z * e.x
 }
 
 /// Options of [`collapse_leaves`].
@@ -113,7 +124,7 @@ fn collapse_decisions(bvh: &Bvh, config: &CollapseConfig) -> Vec<bool> {
     let out = SharedSlice::new(&mut values);
     bottom_up(&bvh.parents, &mut Vec::new(), leaves.par_iter().copied(), |i| {
         let n = &nodes[i];
-        let area = n.aabb().half_area() as f64;
+        let area = half_area_f64(n);
         let value = if n.is_leaf() {
             (ci * n.prim_count as f64 * area, n.prim_count, false)
         } else {
@@ -164,6 +175,19 @@ mod tests {
         let c = sah_cost(&two_leaves());
         assert!((c - 33.0 / 7.0).abs() < 1e-12, "{c}");
         assert_eq!(sah_cost(&Bvh::default()), 0.0);
+    }
+
+    /// Boxes of extent 1e20, whose f32 areas overflow: the cost is the same as at unit scale.
+    #[test]
+    fn cost_does_not_overflow_at_huge_scales() {
+        let mut huge = two_leaves();
+        for i in [0, 2, 3] {
+            let b = huge.nodes[i].aabb();
+            huge.nodes[i].set_aabb(Aabb::new(b.min * 1e20, b.max * 1e20));
+        }
+        assert!(huge.nodes[0].aabb().half_area().is_infinite());
+        let c = sah_cost(&huge);
+        assert!((c - 33.0 / 7.0).abs() < 1e-9, "{c}");
     }
 
     #[test]

@@ -30,14 +30,16 @@ pub struct TriangleMesh {
 /// Why an OBJ file (or an MTL file it names) cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
-    #[error("{path}: cannot read: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    /// The I/O error is part of the message, not a `source`, so that a report of the whole
+    /// error chain (`{:#}`) says it once.
+    #[error("{path}: cannot read: {error}")]
+    Read { path: PathBuf, error: std::io::Error },
     /// A line that is not valid OBJ or MTL, or not usable.
     #[error("{path}:{line}: {message}")]
     Invalid { path: PathBuf, line: usize, message: String },
     /// What tobj finds only when an object ends, past the line at fault.
-    #[error("{path}: cannot read OBJ: {source}")]
-    Obj { path: PathBuf, source: tobj::LoadError },
+    #[error("{path}: cannot read OBJ: {error}")]
+    Obj { path: PathBuf, error: tobj::LoadError },
 }
 
 impl TriangleMesh {
@@ -263,7 +265,7 @@ pub(crate) struct ObjFile {
 /// Reads the OBJ file at `path`, triangulated, and with `materials` the MTL files it names
 /// (a broken MTL file is no error here: see [`ObjFile::mtl_error`]).
 pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshError> {
-    let text = std::fs::read(path).map_err(|source| MeshError::Read { path: path.to_owned(), source })?;
+    let text = std::fs::read(path).map_err(|error| MeshError::Read { path: path.to_owned(), error })?;
     let usemtl = check_obj(path, &text)?;
     let (mtl_files, mtl_error) = (RefCell::new(Vec::new()), RefCell::new(None));
     let load_mtl = |name: &Path| {
@@ -296,7 +298,7 @@ fn load_mtl(path: &Path, error: &RefCell<Option<MeshError>>) -> tobj::MTLLoadRes
         error.borrow_mut().get_or_insert(e);
         tobj::LoadError::GenericFailure
     };
-    let text = std::fs::read(path).map_err(|source| fail(MeshError::Read { path: path.to_owned(), source }))?;
+    let text = std::fs::read(path).map_err(|error| fail(MeshError::Read { path: path.to_owned(), error }))?;
     check_mtl(path, &text).map_err(fail)?;
     let mut reader = Cursor::new(&text[..]);
     tobj::load_mtl_buf(&mut reader).map_err(|e| fail(tobj_error(path, &text, reader.position(), e)))
@@ -431,7 +433,7 @@ fn tobj_error(path: &Path, text: &[u8], read: u64, e: tobj::LoadError) -> MeshEr
             | E::FaceColorOutOfBounds
             | E::InvalidPolygon
     ) {
-        return MeshError::Obj { path, source: e };
+        return MeshError::Obj { path, error: e };
     }
     let read = &text[..usize::try_from(read).map_or(text.len(), |r| r.min(text.len()))];
     let read = read.strip_suffix(b"\n").unwrap_or(read);

@@ -38,7 +38,7 @@ const MAX_OBJECTS: u64 = MAX_SCATTER;
 const DEFAULT_PERIOD: f32 = 4.0;
 
 pub(super) fn load(path: PathBuf) -> Result<Scene, SceneError> {
-    let bytes = std::fs::read(&path).map_err(|source| SceneError::Read { file: path.clone(), source })?;
+    let bytes = std::fs::read(&path).map_err(|error| SceneError::Read { file: path.clone(), error })?;
     match String::from_utf8(bytes) {
         Ok(text) => parse(&text, path),
         Err(e) => {

@@ -121,8 +121,10 @@ pub struct Scene {
 /// What went wrong loading a scene. Each names the file, and where it can the line and key.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
-    #[error("{file}: cannot read: {source}")]
-    Read { file: PathBuf, source: std::io::Error },
+    /// The I/O error is part of the message, not a `source`, so that a report of the whole
+    /// error chain (`{:#}`) says it once.
+    #[error("{file}: cannot read: {error}")]
+    Read { file: PathBuf, error: std::io::Error },
     #[error("{file}:{line}: {key}: {message}")]
     Invalid { file: PathBuf, line: usize, key: String, message: String },
 }
