@@ -1,7 +1,7 @@
 //! Procedural meshes of any size with a fixed seed, for benchmarks beyond the shared models.
 //!
-//! - `hairball`: long thin triangles tangled inside a sphere (the paper's Hairball stress case:
-//!   heavy overlap, no good split);
+//! - `hairball`: thin triangles along tangled strands inside a sphere (the paper's Hairball
+//!   stress case: heavy overlap, no good split), with the same density at every size;
 //! - `city`: a grid of boxes of random heights on a ground plane (architecture-like: many
 //!   axis-aligned, coplanar faces);
 //! - `subdivide`: a copy of a mesh with every triangle split into four until it is large enough.
@@ -31,20 +31,46 @@ impl Pcg {
     }
 }
 
-/// `triangles` thin strands: each triangle is 0.3 long and 0.002 wide, inside the unit ball.
+/// `triangles` thin triangles along hair-like strands inside the unit ball. Each strand is a
+/// random walk of [`HAIR_SEGMENTS`] steps (the last strand may be shorter) whose direction turns
+/// a little at each step and back inward at the ball's edge; each step is one triangle, a
+/// hundredth as wide as it is long.
+///
+/// The step length is `sqrt(HAIR_DENSITY / triangles)`, at most 0.3: the sum of the triangles'
+/// squared lengths, which sets how many boxes a ray crosses, is the same at every size. A
+/// larger count is the same tangle made of finer hair, so `hairball:10M` costs about as much
+/// per ray as `hairball:100k`, and its SAH stays in the range of the real Hairball scene of
+/// Meister & Bittner 2018 (Table 1) instead of growing with the count.
 pub fn hairball(triangles: usize, seed: u64) -> TriangleMesh {
     let mut rng = Pcg(seed ^ 0x6861_6972);
     let mut mesh =
         TriangleMesh { positions: Vec::with_capacity(3 * triangles), indices: Vec::with_capacity(triangles) };
+    let step = (HAIR_DENSITY / triangles.max(1) as f32).sqrt().min(0.3);
+    let (mut p, mut dir) = (Vec3::ZERO, Vec3::X);
     for i in 0..triangles as u32 {
-        let a = rng.in_unit_ball() * 0.85;
-        let dir = rng.in_unit_ball().normalize_or(Vec3::X);
-        let side = dir.any_orthonormal_vector() * 0.002;
-        mesh.positions.extend([a, a + dir * 0.3, a + side]);
+        if i as usize % HAIR_SEGMENTS == 0 {
+            p = rng.in_unit_ball() * 0.85;
+            dir = rng.in_unit_ball().normalize_or(Vec3::X);
+        }
+        let mut next = p + dir * step;
+        if next.length_squared() > 0.95 * 0.95 {
+            dir = (-p.normalize_or(Vec3::X) + rng.in_unit_ball() * 0.5).normalize_or(-Vec3::X);
+            next = p + dir * step;
+        }
+        let side = dir.any_orthonormal_vector() * (step * 0.01);
+        mesh.positions.extend([p, next, p + side]);
         mesh.indices.push([3 * i, 3 * i + 1, 3 * i + 2]);
+        p = next;
+        dir = (dir + rng.in_unit_ball() * 0.4).normalize_or(dir);
     }
     mesh
 }
+
+/// Steps per hairball strand.
+pub const HAIR_SEGMENTS: usize = 16;
+
+/// The hairball's constant sum of squared step lengths (see [`hairball`]).
+pub const HAIR_DENSITY: f32 = 1000.0;
 
 /// A city of boxes (10 triangles each: no bottom face) on a ground quad, at least `triangles`
 /// triangles in all, on a square grid.
@@ -126,5 +152,23 @@ mod tests {
         assert_eq!(s.triangle_count(), base.triangle_count() * 64);
         let area = |m: &TriangleMesh| m.triangles().iter().map(|t| t.area() as f64).sum::<f64>();
         assert!((area(&s) - area(&base)).abs() < 1e-4 * area(&base));
+    }
+
+    /// The hairball is the same tangle at any size: inside the ball, strands joined end to end,
+    /// and the sum of squared triangle lengths equal to the density constant.
+    #[test]
+    fn hairball_density_does_not_grow_with_the_count() {
+        for n in [20_000, 200_000, 2_000_000] {
+            let h = hairball(n, 5);
+            let tris = h.triangles();
+            assert_eq!(tris.len(), n);
+            assert!(h.positions.iter().all(|p| p.length() <= 0.96), "{n}: a vertex outside the ball");
+            let squared: f64 = tris.iter().map(|t| (t.v1 - t.v0).length_squared() as f64).sum();
+            assert!((squared / HAIR_DENSITY as f64 - 1.0).abs() < 1e-3, "{n}: sum of squared lengths {squared}");
+            // Each step starts where the previous one ended, within a strand.
+            let joined =
+                tris.windows(2).enumerate().filter(|(i, w)| (i + 1) % HAIR_SEGMENTS != 0 && w[1].v0 == w[0].v1);
+            assert_eq!(joined.count(), n - n.div_ceil(HAIR_SEGMENTS));
+        }
     }
 }
