@@ -6,7 +6,7 @@
 //! Argument parsing and reporting only; the measuring is `arbor::bvh::bench`,
 //! `arbor::bvh::anim_bench` and `arbor::render::converge`.
 
-use std::io::Write;
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
@@ -17,6 +17,7 @@ use arbor::bvh::builders::Builder;
 use arbor::bvh::prbvh::PrbvhConfig;
 use arbor::geometry::{TriangleMesh, procedural};
 use clap::Parser;
+use indicatif::ProgressBar;
 
 /// Compare BVH builders: build time, SAH cost (cT = 3, cI = 2) and trace speed of primary,
 /// shadow and diffuse rays, all builders tracing the same rays.
@@ -180,7 +181,12 @@ fn run() -> Result<()> {
         prbvh: PrbvhConfig { mu: args.mu, epsilon: args.epsilon, ..Default::default() },
         ..Default::default()
     };
-    let report = bench::run(&triangles, &config).map_err(anyhow::Error::msg)?;
+    // On a terminal, a spinner says what runs: large meshes take minutes.
+    let spinner = if std::io::stderr().is_terminal() { ProgressBar::new_spinner() } else { ProgressBar::hidden() };
+    spinner.enable_steady_tick(std::time::Duration::from_millis(200));
+    let report = bench::run_with_progress(&triangles, &config, |what| spinner.set_message(what.to_owned()));
+    spinner.finish_and_clear();
+    let report = report.map_err(anyhow::Error::msg)?;
     print_table(&report);
     let series: Vec<Series> =
         report.builders.iter().map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect())).collect();

@@ -102,6 +102,17 @@ fn ray_sets(triangles: &[Triangle], prim_aabbs: &[Aabb], resolution: u32) -> Ray
 /// Runs the comparison. Fails only on a tree that does not validate (a bug); checksum
 /// disagreements are listed in the report.
 pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, String> {
+    run_with_progress(triangles, config, |_| {})
+}
+
+/// [`run`], calling `progress` with a line saying what it starts next (a build, a round of
+/// tracing): PRBVH on 10^7 triangles runs for minutes.
+pub fn run_with_progress(
+    triangles: &[Triangle],
+    config: &BenchConfig,
+    progress: impl Fn(&str),
+) -> Result<Report, String> {
+    progress("tracing the reference rays");
     let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let rays = ray_sets(triangles, &prim_aabbs, config.resolution);
     let mut report = Report {
@@ -114,7 +125,13 @@ pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, Strin
     // Build everything first, then trace in rounds that visit every builder in turn: on a
     // shared, noisy machine a slow spell then hits all builders alike instead of one of them.
     let mut meshes = Vec::with_capacity(config.builders.len());
-    for builder in &config.builders {
+    for (k, builder) in config.builders.iter().enumerate() {
+        progress(&format!(
+            "building {builder} ({} of {} builders, {} runs)",
+            k + 1,
+            config.builders.len(),
+            config.runs
+        ));
         let (r, mesh) = measure(builder, triangles, &prim_aabbs, config)?;
         report.builders.push(r);
         meshes.push(mesh);
@@ -123,6 +140,7 @@ pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, Strin
         [(&rays.primary, f32::INFINITY), (&rays.shadow, 1.0), (&rays.diffuse, f32::INFINITY)];
     let mut times = vec![[const { Vec::new() }; 3]; meshes.len()];
     for round in 0..config.runs.max(1) {
+        progress(&format!("tracing, round {} of {}", round + 1, config.runs.max(1)));
         for (b, mesh) in meshes.iter().enumerate() {
             for (k, &(set, t_max)) in sets.iter().enumerate() {
                 let (time, checksum) = trace(mesh, set, t_max);
