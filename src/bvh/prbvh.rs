@@ -13,10 +13,12 @@
 //!    higher index. The conservative strategy also claims every node on the path between input
 //!    and output, which makes the decreases of the winners add up exactly.
 //! 3. **Reinsert**: the winners, which share no node, are applied in parallel.
-//! 4. **Refit and SAH**: a parallel bottom-up refit (atomic visit counters), then the SAH by a
-//!    parallel reduction. The refit ([`refit_above`]) visits only the ancestors of the moved
-//!    nodes, counting per node its stale children instead of both: late iterations move a few
-//!    hundred nodes of several hundred thousand.
+//! 4. **Refit and SAH**: a parallel bottom-up refit (atomic visit counters), then the SAH. The
+//!    refit ([`refit_above`]) visits only the ancestors of the moved nodes, counting per node its
+//!    stale children instead of both: late iterations move a few hundred nodes of several
+//!    hundred thousand. The SAH is not summed over every node by a parallel reduction, as the
+//!    paper does, but followed from the boxes that changed ([`TrackedSah`]); it is the same
+//!    value (tested against the full sum), exactly the same for any thread count.
 //!
 //! Sparse search and termination (section 4.4.1–4.4.2): node `i` searches in iteration `I` when
 //! `I ≡ i (mod μ)`; when an iteration lowers the SAH by less than `ε`, `μ` drops by one, and at
@@ -36,6 +38,10 @@
 //!   so nothing further up can do better. It returns the same result (the brute-force test).
 //! - Surface areas are half areas (`Aabb::half_area`): the decreases are all halved, which
 //!   changes no comparison.
+//! - The search multiplies coordinates by a power of two where the scene's extent is beyond
+//!   2^±32 ([`search_scale`]), so that f32 areas neither overflow nor underflow. Exact, so it
+//!   changes no comparison; without it a scene of extent 1e20 has infinite areas and nothing is
+//!   ever pruned.
 
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -157,16 +163,18 @@ pub fn optimize_while(
     let mut previous = stats.initial_sah;
     let mut locks: Vec<AtomicU64> = Vec::new();
     let mut refit = RefitScratch::default();
+    let mut tracked = TrackedSah::new(bvh, &config.costs, stats.initial_sah);
     // A tree of fewer than three nodes has nothing to reinsert.
     let mut iteration = 0u32;
     while bvh.nodes.len() > 3 && iteration < config.max_iterations {
         let iteration_start = Instant::now();
         let (searched, candidates, applied) = iterate(bvh, iteration, mu, config.strategy, &mut locks);
         let reinsertions = applied.len();
-        refit_above(bvh, &changed_slots(&applied), &mut refit);
+        let moved = tracked.reinsertions(bvh, &applied);
+        let refitted = refit_tracking(bvh, &changed_slots(&applied), &mut refit, Some(&tracked));
         #[cfg(debug_assertions)]
         debug_validate(bvh, iteration);
-        let current = sah(bvh);
+        let current = tracked.update(moved.zip(refitted), || sah(bvh));
         stats.iterations.push(IterationStats {
             mu,
             searched,
@@ -255,6 +263,16 @@ pub struct RefitScratch {
 /// up with per-node counters of stale children (the Karras scheme, counting only stale ones).
 /// Costs the number of stale nodes, not the tree's size: late PRBVH iterations move few nodes.
 pub fn refit_above(bvh: &mut Bvh, starts: &[u32], scratch: &mut RefitScratch) {
+    refit_tracking(bvh, starts, scratch, None);
+}
+
+/// [`refit_above`], also returning the SAH change of the refitted boxes (see [`TrackedSah`]).
+fn refit_tracking(
+    bvh: &mut Bvh,
+    starts: &[u32],
+    scratch: &mut RefitScratch,
+    tracked: Option<&TrackedSah>,
+) -> Option<i128> {
     let len = bvh.nodes.len();
     for v in [&mut scratch.stale, &mut scratch.pending] {
         if v.len() < len {
@@ -268,13 +286,14 @@ pub fn refit_above(bvh: &mut Bvh, starts: &[u32], scratch: &mut RefitScratch) {
         .par_iter()
         .with_min_len(64)
         .flat_map_iter(|&start| {
-            let mut path = Vec::new();
             let mut n = parents[start as usize];
-            while n != INVALID_INDEX && stale[n as usize].swap(1, Ordering::Relaxed) == 0 {
-                path.push(n);
-                n = parents[n as usize];
-            }
-            path
+            std::iter::from_fn(move || {
+                let here = n;
+                (here != INVALID_INDEX && stale[here as usize].swap(1, Ordering::Relaxed) == 0).then(|| {
+                    n = parents[here as usize];
+                    here
+                })
+            })
         })
         .collect();
     // Count each stale node's stale children; those with none start the climb.
@@ -292,25 +311,99 @@ pub fn refit_above(bvh: &mut Bvh, starts: &[u32], scratch: &mut RefitScratch) {
         .collect();
     let Bvh { nodes, parents, .. } = bvh;
     let nodes = SharedSlice::new(nodes);
-    first.par_iter().with_min_len(64).for_each(|&start| {
-        let mut n = start;
-        loop {
-            // SAFETY: node `n` is written by this thread only: it is the one that brought its
-            // stale-children count to zero (or `n` had none), after those children were written;
-            // the AcqRel decrement below makes their writes visible here.
-            unsafe {
-                let mut node = nodes.get(n as usize);
-                let l = node.first as usize;
-                node.set_aabb(nodes.get(l).aabb().union(nodes.get(l + 1).aabb()));
-                nodes.set(n as usize, node);
+    first
+        .par_iter()
+        .with_min_len(64)
+        .map(|&start| {
+            let mut change = Some(0i128);
+            let mut n = start;
+            loop {
+                // SAFETY: node `n` is written by this thread only: it is the one that brought its
+                // stale-children count to zero (or `n` had none), after those children were
+                // written; the AcqRel decrement below makes their writes visible here.
+                unsafe {
+                    let mut node = nodes.get(n as usize);
+                    let old = node.aabb();
+                    let l = node.first as usize;
+                    node.set_aabb(nodes.get(l).aabb().union(nodes.get(l + 1).aabb()));
+                    if let Some(t) = tracked {
+                        change = change.zip(t.internal_change(&old, &node.aabb())).map(|(a, b)| a + b);
+                    }
+                    nodes.set(n as usize, node);
+                }
+                stale[n as usize].store(0, Ordering::Relaxed);
+                n = parents[n as usize];
+                if n == INVALID_INDEX || pending[n as usize].fetch_sub(1, Ordering::AcqRel) != 1 {
+                    break;
+                }
             }
-            stale[n as usize].store(0, Ordering::Relaxed);
-            n = parents[n as usize];
-            if n == INVALID_INDEX || pending[n as usize].fetch_sub(1, Ordering::AcqRel) != 1 {
-                break;
+            change
+        })
+        .reduce(|| Some(0), |a, b| a.zip(b).map(|(a, b)| a + b))
+}
+
+/// The SAH followed iteration by iteration from what changed, instead of a reduction over every
+/// node (which took about a tenth of the dragon's optimisation).
+///
+/// A reinsertion leaves every box in place but two: the input's old parent disappears and the
+/// new internal node appears, both interior nodes (leaves move whole). The refit then changes
+/// the boxes of their ancestors. So the SAH changes by `cT / SA(root)` times the sum of those
+/// area changes, and `SA(root)` never changes. The changes are summed in fixed point (units of
+/// 2^-60), where addition is exact and so the total does not depend on the order the threads
+/// add in, nor then on the thread count. A non-finite area falls back to the full reduction.
+struct TrackedSah {
+    /// `cT / SA(root)` times 2^60, or 0 when the root has no area (the SAH then counts nodes,
+    /// which reinsertion does not change).
+    scale: f64,
+    /// The SAH in units of 2^-60; `None` where it cannot be held (non-finite or beyond 10^12).
+    fixed: Option<i128>,
+}
+
+impl TrackedSah {
+    const ONE: f64 = (1u64 << 60) as f64;
+
+    fn new(bvh: &Bvh, costs: &SahCosts, sah: f64) -> Self {
+        let root = bvh.nodes.first().map_or(0.0, |n| super::sah::half_area_f64(&n.aabb()));
+        let scale = if root > 0.0 { costs.traversal as f64 / root * Self::ONE } else { 0.0 };
+        Self { scale, fixed: Self::to_fixed(sah * Self::ONE) }
+    }
+
+    /// `x` (already in units of 2^-60) rounded to an integer; `None` when not finite or beyond
+    /// 2^100 (an SAH of 10^12), where sums could overflow.
+    fn to_fixed(x: f64) -> Option<i128> {
+        (x.is_finite() && x.abs() < 2f64.powi(100)).then(|| x.round() as i128)
+    }
+
+    /// The SAH change of an interior node's box going from `old` to `new`, in fixed point.
+    fn internal_change(&self, old: &Aabb, new: &Aabb) -> Option<i128> {
+        use super::sah::half_area_f64;
+        Self::to_fixed((half_area_f64(new) - half_area_f64(old)) * self.scale)
+    }
+
+    /// The change of `applied`, just applied and not yet refitted: each new internal node's box
+    /// appears and its input's old parent's disappears.
+    fn reinsertions(&self, bvh: &Bvh, applied: &[Reinsertion]) -> Option<i128> {
+        applied
+            .par_iter()
+            .map(|r| self.internal_change(&r.parent_box, &bvh.nodes[r.new_node() as usize].aabb()))
+            .reduce(|| Some(0), |a, b| a.zip(b).map(|(a, b)| a + b))
+    }
+
+    /// Adds an iteration's change and returns the SAH; `full` recomputes it where the change
+    /// could not be followed.
+    fn update(&mut self, change: Option<(i128, i128)>, full: impl FnOnce() -> f64) -> f64 {
+        match self.fixed.zip(change).and_then(|(f, (a, b))| f.checked_add(a)?.checked_add(b)) {
+            Some(fixed) => {
+                self.fixed = Some(fixed);
+                fixed as f64 / Self::ONE
+            }
+            None => {
+                let sah = full();
+                self.fixed = Self::to_fixed(sah * Self::ONE);
+                sah
             }
         }
-    });
+    }
 }
 
 /// A reinsertion that was applied: `input` became the sibling of `output`. `parent` was
@@ -351,10 +444,13 @@ pub fn reinsert_candidates(
 }
 
 /// (input, output, decrease) for every searching node with a positive decrease.
+/// The decreases are in the search's scaled units ([`search_scale`]), which order them as the
+/// true ones do.
 fn search(bvh: &Bvh, inputs: impl ParallelIterator<Item = usize>) -> Vec<(u32, u32, f32)> {
+    let scale = search_scale(bvh);
     inputs
         .filter_map(|i| {
-            let (out, d) = find_best_output(bvh, i as u32);
+            let (out, d) = search_scaled(bvh, i as u32, scale);
             (d > 0.0).then_some((i as u32, out, d))
         })
         .collect()
@@ -374,10 +470,10 @@ fn lock_and_apply(
     // (reset below, claim by claim), so a round costs what its moves claim, not the tree's size.
     locks.resize_with(locks.len().max(bvh.nodes.len()), || AtomicU64::new(0));
     let key = |&(input, _, d): &(u32, u32, f32)| ((d.to_bits() as u64) << 32) | input as u64;
-    let claims: Vec<Vec<u32>> = moves.par_iter().map(|m| locked_nodes(bvh, m.0, m.1, strategy)).collect();
-    moves.par_iter().zip(&claims).for_each(|(m, nodes)| {
+    let claims: Vec<Claim> = moves.par_iter().map(|m| locked_nodes(bvh, m.0, m.1, strategy)).collect();
+    moves.par_iter().zip(&claims).for_each(|(m, claim)| {
         let k = key(m);
-        for &n in nodes {
+        for n in claim.nodes() {
             locks[n as usize].fetch_max(k, Ordering::Relaxed);
         }
     });
@@ -385,13 +481,13 @@ fn lock_and_apply(
     let winners: Vec<Reinsertion> = moves
         .par_iter()
         .zip(&claims)
-        .filter(|(m, nodes)| nodes.iter().all(|&n| locks[n as usize].load(Ordering::Relaxed) == key(m)))
+        .filter(|(m, claim)| claim.nodes().all(|n| locks[n as usize].load(Ordering::Relaxed) == key(m)))
         .map(|(&(input, output, _), _)| {
             let parent = bvh.parents[input as usize];
             Reinsertion { input, output, parent, parent_box: bvh.nodes[parent as usize].aabb() }
         })
         .collect();
-    claims.par_iter().flatten().for_each(|&n| locks[n as usize].store(0, Ordering::Relaxed));
+    claims.par_iter().flat_map_iter(Claim::nodes).for_each(|n| locks[n as usize].store(0, Ordering::Relaxed));
     // Reinsert the winners in parallel.
     let Bvh { nodes, parents, .. } = bvh;
     let (nodes, parents) = (SharedSlice::new(nodes), SharedSlice::new(parents));
@@ -404,10 +500,32 @@ fn lock_and_apply(
     winners
 }
 
+/// The nodes one reinsertion locks: the six of the aggressive strategy (fewer where some do not
+/// exist), plus the path for the conservative one. Held inline, so that the aggressive
+/// strategy allocates nothing per move.
+struct Claim {
+    six: [u32; 6],
+    len: usize,
+    path: Vec<u32>,
+}
+
+impl Claim {
+    fn nodes(&self) -> impl Iterator<Item = u32> + '_ {
+        self.six[..self.len].iter().chain(&self.path).copied()
+    }
+}
+
 /// The nodes a reinsertion of `input` next to `output` locks.
-fn locked_nodes(bvh: &Bvh, input: u32, output: u32, strategy: LockStrategy) -> Vec<u32> {
+fn locked_nodes(bvh: &Bvh, input: u32, output: u32, strategy: LockStrategy) -> Claim {
     let parent = bvh.parents[input as usize];
-    let mut nodes = vec![input, input ^ 1, parent, bvh.parents[parent as usize], output, bvh.parents[output as usize]];
+    let mut claim = Claim { six: [INVALID_INDEX; 6], len: 0, path: Vec::new() };
+    let six = [input, input ^ 1, parent, bvh.parents[parent as usize], output, bvh.parents[output as usize]];
+    for n in six {
+        if n != INVALID_INDEX {
+            claim.six[claim.len] = n;
+            claim.len += 1;
+        }
+    }
     if strategy == LockStrategy::Conservative {
         // The path: from the input's parent up to the common ancestor, and down to the output.
         let mut up = Vec::new();
@@ -419,24 +537,46 @@ fn locked_nodes(bvh: &Bvh, input: u32, output: u32, strategy: LockStrategy) -> V
         let mut n = output;
         while n != INVALID_INDEX {
             if let Some(k) = up.iter().position(|&a| a == n) {
-                nodes.extend_from_slice(&up[..=k]);
+                claim.path.extend_from_slice(&up[..=k]);
                 break;
             }
-            nodes.push(n);
+            claim.path.push(n);
             n = bvh.parents[n as usize];
         }
     }
-    nodes.retain(|&n| n != INVALID_INDEX);
-    nodes
+    claim
 }
 
 /// Algorithm 1: the output node `input` should become the sibling of, and the surface-area
 /// decrease that gives (0 and the current sibling when nothing is better). `input` must not be
 /// the root or the padding node.
 pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
+    let scale = search_scale(bvh);
+    let (out, d) = search_scaled(bvh, input, scale);
+    (out, d / scale / scale)
+}
+
+/// The power of two the search multiplies coordinates by, so that its f32 areas neither
+/// overflow nor underflow: 1 (no change at all) while the scene's largest extent is within
+/// 2^-32..2^32, and otherwise about its inverse. Scaling by a power of two is exact, so it
+/// changes no comparison. Without it, a scene of extent 1e20 has infinite areas, no pruning
+/// ever applies, and each search visits the whole tree.
+fn search_scale(bvh: &Bvh) -> f32 {
+    let Some(root) = bvh.nodes.first() else { return 1.0 };
+    let extent = root.aabb().extent().max_element();
+    if !extent.is_finite() || extent == 0.0 || (2f32.powi(-32)..=2f32.powi(32)).contains(&extent) {
+        return 1.0;
+    }
+    2f32.powi(-(extent.log2().floor() as i32))
+}
+
+/// [`find_best_output`] with coordinates multiplied by `scale`, which also scales the decrease
+/// returned (by its square).
+fn search_scaled(bvh: &Bvh, input: u32, scale: f32) -> (u32, f32) {
     let nodes = &bvh.nodes;
     let parents = &bvh.parents;
-    let bbox = |n: u32| Box4::of(&nodes[n as usize]);
+    let scale = Vec3A::splat(scale);
+    let bbox = |n: u32| Box4::scaled(&nodes[n as usize], scale);
     let b_in = bbox(input);
     let parent = parents[input as usize];
     let a_parent = bbox(parent).area();
@@ -456,7 +596,7 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
     loop {
         if down {
             let node = &nodes[out as usize];
-            let b_out = Box4::of(node);
+            let b_out = Box4::scaled(node, scale);
             let a_merged = b_in.union(b_out).area();
             let d_direct = a_parent - a_merged;
             if d_best < d_direct + d {
@@ -529,10 +669,11 @@ struct Box4 {
 impl Box4 {
     const EMPTY: Self = Self { min: Vec3A::INFINITY, max: Vec3A::NEG_INFINITY };
 
+    /// The node's box with coordinates multiplied by `scale` (a power of two: exact).
     #[inline(always)]
-    fn of(node: &BvhNode) -> Self {
+    fn scaled(node: &BvhNode, scale: Vec3A) -> Self {
         let f = node.as_floats();
-        Self { min: Vec3A::new(f[0], f[1], f[2]), max: Vec3A::new(f[4], f[5], f[6]) }
+        Self { min: Vec3A::new(f[0], f[1], f[2]) * scale, max: Vec3A::new(f[4], f[5], f[6]) * scale }
     }
 
     #[inline(always)]
@@ -642,7 +783,7 @@ mod tests {
         for pair in boxes.windows(2) {
             let (a, b) = (pair[0], Aabb::new(pair[1].min * Vec3::new(0.3, 1.7, -2.1), pair[1].max * 1.3));
             let node = |x: Aabb| BvhNode::leaf(x, 7, 1);
-            let (p, q) = (Box4::of(&node(a)), Box4::of(&node(b)));
+            let (p, q) = (Box4::scaled(&node(a), Vec3A::ONE), Box4::scaled(&node(b), Vec3A::ONE));
             assert_eq!(p.area().to_bits(), scalar(&a).to_bits());
             assert_eq!(p.union(q).area().to_bits(), scalar(&a.union(b)).to_bits());
             assert_eq!(p.union(q).contains(p), a.union(b).contains_box(&a));

@@ -19,6 +19,7 @@ use rayon::prelude::*;
 use super::layout::depth_first;
 use super::parallel::{SharedSlice, bottom_up};
 use super::{Bvh, BvhNode, PAD_INDEX};
+use crate::geometry::Aabb;
 
 /// The SAH's constants.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -69,17 +70,16 @@ pub fn sah_cost_with(bvh: &Bvh, costs: &SahCosts) -> f64 {
             .collect();
         partial.iter().sum()
     };
-    let root_area = half_area_f64(&bvh.nodes[0]);
+    let root_area = half_area_f64(&bvh.nodes[0].aabb());
     if root_area == 0.0 {
         return sum_by(&weight);
     }
-    sum_by(&|n| weight(n) * half_area_f64(n)) / root_area
+    sum_by(&|n| weight(n) * half_area_f64(&n.aabb())) / root_area
 }
 
 /// A node's half surface area in f64: for boxes of extent beyond about 1.8e19, the f32 area
 /// overflows to infinity, and the cost would be infinity over infinity.
-fn half_area_f64(n: &BvhNode) -> f64 {
-    let b = n.aabb();
+pub(crate) fn half_area_f64(b: &Aabb) -> f64 {
     if b.is_empty() {
         return 0.0;
     }
@@ -124,7 +124,7 @@ fn collapse_decisions(bvh: &Bvh, config: &CollapseConfig) -> Vec<bool> {
     let out = SharedSlice::new(&mut values);
     bottom_up(&bvh.parents, &mut Vec::new(), leaves.par_iter().copied(), |i| {
         let n = &nodes[i];
-        let area = half_area_f64(n);
+        let area = half_area_f64(&n.aabb());
         let value = if n.is_leaf() {
             (ci * n.prim_count as f64 * area, n.prim_count, false)
         } else {
