@@ -17,7 +17,7 @@
 //!    refit ([`refit_above`]) visits only the ancestors of the moved nodes, counting per node its
 //!    stale children instead of both: late iterations move a few hundred nodes of several
 //!    hundred thousand. The SAH is not summed over every node by a parallel reduction, as the
-//!    paper does, but followed from the boxes that changed ([`TrackedSah`]); it is the same
+//!    paper does, but followed from the boxes that changed (`TrackedSah`); it is the same
 //!    value (tested against the full sum), exactly the same for any thread count.
 //!
 //! Sparse search and termination (section 4.4.1–4.4.2): node `i` searches in iteration `I` when
@@ -39,7 +39,7 @@
 //! - Surface areas are half areas (`Aabb::half_area`): the decreases are all halved, which
 //!   changes no comparison.
 //! - The search multiplies coordinates by a power of two where the scene's extent is beyond
-//!   2^±32 ([`search_scale`]), so that f32 areas neither overflow nor underflow. Exact, so it
+//!   2^±32 (`search_scale`), so that f32 areas neither overflow nor underflow. Exact, so it
 //!   changes no comparison; without it a scene of extent 1e20 has infinite areas and nothing is
 //!   ever pruned.
 
@@ -444,7 +444,7 @@ pub fn reinsert_candidates(
 }
 
 /// (input, output, decrease) for every searching node with a positive decrease.
-/// The decreases are in the search's scaled units ([`search_scale`]), which order them as the
+/// The decreases are in the search's scaled units (`search_scale`), which order them as the
 /// true ones do.
 fn search(bvh: &Bvh, inputs: impl ParallelIterator<Item = usize>) -> Vec<(u32, u32, f32)> {
     let scale = search_scale(bvh);

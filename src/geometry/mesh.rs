@@ -3,7 +3,7 @@
 //! Procedural meshes share every vertex between the triangles that meet there, including at the
 //! poles and the wrap-around seams, so they are closed and watertight tests can rely on it.
 //!
-//! OBJ and MTL files are parsed by tobj 4, after checks of our own ([`read_obj`]): tobj panics on
+//! OBJ and MTL files are parsed by tobj 4, after checks of our own (`read_obj`): tobj panics on
 //! some bad input (an MTL colour with fewer than 3 numbers; a `vt` or `vn` index out of range,
 //! whose offset overflows), and most of its errors do not say where. Every error here names the
 //! file and, where the fault is one line, the line.

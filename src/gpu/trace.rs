@@ -18,7 +18,7 @@
 //! features, for measuring what specialization saves.
 //!
 //! **Scene.** [`GpuScene::upload`] takes a flat [`RenderScene`] (one BVH over world-space
-//! triangles, leaf-collapsed, triangles in leaf order as in [`MeshBvh`]); material ids, stored by
+//! triangles, leaf-collapsed, triangles in leaf order as in [`MeshBvh`](crate::bvh::MeshBvh)); material ids, stored by
 //! original triangle id on the CPU, are mapped to leaf order through `prim_ids`. An instanced or
 //! animated scene is flattened first, frame by frame ([`flatten`]): the GPU path renders
 //! animation by rebuilding one flat BVH per frame, not with two levels. A buffer larger than the
