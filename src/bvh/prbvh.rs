@@ -327,7 +327,7 @@ fn refit_tracking(
                     let l = node.first as usize;
                     node.set_aabb(nodes.get(l).aabb().union(nodes.get(l + 1).aabb()));
                     if let Some(t) = tracked {
-                        change = change.zip(t.internal_change(&old, &node.aabb())).map(|(a, b)| a + b);
+                        change = change.zip(t.internal_change(&old, &node.aabb())).and_then(|(a, b)| a.checked_add(b));
                     }
                     nodes.set(n as usize, node);
                 }
@@ -339,7 +339,7 @@ fn refit_tracking(
             }
             change
         })
-        .reduce(|| Some(0), |a, b| a.zip(b).map(|(a, b)| a + b))
+        .reduce(|| Some(0), |a, b| a.zip(b).and_then(|(a, b)| a.checked_add(b)))
 }
 
 /// The SAH followed iteration by iteration from what changed, instead of a reduction over every
@@ -386,7 +386,7 @@ impl TrackedSah {
         applied
             .par_iter()
             .map(|r| self.internal_change(&r.parent_box, &bvh.nodes[r.new_node() as usize].aabb()))
-            .reduce(|| Some(0), |a, b| a.zip(b).map(|(a, b)| a + b))
+            .reduce(|| Some(0), |a, b| a.zip(b).and_then(|(a, b)| a.checked_add(b)))
     }
 
     /// Adds an iteration's change and returns the SAH; `full` recomputes it where the change
