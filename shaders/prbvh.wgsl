@@ -20,9 +20,11 @@
 
 var<workgroup> wg_sum: array<f32, WORKGROUP_SIZE>;
 
-// Half surface area, as the CPU's `area` (the decreases are all halved alike).
+// Half surface area, as the CPU's `area` (the decreases are all halved alike), of the box with
+// its coordinates multiplied by params.area_scale: a power of two, exact, that keeps f32 areas
+// from overflowing or underflowing in scenes beyond 2^±32 (1 in others), as the CPU search does.
 fn area(lo: vec3<f32>, hi: vec3<f32>) -> f32 {
-    let e = hi - lo;
+    let e = hi * params.area_scale - lo * params.area_scale;
     return e.x * e.y + e.y * e.z + e.z * e.x;
 }
 

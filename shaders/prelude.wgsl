@@ -31,7 +31,7 @@ struct PrbvhParams {
     partial_count: u32,
     cost_traversal: f32,
     cost_intersection: f32,
-    pad0: u32,
+    area_scale: f32,
     pad1: u32,
 }
 

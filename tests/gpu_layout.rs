@@ -81,7 +81,7 @@ fn shared_structs_match_rust() {
             ("partial_count", offset_of!(PrbvhParams, partial_count)),
             ("cost_traversal", offset_of!(PrbvhParams, cost_traversal)),
             ("cost_intersection", offset_of!(PrbvhParams, cost_intersection)),
-            ("pad0", offset_of!(PrbvhParams, pad0)),
+            ("area_scale", offset_of!(PrbvhParams, area_scale)),
             ("pad1", offset_of!(PrbvhParams, pad1)),
         ],
     );

@@ -447,7 +447,7 @@ pub fn reinsert_candidates(
 /// The decreases are in the search's scaled units (`search_scale`), which order them as the
 /// true ones do.
 fn search(bvh: &Bvh, inputs: impl ParallelIterator<Item = usize>) -> Vec<(u32, u32, f32)> {
-    let scale = search_scale(bvh);
+    let scale = search_scale(bvh.nodes.first());
     inputs
         .filter_map(|i| {
             let (out, d) = search_scaled(bvh, i as u32, scale);
@@ -551,7 +551,7 @@ fn locked_nodes(bvh: &Bvh, input: u32, output: u32, strategy: LockStrategy) -> C
 /// decrease that gives (0 and the current sibling when nothing is better). `input` must not be
 /// the root or the padding node.
 pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
-    let scale = search_scale(bvh);
+    let scale = search_scale(bvh.nodes.first());
     let (out, d) = search_scaled(bvh, input, scale);
     (out, d / scale / scale)
 }
@@ -561,8 +561,9 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
 /// 2^-32..2^32, and otherwise about its inverse. Scaling by a power of two is exact, so it
 /// changes no comparison. Without it, a scene of extent 1e20 has infinite areas, no pruning
 /// ever applies, and each search visits the whole tree.
-fn search_scale(bvh: &Bvh) -> f32 {
-    let Some(root) = bvh.nodes.first() else { return 1.0 };
+/// Shared with the GPU optimiser, which reads its root back for it.
+pub(crate) fn search_scale(root: Option<&BvhNode>) -> f32 {
+    let Some(root) = root else { return 1.0 };
     let extent = root.aabb().extent().max_element();
     if !extent.is_finite() || extent == 0.0 || (2f32.powi(-32)..=2f32.powi(32)).contains(&extent) {
         return 1.0;

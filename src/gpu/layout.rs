@@ -60,7 +60,9 @@ pub struct PrbvhParams {
     pub partial_count: u32,
     pub cost_traversal: f32,
     pub cost_intersection: f32,
-    pub pad0: u32,
+    /// The power of two the search and the SAH multiply coordinates by, so that f32 areas
+    /// neither overflow nor underflow (the CPU search's `search_scale`; 1 for most scenes).
+    pub area_scale: f32,
     pub pad1: u32,
 }
 

@@ -87,6 +87,7 @@ pub fn optimize_on_device(
     let grid = ctx.dispatch_size(node_count);
     let partial_count = grid.0 * grid.1;
     let sah_partial = ctx.storage_buffer_zeroed("SAH partial sums", u64::from(partial_count) * 4)?;
+    let root = ctx.read_buffer::<BvhNode>("root", &bvh.nodes, 1)?[0];
     let mut params = PrbvhParams {
         node_count,
         mu: 1,
@@ -94,6 +95,7 @@ pub fn optimize_on_device(
         partial_count,
         cost_traversal: config.costs.traversal,
         cost_intersection: config.costs.intersection,
+        area_scale: crate::bvh::prbvh::search_scale(Some(&root)),
         ..Default::default()
     };
     let params_buf = ctx.uniform_buffer("PRBVH parameters", &params);
