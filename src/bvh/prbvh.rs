@@ -573,89 +573,158 @@ pub(crate) fn search_scale(root: Option<&BvhNode>) -> f32 {
 
 /// [`find_best_output`] with coordinates multiplied by `scale`, which also scales the decrease
 /// returned (by its square).
+///
+/// Written as two nested loops, the climb over the pivots and the pre-order walk of each
+/// pivot's other subtree ([`Search::walk`]), instead of the paper's single loop with a
+/// direction flag: most walks end at the subtree's root, and that case now runs straight
+/// through. The arithmetic and the order of visits are the paper's, so the results are the same
+/// bits.
 fn search_scaled(bvh: &Bvh, input: u32, scale: f32) -> (u32, f32) {
-    let nodes = &bvh.nodes;
-    let parents = &bvh.parents;
+    // Unscaled (nearly every scene), the boxes are used as loaded.
+    if scale == 1.0 { search_with::<false>(bvh, input, scale) } else { search_with::<true>(bvh, input, scale) }
+}
+
+/// [`search_scaled`], multiplying coordinates by `scale` only where `SCALED`.
+#[inline(always)]
+fn search_with<const SCALED: bool>(bvh: &Bvh, input: u32, scale: f32) -> (u32, f32) {
     let scale = Vec3A::splat(scale);
-    let bbox = |n: u32| Box4::scaled(&nodes[n as usize], scale);
-    let b_in = bbox(input);
-    let parent = parents[input as usize];
-    let a_parent = bbox(parent).area();
+    let mut s = Search::<SCALED> {
+        nodes: &bvh.nodes,
+        parents: &bvh.parents,
+        scale,
+        b_in: Box4::EMPTY,
+        a_parent: 0.0,
+        d_bound: 0.0,
+        d: 0.0,
+        d_best: 0.0,
+        out_best: input ^ 1,
+        growth: [0.0; KEPT],
+    };
+    let b_in = s.bbox(input);
+    let parent = s.parents[input as usize];
+    let a_parent = s.bbox(parent).area();
+    (s.b_in, s.a_parent, s.d_bound) = (b_in, a_parent, a_parent - b_in.area());
     let mut b_pivot = Box4::EMPTY;
-    let d_bound = a_parent - b_in.area();
-    let (mut d_best, mut d) = (0.0f32, 0.0f32);
-    let mut out = input ^ 1;
-    let mut out_best = out;
-    let mut pivot = parent;
-    let mut down = true;
-    // The growth added to `d` at each depth below the pivot's child, to take back on the way up
-    // without reloading the node (the paper recomputes it; the values are the same bits).
-    // Deeper than the array, it is recomputed.
-    const KEPT: usize = 64;
-    let mut growth = [0.0f32; KEPT];
-    let mut depth = 0usize;
+    let (mut child, mut pivot) = (input, parent);
     loop {
-        if down {
-            let node = &nodes[out as usize];
-            let b_out = Box4::scaled(node, scale);
-            let a_merged = b_in.union(b_out).area();
-            let d_direct = a_parent - a_merged;
-            if d_best < d_direct + d {
-                d_best = d_direct + d;
-                out_best = out;
+        // The pivot's other subtree, then the pivot itself as an output.
+        let b_other = s.walk(child ^ 1);
+        b_pivot = b_pivot.union(b_other);
+        if pivot != parent {
+            let a_out = s.bbox(pivot).area();
+            let d_direct = a_parent - b_in.union(b_pivot).area();
+            // The pivot's own shrink (see the module docs).
+            let own = a_out - b_pivot.area();
+            if s.d_best < d_direct + s.d + own {
+                s.d_best = d_direct + s.d + own;
+                s.out_best = pivot;
             }
-            let g = b_out.area() - a_merged;
-            if depth < KEPT {
-                growth[depth] = g;
-            }
-            d += g;
-            if node.is_leaf() || d_bound + d <= d_best {
-                down = false;
-            } else {
-                out = node.first;
+            s.d += own;
+        }
+        // Once the rest of the pivot encloses the input, removing the input shrinks no higher
+        // ancestor, so no output further up can beat `d_bound + d`.
+        if pivot == 0 || (s.d_bound + s.d <= s.d_best && b_pivot.contains(b_in)) {
+            return (s.out_best, s.d_best);
+        }
+        child = pivot;
+        pivot = s.parents[pivot as usize];
+    }
+}
+
+/// The state of one search of [`search_scaled`]: `d` is the surface-area decrease accumulated
+/// along the path, the paper's `d`.
+struct Search<'a, const SCALED: bool> {
+    /// The node array, dereferenced once (each `Nodes` dereference recomputes the slice).
+    nodes: &'a [BvhNode],
+    parents: &'a [u32],
+    scale: Vec3A,
+    b_in: Box4,
+    a_parent: f32,
+    d_bound: f32,
+    d: f32,
+    d_best: f32,
+    out_best: u32,
+    /// The growth added to `d` at each depth below the subtree's root, to take back on the way
+    /// up without reloading the node (the paper recomputes it; the values are the same bits).
+    /// Deeper than the array, it is recomputed.
+    growth: [f32; KEPT],
+}
+
+/// Levels of growth a [`Search`] keeps.
+const KEPT: usize = 64;
+
+impl<const SCALED: bool> Search<'_, SCALED> {
+    #[inline(always)]
+    fn bbox(&self, n: u32) -> Box4 {
+        let node = &self.nodes[n as usize];
+        if SCALED { Box4::scaled(node, self.scale) } else { Box4::of(node) }
+    }
+
+    /// Walks the subtree of `root` in pre-order, pruning below a node when `d_bound + d` cannot
+    /// beat the best decrease, and offering every node visited as an output. Returns the root's
+    /// box; leaves `d` as the walk found it (the same value, up to the rounding the paper's
+    /// add-and-subtract leaves).
+    #[inline(always)]
+    fn walk(&mut self, root: u32) -> Box4 {
+        let b_root = self.bbox(root);
+        if self.visit(root, b_root) {
+            self.d -= self.growth[0];
+            return b_root;
+        }
+        let parents = self.parents;
+        let mut out = self.nodes[root as usize].first;
+        let mut depth = 1usize;
+        loop {
+            let b_out = self.bbox(out);
+            if !self.visit_at(out, b_out, depth) {
+                out = self.nodes[out as usize].first;
                 depth += 1;
+                continue;
             }
-        } else {
-            d -= if depth < KEPT {
-                growth[depth]
-            } else {
-                let b_out = bbox(out);
-                b_out.area() - b_in.union(b_out).area()
-            };
-            if pivot == parents[out as usize] {
-                b_pivot = b_pivot.union(bbox(out));
-                out = pivot;
-                let a_out = bbox(out).area();
-                if out != parent {
-                    let d_direct = a_parent - b_in.union(b_pivot).area();
-                    // The pivot's own shrink (see the module docs).
-                    let own = a_out - b_pivot.area();
-                    if d_best < d_direct + d + own {
-                        d_best = d_direct + d + own;
-                        out_best = out;
-                    }
-                    d += own;
+            // Up: take back each level's growth until a left child's right sibling is next.
+            loop {
+                self.d -= if depth < KEPT {
+                    self.growth[depth]
+                } else {
+                    let b_out = self.bbox(out);
+                    b_out.area() - self.b_in.union(b_out).area()
+                };
+                if depth == 0 {
+                    return b_root;
                 }
-                // Once the rest of the pivot encloses the input, removing the input shrinks no
-                // higher ancestor, so no output further up can beat `d_bound + d`.
-                if out == 0 || (d_bound + d <= d_best && b_pivot.contains(b_in)) {
+                if out % 2 == 0 {
+                    out += 1;
                     break;
                 }
-                out = pivot ^ 1;
-                pivot = parents[out as usize];
-                down = true;
-                depth = 0;
-            } else if out % 2 == 0 {
-                // Came up from a left child: its right sibling is next.
-                out += 1;
-                down = true;
-            } else {
                 out = parents[out as usize];
                 depth -= 1;
             }
         }
     }
-    (out_best, d_best)
+
+    /// [`Search::visit_at`] at the subtree's root.
+    #[inline(always)]
+    fn visit(&mut self, n: u32, b: Box4) -> bool {
+        self.visit_at(n, b, 0)
+    }
+
+    /// Offers node `n` (box `b`, `depth` below the subtree's root) as an output and adds its
+    /// growth to `d`; returns whether the walk goes back up from it.
+    #[inline(always)]
+    fn visit_at(&mut self, n: u32, b: Box4, depth: usize) -> bool {
+        let a_merged = self.b_in.union(b).area();
+        let d_direct = self.a_parent - a_merged;
+        if self.d_best < d_direct + self.d {
+            self.d_best = d_direct + self.d;
+            self.out_best = n;
+        }
+        let g = b.area() - a_merged;
+        if depth < KEPT {
+            self.growth[depth] = g;
+        }
+        self.d += g;
+        self.nodes[n as usize].is_leaf() || self.d_bound + self.d <= self.d_best
+    }
 }
 
 /// A node's box in SIMD registers, for [`find_best_output`]: the same arithmetic as
@@ -673,8 +742,14 @@ impl Box4 {
     /// The node's box with coordinates multiplied by `scale` (a power of two: exact).
     #[inline(always)]
     fn scaled(node: &BvhNode, scale: Vec3A) -> Self {
+        let b = Self::of(node);
+        Self { min: b.min * scale, max: b.max * scale }
+    }
+
+    #[inline(always)]
+    fn of(node: &BvhNode) -> Self {
         let f = node.as_floats();
-        Self { min: Vec3A::new(f[0], f[1], f[2]) * scale, max: Vec3A::new(f[4], f[5], f[6]) * scale }
+        Self { min: Vec3A::new(f[0], f[1], f[2]), max: Vec3A::new(f[4], f[5], f[6]) }
     }
 
     #[inline(always)]

@@ -138,7 +138,9 @@ impl Bvh {
     /// enters before `limit`, nearer boxes first; stops when `leaf` returns true.
     #[inline(always)]
     fn traverse(&self, ray: &RayInv, limit: &mut f32, mut leaf: impl FnMut(&BvhNode, &Bvh, &mut f32) -> bool) {
-        let Some(root) = self.nodes.first() else { return };
+        // Dereferenced once: each `Nodes` dereference rebuilds the slice.
+        let nodes: &[BvhNode] = &self.nodes;
+        let Some(root) = nodes.first() else { return };
         if root.aabb().intersect_ray(ray, *limit).is_none() {
             return;
         }
@@ -151,7 +153,7 @@ impl Bvh {
                 }
             } else {
                 let (l, r) = (node.first as usize, node.first as usize + 1);
-                let (nl, nr) = (&self.nodes[l], &self.nodes[r]);
+                let (nl, nr) = (&nodes[l], &nodes[r]);
                 let tl = intersect_ray_packed(nl.as_floats(), ray, *limit);
                 let tr = intersect_ray_packed(nr.as_floats(), ray, *limit);
                 match (tl, tr) {
@@ -176,7 +178,7 @@ impl Bvh {
             loop {
                 let Some((i, t_enter)) = stack.pop() else { return };
                 if t_enter <= *limit {
-                    node = &self.nodes[i as usize];
+                    node = &nodes[i as usize];
                     break;
                 }
             }
