@@ -9,6 +9,11 @@
 //!   tree, each after leaf collapse and with one triangle per leaf; `*-ordered` reads the
 //!   collapsed trees' triangles stored in leaf order ([`MeshBvh`]).
 //! - `refit/parallel` against `refit/sequential`: what the unsafe parallel bottom-up pass buys.
+//! - `prbvh_vs_obvhs/dragon`: parallel reinsertion with its default settings on the dragon's
+//!   LBVH (`arbor-prbvh`, the optimisation alone, on a fresh copy of the tree each time; and
+//!   `arbor-lbvh+prbvh`, build and optimisation), against obvhs's slowest preset
+//!   (`very_slow_build`, PLOC and reinsertion, one primitive per leaf, no pre-splits, as
+//!   `bvh-bench` runs it), the baseline for the optimisation time.
 //! - Baselines measured in the same run, on the same input: `build_vs_obvhs/{dragon,1000000}`
 //!   (our LBVH against the obvhs crate's PLOC with search radius 1 and one primitive per leaf,
 //!   its `fastest_build` preset), and `trace_dragon/*/obvhs-very-fast` (obvhs's traversal of
@@ -19,9 +24,10 @@
 use std::path::Path;
 
 use arbor::bvh::lbvh::LbvhBuilder;
+use arbor::bvh::prbvh::{self, PrbvhConfig};
 use arbor::bvh::{self, Bvh, CollapseConfig, MeshBvh, bench_rays, binned_sah, collapse_leaves, lbvh};
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
-use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::hint::black_box;
@@ -111,6 +117,32 @@ fn build_vs_obvhs(c: &mut Criterion) {
     }
 }
 
+fn prbvh_vs_obvhs(c: &mut Criterion) {
+    let Some(mesh) = dragon() else { return };
+    let tris = mesh.triangles();
+    let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
+    let theirs = arbor::bvh::peers::to_obvhs_triangles(&tris);
+    let config = PrbvhConfig { collapse: None, ..Default::default() };
+    let leaf1 = lbvh::build(&prims);
+    let mut g = c.benchmark_group("prbvh_vs_obvhs/dragon");
+    g.sample_size(10);
+    g.throughput(Throughput::Elements(tris.len() as u64));
+    g.bench_function("arbor-prbvh", |b| {
+        b.iter_batched_ref(|| leaf1.clone(), |tree| prbvh::optimize(tree, &config), BatchSize::LargeInput)
+    });
+    g.bench_function("arbor-lbvh+prbvh", |b| {
+        b.iter(|| {
+            let mut tree = lbvh::build(&prims);
+            prbvh::optimize(&mut tree, &config);
+            tree
+        })
+    });
+    let mut params = obvhs::BvhBuildParams::very_slow_build();
+    (params.max_prims_per_leaf, params.pre_split) = (1, false);
+    g.bench_function("obvhs-very-slow", |b| b.iter(|| obvhs_build(&theirs, params)));
+    g.finish();
+}
+
 fn trace(bvh: &Bvh, tris: &[Triangle], rays: &[Ray]) -> usize {
     rays.par_iter().with_min_len(64).filter(|r| bvh.closest_hit_triangles(tris, r, f32::INFINITY).is_some()).count()
 }
@@ -168,5 +200,5 @@ fn trace_dragon(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, lbvh_build, build_vs_obvhs, refit, trace_dragon);
+criterion_group!(benches, lbvh_build, build_vs_obvhs, refit, prbvh_vs_obvhs, trace_dragon);
 criterion_main!(benches);
