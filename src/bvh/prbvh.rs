@@ -49,7 +49,7 @@
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use glam::{Vec3A, Vec3Swizzles};
+use glam::{BVec4A, Vec3A, Vec3Swizzles, Vec4};
 use rayon::prelude::*;
 
 use super::parallel::SharedSlice;
@@ -830,10 +830,15 @@ impl Box4 {
         Self { min: b.min * scale, max: b.max * scale }
     }
 
+    /// The node's box. Each corner is one 16-byte load with its fourth lane (`first` or
+    /// `prim_count`) cleared: `Vec3A::new` takes four instructions per corner, and left in
+    /// place, those integer bits would be denormal floats in the arithmetic of that lane.
     #[inline(always)]
     fn of(node: &BvhNode) -> Self {
         let f = node.as_floats();
-        Self { min: Vec3A::new(f[0], f[1], f[2]), max: Vec3A::new(f[4], f[5], f[6]) }
+        let xyz = BVec4A::new(true, true, true, false);
+        let corner = |c: &[f32]| Vec3A::from_vec4(Vec4::select(xyz, Vec4::from_slice(c), Vec4::ZERO));
+        Self { min: corner(&f[..4]), max: corner(&f[4..]) }
     }
 
     #[inline(always)]
