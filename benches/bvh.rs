@@ -137,8 +137,7 @@ fn prbvh_vs_obvhs(c: &mut Criterion) {
             tree
         })
     });
-    let mut params = obvhs::BvhBuildParams::very_slow_build();
-    (params.max_prims_per_leaf, params.pre_split) = (1, false);
+    let params = arbor::bvh::peers::peer_params("very-slow");
     g.bench_function("obvhs-very-slow", |b| b.iter(|| obvhs_build(&theirs, params)));
     g.finish();
 }

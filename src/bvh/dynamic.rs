@@ -562,15 +562,15 @@ impl DynamicBvh {
         candidates.dedup();
         let applied = prbvh::reinsert_candidates(&mut self.bvh, &candidates, strategy, &mut self.locks);
         for r in &applied {
-            let e = (r.input & !1) as usize;
             let new_node = r.new_node() as usize;
             // The contents moved between slots keep their boxes; the input's old parent left
             // the tree and the new internal node joined it.
             self.area_internal += self.bvh.nodes[new_node].aabb().half_area() as f64 - r.parent_box.half_area() as f64;
-            for slot in [r.parent as usize, e, e + 1] {
-                let n = self.bvh.nodes[slot];
+            // The leaves among the written slots moved (the new internal node is written too).
+            for slot in r.written_slots() {
+                let n = self.bvh.nodes[slot as usize];
                 if n.is_leaf() {
-                    self.leaf_of[n.first as usize] = slot as u32;
+                    self.leaf_of[n.first as usize] = slot;
                 }
             }
         }

@@ -15,15 +15,9 @@ use crate::geometry::{Aabb, Triangle};
 
 /// Builds with the obvhs preset `preset` (one of [`super::builders::OBVHS_PRESETS`]).
 pub fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) -> Bvh {
-    let mut params = preset_params(preset);
-    params.max_prims_per_leaf = 1;
-    params.pre_split = false;
-    let tris: Vec<obvhs::triangle::Triangle> = triangles
-        .iter()
-        .map(|t| obvhs::triangle::Triangle { v0: t.v0.into(), v1: t.v1.into(), v2: t.v2.into() })
-        .collect();
+    let tris = to_obvhs_triangles(triangles);
     let mut core_time = std::time::Duration::ZERO;
-    let theirs = obvhs::bvh2::builder::build_bvh2_from_tris(&tris, params, &mut core_time);
+    let theirs = obvhs::bvh2::builder::build_bvh2_from_tris(&tris, peer_params(preset), &mut core_time);
     let mut bvh = from_bvh2(&theirs);
     refit(&mut bvh, prim_aabbs);
     bvh
@@ -44,6 +38,12 @@ pub fn obvhs_native_bytes(preset: &str, triangles: &[Triangle]) -> (usize, usize
         + bytes(b.primitives_to_nodes.capacity(), 4)
         + bytes(b.parents.capacity(), 4);
     (bytes(tris.capacity(), size_of::<obvhs::triangle::Triangle>()), bvh)
+}
+
+/// The obvhs preset `preset` as Arbor compares with it: one primitive per leaf and no spatial
+/// pre-splits (see the module docs).
+pub fn peer_params(preset: &str) -> BvhBuildParams {
+    BvhBuildParams { max_prims_per_leaf: 1, pre_split: false, ..preset_params(preset) }
 }
 
 /// The obvhs preset `preset` names, as obvhs ships it.

@@ -444,8 +444,7 @@ impl NodeAreas {
         let Some(areas) = self.shared() else { return };
         let nodes: &[BvhNode] = &bvh.nodes;
         applied.par_iter().for_each(|r| {
-            let pair = r.input & !1;
-            for slot in [r.parent, pair, pair + 1, r.new_node()] {
+            for slot in r.written_slots() {
                 // SAFETY: the winners' locked nodes are disjoint, and these are locked nodes (the
                 // input's parent, the input and its sibling, the output).
                 unsafe { areas.set(slot as usize, Box4::of(&nodes[slot as usize]).area()) };
@@ -485,6 +484,13 @@ impl Reinsertion {
     /// input's sibling (whose content moved there).
     pub fn new_node(&self) -> u32 {
         if self.output == self.input ^ 1 { self.parent } else { self.output }
+    }
+
+    /// The slots whose contents the reinsertion wrote: the parent's, the pair `input & !1`, and
+    /// the new internal node's (the parent's again when the output was the sibling).
+    pub fn written_slots(&self) -> [u32; 4] {
+        let pair = self.input & !1;
+        [self.parent, pair, pair + 1, self.new_node()]
     }
 }
 
@@ -751,7 +757,7 @@ impl<const SCALED: bool, const CACHED: bool> Search<'_, SCALED, CACHED> {
     #[inline(always)]
     fn walk(&mut self, root: u32) -> Box4 {
         let b_root = self.bbox(root);
-        if self.visit(root, b_root) {
+        if self.visit_at(root, b_root, 0) {
             self.d -= self.growth[0];
             return b_root;
         }
@@ -784,12 +790,6 @@ impl<const SCALED: bool, const CACHED: bool> Search<'_, SCALED, CACHED> {
                 depth -= 1;
             }
         }
-    }
-
-    /// [`Search::visit_at`] at the subtree's root.
-    #[inline(always)]
-    fn visit(&mut self, n: u32, b: Box4) -> bool {
-        self.visit_at(n, b, 0)
     }
 
     /// Offers node `n` (box `b`, `depth` below the subtree's root) as an output and adds its
