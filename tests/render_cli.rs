@@ -122,7 +122,13 @@ fn auto_builder_scales_optimisation_with_the_ray_budget() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(String::from_utf8_lossy(&o.stdout).contains("BVH (auto: lbvh+prbvh, "));
+    // The CLI reports which base tree auto kept: on this small scene that depends on how fast
+    // the LBVH build was against the probe (CI once kept the binned-SAH tree), so either may win.
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        ["BVH (auto: lbvh+prbvh, ", "BVH (auto: binned-sah+prbvh, "].iter().any(|l| stdout.contains(l)),
+        "{stdout}"
+    );
 }
 
 /// `--frames` renders a numbered sequence, `--frame` one frame, and a sequence needs a pattern.
