@@ -14,6 +14,7 @@ use bytemuck::Zeroable;
 use glam::Vec3;
 
 use super::parallel::SharedSlice;
+use super::sah::half_area_f64;
 use super::{Bvh, BvhNode, INVALID_INDEX, Nodes};
 use crate::geometry::Aabb;
 
@@ -108,8 +109,10 @@ fn partition(ctx: &Context, ids: &mut [u32]) -> usize {
         let scale = bins as f32 / extent[axis];
         (((ctx.centroids[p as usize][axis] - cb.min[axis]) * scale) as usize).min(bins - 1)
     };
-    // (cost, axis, first bin of the right side)
-    let mut best: Option<(f32, usize, usize)> = None;
+    // (cost, axis, first bin of the right side). Costs are in f64: f32 areas overflow for boxes
+    // of extent beyond about 1e19 and underflow below about 1e-19, which made every split cost
+    // the same (infinite or zero) on such scenes.
+    let mut best: Option<(f64, usize, usize)> = None;
     for axis in 0..3 {
         if extent[axis].is_nan() || extent[axis] <= 0.0 {
             continue;
@@ -122,12 +125,12 @@ fn partition(ctx: &Context, ids: &mut [u32]) -> usize {
             boxes[b] = boxes[b].union(ctx.prim_aabbs[p as usize]);
         }
         // Right-to-left sweep stores the right side's cost for each split.
-        let mut right_cost = vec![0.0f32; bins];
+        let mut right_cost = vec![0.0f64; bins];
         let (mut acc_box, mut acc_n) = (Aabb::EMPTY, 0u32);
         for b in (1..bins).rev() {
             acc_box = acc_box.union(boxes[b]);
             acc_n += count[b];
-            right_cost[b] = acc_box.half_area() * acc_n as f32;
+            right_cost[b] = half_area_f64(&acc_box) * acc_n as f64;
         }
         let (mut acc_box, mut acc_n) = (Aabb::EMPTY, 0u32);
         for b in 1..bins {
@@ -136,7 +139,7 @@ fn partition(ctx: &Context, ids: &mut [u32]) -> usize {
             if acc_n == 0 || acc_n as usize == ids.len() {
                 continue;
             }
-            let cost = acc_box.half_area() * acc_n as f32 + right_cost[b];
+            let cost = half_area_f64(&acc_box) * acc_n as f64 + right_cost[b];
             if best.is_none_or(|(c, _, _)| cost < c) {
                 best = Some((cost, axis, b));
             }
@@ -156,4 +159,14 @@ fn partition(ctx: &Context, ids: &mut [u32]) -> usize {
         }
     }
     i
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_tree_does_not_depend_on_the_units() {
+        crate::bvh::assert_scale_invariant("binned-sah", |p| build(p, &BinnedSahConfig::default()));
+    }
 }

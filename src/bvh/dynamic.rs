@@ -66,9 +66,12 @@ fn is_hole(n: &BvhNode) -> bool {
 
 /// The node a subtree with box `b` should become the sibling of, in the tree under `nodes[0]`:
 /// best-first branch and bound on the insertion cost (module docs), skipping nodes for which
-/// `skip` holds. Never the padding. Shared with [`super::rbvh`].
+/// `skip` holds. Never the padding. Shared with [`super::rbvh`]. Areas are of boxes scaled by
+/// [`Aabb::area_scale`] of the root and `b`, so that they neither overflow nor underflow.
 pub(crate) fn best_sibling(nodes: &[BvhNode], b: &Aabb, skip: impl Fn(&BvhNode) -> bool) -> u32 {
-    let area_b = b.half_area();
+    let scale = nodes[0].aabb().union(*b).area_scale();
+    let area = |a: Aabb| if scale == 1.0 { a.half_area() } else { Aabb::new(a.min * scale, a.max * scale).half_area() };
+    let area_b = area(*b);
     // Min-heap on the induced cost: non-negative floats order like their bits.
     let mut heap = BinaryHeap::new();
     heap.push(std::cmp::Reverse((0f32.to_bits(), 0u32)));
@@ -82,13 +85,13 @@ pub(crate) fn best_sibling(nodes: &[BvhNode], b: &Aabb, skip: impl Fn(&BvhNode) 
         if skip(&node) {
             continue;
         }
-        let merged = node.aabb().union(*b).half_area();
+        let merged = area(node.aabb().union(*b));
         let cost = merged + induced;
         if cost < best_cost {
             (best_cost, best) = (cost, n);
         }
         if !node.is_leaf() {
-            let child_induced = (induced + merged - node.aabb().half_area()).max(0.0);
+            let child_induced = (induced + merged - area(node.aabb())).max(0.0);
             if child_induced + area_b < best_cost {
                 heap.push(std::cmp::Reverse((child_induced.to_bits(), node.first)));
                 heap.push(std::cmp::Reverse((child_induced.to_bits(), node.first + 1)));

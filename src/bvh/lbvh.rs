@@ -212,6 +212,11 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_tree_does_not_depend_on_the_units() {
+        crate::bvh::assert_scale_invariant("lbvh", build);
+    }
+
+    #[test]
     fn splits_of_karras_figure_3() {
         // The eight 5-bit keys of Karras' Figure 3.
         let codes = [0b00001u64, 0b00010, 0b00100, 0b00101, 0b10011, 0b11000, 0b11001, 0b11110];

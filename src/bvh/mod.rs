@@ -104,6 +104,27 @@ fn leaf_bounds(prims: &[u32], prim_aabbs: &[Aabb]) -> Aabb {
     prims.iter().fold(Aabb::EMPTY, |b, &p| b.union(prim_aabbs[p as usize]))
 }
 
+/// Checks that `build` makes the same tree (the same topology, primitive order and SAH) from
+/// [`scattered_boxes`] as from the same boxes scaled by 2^100 and by 2^-100, where f32 areas
+/// overflow and underflow: a builder's area arithmetic must not depend on the scene's units.
+#[cfg(test)]
+pub(crate) fn assert_scale_invariant(name: &str, build: impl Fn(&[Aabb]) -> Bvh) {
+    let unit = scattered_boxes(2000, 0.3);
+    let reference = build(&unit);
+    for scale in [2f32.powi(100), 2f32.powi(-100)] {
+        let scaled: Vec<Aabb> = unit.iter().map(|b| Aabb::new(b.min * scale, b.max * scale)).collect();
+        let bvh = build(&scaled);
+        validate(&bvh, &scaled).unwrap();
+        let shape = |b: &Bvh| b.nodes.iter().map(|n| (n.first, n.prim_count)).collect::<Vec<_>>();
+        assert!(
+            shape(&bvh) == shape(&reference) && bvh.prim_ids == reference.prim_ids,
+            "{name}: scale {scale:e} changed the tree"
+        );
+        let (a, b) = (sah_cost(&bvh), sah_cost(&reference));
+        assert!((a - b).abs() <= 1e-9 * b, "{name}: SAH {a} at scale {scale:e}, {b} at unit scale");
+    }
+}
+
 /// `n` small boxes scattered deterministically over a 10-unit cube, sized 0.05 to
 /// `0.05 + max_extra`: test input for the builders' unit tests.
 #[cfg(test)]

@@ -79,9 +79,12 @@ fn build_counting(prim_aabbs: &[Aabb], config: &PlocConfig) -> (Bvh, usize) {
     // Pairs are taken from the top: the next merge writes slots `top - 2` and `top - 1`.
     let mut top = len as u32;
     let mut iterations = 0usize;
+    // Distances are computed on boxes scaled by a power of two where the scene's size would make
+    // f32 areas overflow or underflow (Aabb::area_scale); the nodes keep the real boxes.
+    let scale = clusters.par_iter().map(BvhNode::aabb).reduce(|| Aabb::EMPTY, Aabb::union).area_scale();
     while clusters.len() > 1 {
         iterations += 1;
-        nearest_neighbours(&clusters, config.radius, &mut neighbours);
+        nearest_neighbours(&clusters, config.radius, scale, &mut neighbours);
         let merged = {
             let shared_nodes = SharedSlice::new(&mut nodes);
             let shared_parents = SharedSlice::new(&mut parents);
@@ -102,9 +105,14 @@ fn build_counting(prim_aabbs: &[Aabb], config: &PlocConfig) -> (Bvh, usize) {
 }
 
 /// For each cluster, the index of its nearest neighbour within `radius` positions: the one whose
-/// merged box has the smallest surface area, ties broken by [`tie_key`].
-fn nearest_neighbours(clusters: &[BvhNode], radius: usize, out: &mut Vec<u32>) {
-    let boxes: Vec<Aabb> = clusters.par_iter().with_min_len(4096).map(BvhNode::aabb).collect();
+/// merged box has the smallest surface area, ties broken by [`tie_key`]. Areas are of the boxes
+/// multiplied by `scale`, a power of two.
+fn nearest_neighbours(clusters: &[BvhNode], radius: usize, scale: f32, out: &mut Vec<u32>) {
+    let boxes: Vec<Aabb> = if scale == 1.0 {
+        clusters.par_iter().with_min_len(4096).map(BvhNode::aabb).collect()
+    } else {
+        clusters.par_iter().with_min_len(4096).map(|c| Aabb::new(c.aabb_min * scale, c.aabb_max * scale)).collect()
+    };
     out.clear();
     out.par_extend((0..clusters.len()).into_par_iter().with_min_len(1024).map(|i| {
         let b = boxes[i];
@@ -225,6 +233,11 @@ mod tests {
 
     fn boxes(n: usize) -> Vec<Aabb> {
         crate::bvh::scattered_boxes(n, 0.1)
+    }
+
+    #[test]
+    fn the_tree_does_not_depend_on_the_units() {
+        crate::bvh::assert_scale_invariant("ploc", |p| build(p, &PlocConfig::default()));
     }
 
     #[test]

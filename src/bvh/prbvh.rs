@@ -624,19 +624,11 @@ pub fn find_best_output(bvh: &Bvh, input: u32) -> (u32, f32) {
     (out, d / scale / scale)
 }
 
-/// The power of two the search multiplies coordinates by, so that its f32 areas neither
-/// overflow nor underflow: 1 (no change at all) while the scene's largest extent is within
-/// 2^-32..2^32, and otherwise about its inverse. Scaling by a power of two is exact, so it
-/// changes no comparison. Without it, a scene of extent 1e20 has infinite areas, no pruning
-/// ever applies, and each search visits the whole tree.
-/// Shared with the GPU optimiser, which reads its root back for it.
+/// The power of two the search multiplies coordinates by ([`Aabb::area_scale`] of the root):
+/// without it, a scene of extent 1e20 has infinite areas, no pruning ever applies, and each
+/// search visits the whole tree. Shared with the GPU optimiser, which reads its root back for it.
 pub(crate) fn search_scale(root: Option<&BvhNode>) -> f32 {
-    let Some(root) = root else { return 1.0 };
-    let extent = root.aabb().extent().max_element();
-    if !extent.is_finite() || extent == 0.0 || (2f32.powi(-32)..=2f32.powi(32)).contains(&extent) {
-        return 1.0;
-    }
-    2f32.powi(-(extent.log2().floor() as i32))
+    root.map_or(1.0, |r| r.aabb().area_scale())
 }
 
 /// [`find_best_output`] with coordinates multiplied by `scale`, which also scales the decrease

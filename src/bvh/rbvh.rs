@@ -29,6 +29,7 @@ use std::time::{Duration, Instant};
 
 use super::dynamic::best_sibling;
 use super::{Bvh, BvhNode, INVALID_INDEX, SahCosts, sah_cost_with};
+use crate::geometry::Aabb;
 
 /// Options of [`optimize`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -109,18 +110,17 @@ pub fn optimize(bvh: &mut Bvh, config: &RbvhConfig) -> RbvhStats {
 }
 
 /// The `count` internal nodes (not the root, not `excluded`) of highest inefficiency, worst
-/// first.
+/// first. Areas are of boxes scaled by the root's [`Aabb::area_scale`].
 fn select(bvh: &Bvh, count: usize, excluded: impl Fn(u32) -> bool) -> Vec<u32> {
     let nodes = &bvh.nodes;
+    let scale = nodes[0].aabb().area_scale();
+    let area = |b: Aabb| Aabb::new(b.min * scale, b.max * scale).half_area_nonempty();
     let mut ranked: Vec<(f32, u32)> = (2..nodes.len() as u32)
         .filter(|&i| !nodes[i as usize].is_leaf() && !excluded(i))
         .map(|i| {
             let n = &nodes[i as usize];
-            let a = n.aabb().half_area_nonempty();
-            let (l, r) = (
-                nodes[n.first as usize].aabb().half_area_nonempty(),
-                nodes[n.first as usize + 1].aabb().half_area_nonempty(),
-            );
+            let a = area(n.aabb());
+            let (l, r) = (area(nodes[n.first as usize].aabb()), area(nodes[n.first as usize + 1].aabb()));
             let m_sum = a / (0.5 * (l + r)).max(f32::MIN_POSITIVE);
             let m_min = a / l.min(r).max(f32::MIN_POSITIVE);
             (m_sum * m_min * a, i)
@@ -164,7 +164,9 @@ fn remove_and_reinsert(bvh: &mut Bvh, n: u32) {
     let s = n ^ 1;
     // The orphans, larger first.
     let (mut a, mut b) = (bvh.nodes[node.first as usize], bvh.nodes[node.first as usize + 1]);
-    if b.aabb().half_area_nonempty() > a.aabb().half_area_nonempty() {
+    let scale = bvh.nodes[0].aabb().area_scale();
+    let area = |b: &BvhNode| Aabb::new(b.aabb_min * scale, b.aabb_max * scale).half_area_nonempty();
+    if area(&b) > area(&a) {
         std::mem::swap(&mut a, &mut b);
     }
     // The sibling takes the parent's slot; the pair {n, s} and the orphans' pair are free.
@@ -188,7 +190,15 @@ fn remove_and_reinsert(bvh: &mut Bvh, n: u32) {
 mod tests {
     use super::*;
     use crate::bvh::{lbvh, validate};
-    use crate::geometry::Aabb;
+
+    #[test]
+    fn the_tree_does_not_depend_on_the_units() {
+        crate::bvh::assert_scale_invariant("lbvh+rbvh", |p| {
+            let mut bvh = lbvh::build(p);
+            optimize(&mut bvh, &RbvhConfig::default());
+            bvh
+        });
+    }
 
     fn boxes(n: usize) -> Vec<Aabb> {
         crate::bvh::scattered_boxes(n, 0.3)

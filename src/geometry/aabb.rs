@@ -76,6 +76,20 @@ impl Aabb {
         2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
     }
 
+    /// The power of two to multiply coordinates by before computing f32 areas of boxes inside
+    /// this one, so that they neither overflow nor underflow: 1 (no change at all) while the
+    /// largest extent is within 2^-32..2^32, and otherwise about its inverse. Scaling by a power
+    /// of two is exact, so it changes no comparison between areas. Without it, a scene of extent
+    /// 1e20 has infinite areas, and one of extent 1e-30 has zero areas, so area heuristics see
+    /// ties everywhere.
+    pub fn area_scale(&self) -> f32 {
+        let extent = self.extent().max_element();
+        if !extent.is_finite() || extent <= 0.0 || (2f32.powi(-32)..=2f32.powi(32)).contains(&extent) {
+            return 1.0;
+        }
+        2f32.powi(-(extent.log2().floor() as i32))
+    }
+
     /// Half the surface area: what the SAH ratios need, one multiply cheaper.
     #[inline]
     pub fn half_area(&self) -> f32 {
