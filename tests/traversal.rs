@@ -112,6 +112,35 @@ fn random_triangles_match_brute_force() {
     assert!(hits > 2000, "the rays should mostly hit: {hits}");
 }
 
+/// The same triangles and rays scaled by 2^80 and 2^-80, where f32 edge functions, normals and
+/// lengths overflow or underflow: traversal still equals brute force, and the rays hit the same
+/// triangles as at unit scale (all but rays within rounding of an edge, which at unit scale
+/// are decided in f32 and here in f64). Direction lengths scale too, as for shadow rays.
+#[test]
+fn extreme_scales_hit_what_unit_scale_hits() {
+    let mut r = rng(12);
+    let tris = random_triangles(5000, 0.05, &mut r);
+    let targets: Vec<_> = tris.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect();
+    let bounds = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
+    let rays = rays_at(&bounds, &targets, 2000, &mut r);
+    let ids = |tris: &[Triangle], rays: &[Ray]| -> Vec<Option<u32>> {
+        rays.par_iter().map(|ray| brute_force_closest(tris, ray, f32::INFINITY).map(|h| h.prim_id)).collect()
+    };
+    let unit = ids(&tris, &rays);
+    let unit_hits = unit.iter().flatten().count();
+    assert!(unit_hits > 1000, "{unit_hits}");
+    for s in [2f32.powi(80), 2f32.powi(-80)] {
+        let scaled: Vec<Triangle> = tris.iter().map(|t| Triangle::new(t.v0 * s, t.v1 * s, t.v2 * s)).collect();
+        let scaled_rays: Vec<Ray> = rays.iter().map(|ray| Ray::new(ray.origin * s, ray.dir * s)).collect();
+        let hits = check(&format!("x{s:e}"), &scaled, &scaled_rays);
+        let differ = ids(&scaled, &scaled_rays).iter().zip(&unit).filter(|(a, b)| a != b).count();
+        assert!(
+            hits.abs_diff(unit_hits) <= 2 && differ <= 2,
+            "x{s:e}: {hits} hits ({unit_hits} at unit scale), {differ} differ"
+        );
+    }
+}
+
 #[test]
 fn duplicates_resolve_to_the_lowest_id() {
     let mut r = rng(11);

@@ -360,7 +360,7 @@ fn diffuse_rays(anim: &AnimatedInstances, level: &TwoLevel, primary: &[Ray]) -> 
         let inst = &level.instances()[h.instance as usize];
         let world = anim.meshes[inst.mesh as usize].triangle(h.prim_id as usize).transformed(&inst.world_from_object);
         let (p, err) = world.point_with_error(h.u, h.v);
-        Some((p, err, world.normal().normalize_or_zero()))
+        Some((p, err, world.unit_normal()))
     })
 }
 

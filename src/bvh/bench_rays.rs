@@ -17,11 +17,13 @@ use crate::render::sampling::{Frame, cosine_hemisphere};
 /// projected corners of `bounds` just fill the frame (2% margin).
 pub fn primary_rays(bounds: &Aabb, width: u32, height: u32) -> Vec<Ray> {
     let center = bounds.center();
-    let radius = (bounds.extent().length() * 0.5).max(f32::MIN_POSITIVE);
+    let radius = (extent_length(bounds) * 0.5).max(f32::MIN_POSITIVE);
     let back = Vec3::new(0.1, 0.2, 1.0).normalize();
     // Far enough back that the bounding sphere is in front of the camera.
     let eye = center + back * radius * 2.5;
-    let forward = (center - eye).normalize();
+    // `-back`, and not `(center - eye).normalize()`, whose squared length overflows for scenes
+    // beyond about 10^19.
+    let forward = -back;
     let right = forward.cross(Vec3::Y).normalize();
     let up = right.cross(forward);
     let aspect = width as f32 / height as f32;
@@ -71,7 +73,7 @@ pub fn diffuse_rays_with(primary: &[Ray], hit: impl Fn(&Ray) -> Option<(Vec3, Ve
 /// A point light for shadow rays: above, right and in front of `bounds`, three bounding radii
 /// from its centre.
 pub fn light_position(bounds: &Aabb) -> Vec3 {
-    bounds.center() + Vec3::new(0.3, 1.0, 0.6).normalize() * bounds.extent().length() * 1.5
+    bounds.center() + Vec3::new(0.3, 1.0, 0.6).normalize() * extent_length(bounds) * 1.5
 }
 
 /// One shadow ray from each primary hit towards `light`, spawned with the robust offset; the
@@ -86,4 +88,11 @@ pub fn shadow_rays(bvh: &Bvh, triangles: &[Triangle], primary: &[Ray], light: Ve
             Some(Ray::new(from, light - from))
         })
         .collect()
+}
+
+/// The length of the box's diagonal, computed on the extent scaled by a power of two, so that
+/// it neither overflows (beyond about 10^19) nor underflows (below about 10^-19).
+fn extent_length(bounds: &Aabb) -> f32 {
+    let scale = bounds.area_scale();
+    (bounds.extent() * scale).length() / scale
 }

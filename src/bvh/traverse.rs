@@ -26,11 +26,13 @@ pub const CULL_SCALE: f32 = 1.0 + 1.0 / 65536.0;
 pub const CULL_ABS_ULPS: f32 = 64.0;
 
 /// How far past `t` a box may begin and still be opened, for a ray with origin `o`, direction
-/// length `dir_len` and a tree bounded by `bounds`.
+/// length `dir_len` and a tree bounded by `bounds`. The lengths are taken in f64: in f32 their
+/// squares overflow for scenes beyond about 10^19 (and underflow below 10^-19), which made the
+/// slack NaN and culled every box.
 #[inline]
 fn cull_slack(bounds: &crate::geometry::Aabb, ray: &Ray) -> f32 {
     let far = (bounds.min - ray.origin).abs().max((bounds.max - ray.origin).abs());
-    CULL_ABS_ULPS * f32::EPSILON * far.length() / ray.dir.length()
+    (f64::from(CULL_ABS_ULPS * f32::EPSILON) * far.as_dvec3().length() / ray.dir.as_dvec3().length()) as f32
 }
 
 /// The box-culling limit for a best distance `t` (see the module docs).
@@ -227,5 +229,5 @@ pub fn brute_force_any(triangles: &[Triangle], ray: &Ray, t_max: f32) -> bool {
 pub fn hit_point_and_normal(triangles: &[Triangle], hit: &Hit) -> (Vec3, Vec3, Vec3) {
     let tri = &triangles[hit.prim_id as usize];
     let (p, err) = tri.point_with_error(hit.u, hit.v);
-    (p, err, tri.normal().normalize_or_zero())
+    (p, err, tri.unit_normal())
 }

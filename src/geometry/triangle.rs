@@ -6,7 +6,10 @@
 //! on the same floats in both, so a ray through an edge or vertex hits at least one of them.
 //! Departures from the paper:
 //! - Edge functions that come out exactly zero are recomputed in f64 (the paper's section 5
-//!   fallback), as the paper does, for all three at once.
+//!   fallback), for all three at once, and so are edge functions that overflow (relative
+//!   coordinates beyond about 10^19), underflow to subnormals (below about 10^-19), or whose
+//!   weighted sum `T` overflows: the rest of the test then runs in f64 too
+//!   ([`Triangle::intersect_f64`]), so that scenes at any f32 scale are hit.
 //! - The hit distance is computed (`T / det`) before the range test and the range test is done on
 //!   it, instead of comparing `T` against `t_max * det`. That costs a division for the few rays
 //!   that pass the edge tests, and makes a triangle's reported `t` the only thing deciding
@@ -55,6 +58,23 @@ impl Triangle {
         (self.v1 - self.v0).cross(self.v2 - self.v0)
     }
 
+    /// The unit geometric normal, or zero for a degenerate triangle. Where the cross product of
+    /// the edges would overflow (edges beyond about 10^19) or underflow (below about 10^-19),
+    /// the edges are first scaled by a power of two, which leaves the direction exact.
+    pub fn unit_normal(&self) -> Vec3 {
+        let (e1, e2) = (self.v1 - self.v0, self.v2 - self.v0);
+        let n = e1.cross(e2);
+        if n.length_squared().is_normal() {
+            return n.normalize();
+        }
+        let largest = e1.abs().max(e2.abs()).max_element();
+        if !(largest.is_finite() && largest > 0.0) {
+            return Vec3::ZERO;
+        }
+        let scale = 2f32.powi((-(largest.log2().floor() as i32)).clamp(-126, 127));
+        (e1 * scale).cross(e2 * scale).normalize_or_zero()
+    }
+
     pub fn area(&self) -> f32 {
         0.5 * self.normal().length()
     }
@@ -96,27 +116,26 @@ impl Triangle {
         let cx = c[kx] - ray.sx * c[kz];
         let cy = c[ky] - ray.sy * c[kz];
 
-        let mut u = cx * by - cy * bx;
-        let mut v = ax * cy - ay * cx;
-        let mut w = bx * ay - by * ax;
-        if u == 0.0 || v == 0.0 || w == 0.0 {
-            let (ax, ay, bx, by, cx, cy) = (ax as f64, ay as f64, bx as f64, by as f64, cx as f64, cy as f64);
-            u = (cx * by - cy * bx) as f32;
-            v = (ax * cy - ay * cx) as f32;
-            w = (bx * ay - by * ax) as f32;
+        let u = cx * by - cy * bx;
+        let v = ax * cy - ay * cx;
+        let w = bx * ay - by * ax;
+        let sheared = [ax, ay, bx, by, cx, cy];
+        // Zero (a ray through an edge or vertex), subnormal, infinite or NaN: the f64 test.
+        if !(u.is_normal() && v.is_normal() && w.is_normal()) {
+            return self.intersect_f64(ray, t_max, sheared);
         }
         if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
             return None;
         }
         let det = u + v + w;
-        if det == 0.0 {
-            return None;
-        }
         let az = ray.sz * a[kz];
         let bz = ray.sz * b[kz];
         let cz = ray.sz * c[kz];
         let t_scaled = u * az + v * bz + w * cz;
         let rcp = 1.0 / det;
+        if !(t_scaled.is_finite() && rcp.is_normal()) {
+            return self.intersect_f64(ray, t_max, sheared);
+        }
         let t = t_scaled * rcp;
         // Written negated so that NaN is rejected.
         if !(t > 0.0 && t <= t_max) {
@@ -144,6 +163,55 @@ impl Triangle {
             return None;
         }
         Some(TriangleHit { t, u: v * rcp, v: w * rcp })
+    }
+
+    /// The rest of [`Triangle::intersect`] in f64, from the sheared coordinates
+    /// `[ax, ay, bx, by, cx, cy]` (computed in f32, the same floats for a shared edge in both
+    /// triangles): products of two f32 values are exact in f64 and never overflow nor underflow,
+    /// so edges are decided exactly and any scene an f32 can hold is hit. Rarely taken (rays
+    /// exactly through an edge, and scenes of extreme scale), so kept out of line.
+    #[cold]
+    #[inline(never)]
+    fn intersect_f64(&self, ray: &WatertightRay, t_max: f32, sheared: [f32; 6]) -> Option<TriangleHit> {
+        let [ax, ay, bx, by, cx, cy] = sheared.map(f64::from);
+        let u = cx * by - cy * bx;
+        let v = ax * cy - ay * cx;
+        let w = bx * ay - by * ax;
+        if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+            return None;
+        }
+        let det = u + v + w;
+        if det == 0.0 {
+            return None;
+        }
+        let kz = ray.kz;
+        let (sz, o) = (f64::from(ray.sz), f64::from(ray.origin[kz]));
+        let (a, b, c) = (f64::from(self.v0[kz]) - o, f64::from(self.v1[kz]) - o, f64::from(self.v2[kz]) - o);
+        let (az, bz, cz) = (sz * a, sz * b, sz * c);
+        let t = (u * az + v * bz + w * cz) / det;
+        // The range test on the f32 distance reported, as in the f32 path: the reported `t`
+        // alone decides acceptance, so a query bounded by a hit's own `t` finds it again.
+        let t32 = t as f32;
+        if !(t32 > 0.0 && t32 <= t_max) {
+            return None;
+        }
+        // The f32 path's error bound (see there), in f64: the shear rounded in f32, the rest
+        // is nearly exact here, so this is conservative.
+        let g = |n: u32| f64::from(gamma(n));
+        let max3 = |a: f64, b: f64, c: f64| a.abs().max(b.abs()).max(c.abs());
+        let max_z = max3(az, bz, cz);
+        let shear_z = max3(a, b, c);
+        let (max_x, max_y) = (max3(ax, bx, cx), max3(ay, by, cy));
+        let delta_z = g(3) * max_z;
+        let delta_x = g(5) * (max_x + f64::from(ray.sx).abs() * shear_z);
+        let delta_y = g(5) * (max_y + f64::from(ray.sy).abs() * shear_z);
+        let delta_e = 2.0 * (g(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
+        let max_e = max3(u, v, w);
+        let delta_t = 3.0 * (g(3) * max_e * max_z + delta_e * max_z + delta_z * max_e) / det.abs();
+        if t <= delta_t {
+            return None;
+        }
+        Some(TriangleHit { t: t32, u: (v / det) as f32, v: (w / det) as f32 })
     }
 }
 
@@ -229,6 +297,46 @@ mod tests {
                 t0.intersect(&wr, f32::INFINITY).is_some() as u32 + t1.intersect(&wr, f32::INFINITY).is_some() as u32;
             assert!(hits >= 1, "ray {k} leaked through the shared edge");
         }
+    }
+
+    /// The same hit, relatively, at scales where f32 edge functions overflow (10^25: products
+    /// of 10^50) or underflow (10^-25), and a shared edge still lets no ray through there.
+    #[test]
+    fn extreme_scales_hit_like_unit_scale() {
+        for s in [1e25f32, 1e-25, 3e37, 1e-37] {
+            let t = Triangle::new(tri().v0 * s, tri().v1 * s, tri().v2 * s);
+            let r = Ray::new(Vec3::new(0.25, 0.5, 0.0) * s, Vec3::Z);
+            let h = t.intersect(&WatertightRay::new(&r), f32::INFINITY).unwrap_or_else(|| panic!("missed at {s:e}"));
+            assert!(
+                (h.t / s - 2.0).abs() < 1e-6 && (h.u - 0.25).abs() < 1e-6 && (h.v - 0.5).abs() < 1e-6,
+                "{s:e}: {h:?}"
+            );
+            let outside = Ray::new(Vec3::new(0.75, 0.5, 0.0) * s, Vec3::Z);
+            assert!(t.intersect(&WatertightRay::new(&outside), f32::INFINITY).is_none(), "{s:e}");
+            let (a, b, c, d) = (
+                Vec3::new(0.0, 0.0, 2.0) * s,
+                Vec3::new(1.3, 0.1, 2.2) * s,
+                Vec3::new(0.2, 1.1, 1.9) * s,
+                Vec3::new(1.1, 1.3, 2.5) * s,
+            );
+            let (t0, t1) = (Triangle::new(a, b, c), Triangle::new(b, d, c));
+            let o = Vec3::new(0.37, 0.41, -1.0) * s;
+            for k in 0..=200 {
+                let wr = WatertightRay::new(&Ray::new(o, b.lerp(c, k as f32 / 200.0) - o));
+                let hits = t0.intersect(&wr, f32::INFINITY).is_some() || t1.intersect(&wr, f32::INFINITY).is_some();
+                assert!(hits, "{s:e}: ray {k} leaked through the shared edge");
+            }
+        }
+    }
+
+    #[test]
+    fn unit_normals_at_every_scale() {
+        for s in [1.0f32, 1e25, 1e-25, 3e37, 1e-37, 1e-40] {
+            let t = Triangle::new(tri().v0 * s, tri().v1 * s, tri().v2 * s);
+            assert_eq!(t.unit_normal(), Vec3::Z, "{s:e}");
+        }
+        let p = Vec3::ONE;
+        assert_eq!(Triangle::new(p, p, p).unit_normal(), Vec3::ZERO);
     }
 
     #[test]

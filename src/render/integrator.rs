@@ -296,7 +296,7 @@ impl RenderScene {
                 break;
             };
             let tri = &hit.triangle;
-            let ng = tri.normal().normalize_or_zero();
+            let ng = tri.unit_normal();
             if ng == Vec3::ZERO {
                 break;
             }
