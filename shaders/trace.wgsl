@@ -252,11 +252,37 @@ fn intersect_triangle(tri: GpuTriangle, r: TraceRay, t_max: f32) -> vec3<f32> {
     return vec3<f32>(t, v * rcp, w * rcp);
 }
 
-// The box-culling slack of traverse.rs (cull_slack).
+// The box-culling slack of traverse.rs (cull_slack), with each length taken on the vector
+// divided by its largest component (the CPU takes them in f64): plain lengths overflow beyond
+// about 1e19 and underflow below 1e-19, which made the slack NaN.
 fn cull_slack(r: Ray) -> f32 {
     let root = nodes[0];
     let far = max(abs(root.aabb_min - r.origin), abs(root.aabb_max - r.origin));
-    return CULL_ABS_SLACK * length(far) / length(r.dir);
+    let m_far = max3(far);
+    let m_dir = max3(abs(r.dir));
+    if m_far == 0.0 {
+        return 0.0;
+    }
+    return CULL_ABS_SLACK * (m_far / m_dir) * (length(far / m_far) / length(r.dir / m_dir));
+}
+
+// Triangle::unit_normal: where the squared length of the edges' cross product leaves f32's
+// normal range (edges beyond about 1e9 or below 3e-10), the edges are first scaled by a power of
+// two; plain normalisation gave zero there, which ended such paths black.
+fn unit_normal(v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>) -> vec3<f32> {
+    let e1 = v1 - v0;
+    let e2 = v2 - v0;
+    let n = cross(e1, e2);
+    let l2 = dot(n, n);
+    if l2 >= 1.17549435e-38 && l2 <= 3.40282347e38 {
+        return normalize_or_zero(n);
+    }
+    let largest = max(max3(abs(e1)), max3(abs(e2)));
+    if !(is_finite_f(largest) && largest > 0.0) {
+        return vec3<f32>(0.0);
+    }
+    let s = exp2(clamp(-floor(log2(largest)), -126.0, 126.0));
+    return normalize_or_zero(cross(e1 * s, e2 * s));
 }
 
 struct Hit {
@@ -484,7 +510,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
             break;
         }
         let tri = triangles[hit.index];
-        let ng = normalize_or_zero(cross(tri.v1 - tri.v0, tri.v2 - tri.v0));
+        let ng = unit_normal(tri.v0, tri.v1, tri.v2);
         if all(ng == vec3<f32>(0.0)) {
             break;
         }

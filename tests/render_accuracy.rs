@@ -103,22 +103,40 @@ fn scene_from(text: &str, name: &str) -> Scene {
 }
 
 /// A convex sphere of albedo 0.8 under environment radiance 1: every path bounces once and
-/// leaves, so every sample on the sphere is exactly 0.8 and the background exactly 1.
+/// leaves, so every sample on the sphere is exactly 0.8 and the background exactly 1. The same
+/// at scales where f32 squares of edge lengths overflow (10^12), products of three coordinates
+/// do (10^16, 10^18), or they underflow (10^-12, 10^-16, 10^-18).
 #[test]
 fn furnace_sphere_is_exactly_its_albedo() {
-    let scene = Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/furnace.toml")).unwrap();
-    let film = render(&scene, 16, scene.render.max_depth);
-    let image = film.mean();
-    let at = |x: u32, y: u32| Vec3::from(image.pixels[(y * image.width + x) as usize]);
-    let c = image.width / 2;
-    for y in c - 20..c + 20 {
-        for x in c - 20..c + 20 {
-            assert!((at(x, y) - Vec3::splat(0.8)).abs().max_element() < 1e-6, "pixel ({x}, {y}) = {}", at(x, y));
+    let unit = Scene::load(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/furnace.toml")).unwrap();
+    for s in [1.0, 1e12, 1e-12, 1e16, 1e-16, 1e18, 1e-18] {
+        let scene = scaled_scene(&unit, s);
+        let film = render(&scene, 16, scene.render.max_depth);
+        let image = film.mean();
+        let at = |x: u32, y: u32| Vec3::from(image.pixels[(y * image.width + x) as usize]);
+        let c = image.width / 2;
+        for y in c - 20..c + 20 {
+            for x in c - 20..c + 20 {
+                let p = at(x, y);
+                assert!((p - Vec3::splat(0.8)).abs().max_element() < 1e-6, "scale {s:e}: pixel ({x}, {y}) = {p}");
+            }
+        }
+        for (x, y) in [(0, 0), (image.width - 1, 0), (0, image.height - 1)] {
+            assert_eq!(at(x, y), Vec3::ONE, "scale {s:e}: background pixel ({x}, {y})");
         }
     }
-    for (x, y) in [(0, 0), (image.width - 1, 0), (0, image.height - 1)] {
-        assert_eq!(at(x, y), Vec3::ONE, "background pixel ({x}, {y})");
+}
+
+/// `scene` with every object and the camera scaled by `s` about the origin.
+fn scaled_scene(scene: &Scene, s: f32) -> Scene {
+    let mut scene = scene.clone();
+    for o in &mut scene.objects {
+        o.world_from_object = glam::Mat4::from_scale(Vec3::splat(s)) * o.world_from_object;
     }
+    scene.camera.position *= s;
+    scene.camera.look_at *= s;
+    scene.camera.focus_distance *= s;
+    scene
 }
 
 /// A camera inside a closed emitting shell sees a geometric series (`analytic::check_closed_shell`).

@@ -8,7 +8,7 @@
 //! - Edge functions that come out exactly zero are recomputed in f64 (the paper's section 5
 //!   fallback), for all three at once, and so are edge functions that overflow (relative
 //!   coordinates beyond about 10^19), underflow to subnormals (below about 10^-19), or whose
-//!   weighted sum `T` overflows: the rest of the test then runs in f64 too
+//!   weighted sum `T` overflows or underflows (near 10^16 and 10^-16): the rest of the test then runs in f64 too
 //!   ([`Triangle::intersect_f64`]), so that scenes at any f32 scale are hit.
 //! - The hit distance is computed (`T / det`) before the range test and the range test is done on
 //!   it, instead of comparing `T` against `t_max * det`. That costs a division for the few rays
@@ -58,25 +58,39 @@ impl Triangle {
         (self.v1 - self.v0).cross(self.v2 - self.v0)
     }
 
-    /// The unit geometric normal, or zero for a degenerate triangle. Where the cross product of
-    /// the edges would overflow (edges beyond about 10^19) or underflow (below about 10^-19),
-    /// the edges are first scaled by a power of two, which leaves the direction exact.
+    /// The unit geometric normal, or zero for a degenerate triangle. Where the squared length
+    /// of the edges' cross product leaves f32's normal range (edges beyond about 10^9 or below
+    /// about 3·10^-10), the edges are first scaled by a power of two, which leaves the direction
+    /// exact. (Plain normalisation gave zero there, and the renderer ended such paths black.)
     pub fn unit_normal(&self) -> Vec3 {
-        let (e1, e2) = (self.v1 - self.v0, self.v2 - self.v0);
-        let n = e1.cross(e2);
+        let n = self.normal();
         if n.length_squared().is_normal() {
             return n.normalize();
         }
-        let largest = e1.abs().max(e2.abs()).max_element();
-        if !(largest.is_finite() && largest > 0.0) {
-            return Vec3::ZERO;
-        }
-        let scale = 2f32.powi((-(largest.log2().floor() as i32)).clamp(-126, 127));
-        (e1 * scale).cross(e2 * scale).normalize_or_zero()
+        self.scaled_normal().map_or(Vec3::ZERO, |(n, _)| n.normalize_or_zero())
     }
 
+    /// The area, computed as [`Triangle::unit_normal`] computes the normal where the squared
+    /// length would overflow or underflow: infinite or zero only where the area itself is.
     pub fn area(&self) -> f32 {
-        0.5 * self.normal().length()
+        let n = self.normal();
+        if n.length_squared().is_normal() {
+            return 0.5 * n.length();
+        }
+        self.scaled_normal().map_or(0.0, |(n, scale)| 0.5 * n.length() / scale / scale)
+    }
+
+    /// The edges' cross product with both edges multiplied by a power of two that brings the
+    /// longer coordinate difference to [1, 2), and that power; `None` for a point triangle or
+    /// non-finite edges.
+    fn scaled_normal(&self) -> Option<(Vec3, f32)> {
+        let (e1, e2) = (self.v1 - self.v0, self.v2 - self.v0);
+        let largest = e1.abs().max(e2.abs()).max_element();
+        if !(largest.is_finite() && largest > 0.0) {
+            return None;
+        }
+        let scale = 2f32.powi((-(largest.log2().floor() as i32)).clamp(-126, 127));
+        Some(((e1 * scale).cross(e2 * scale), scale))
     }
 
     /// The point with barycentrics `(1 - u - v, u, v)`. Interpolating the vertices is far more
@@ -133,7 +147,9 @@ impl Triangle {
         let cz = ray.sz * c[kz];
         let t_scaled = u * az + v * bz + w * cz;
         let rcp = 1.0 / det;
-        if !(t_scaled.is_finite() && rcp.is_normal()) {
+        // Zero or subnormal T is `t` lost to underflow (relative coordinates near 10^-16), not a
+        // hit at the origin: the f64 test decides.
+        if !(t_scaled.is_normal() && rcp.is_normal()) {
             return self.intersect_f64(ray, t_max, sheared);
         }
         let t = t_scaled * rcp;
@@ -303,7 +319,7 @@ mod tests {
     /// of 10^50) or underflow (10^-25), and a shared edge still lets no ray through there.
     #[test]
     fn extreme_scales_hit_like_unit_scale() {
-        for s in [1e25f32, 1e-25, 3e37, 1e-37] {
+        for s in [1e25f32, 1e-25, 1e16, 1e-16, 3e37, 1e-37] {
             let t = Triangle::new(tri().v0 * s, tri().v1 * s, tri().v2 * s);
             let r = Ray::new(Vec3::new(0.25, 0.5, 0.0) * s, Vec3::Z);
             let h = t.intersect(&WatertightRay::new(&r), f32::INFINITY).unwrap_or_else(|| panic!("missed at {s:e}"));
@@ -330,10 +346,14 @@ mod tests {
     }
 
     #[test]
-    fn unit_normals_at_every_scale() {
-        for s in [1.0f32, 1e25, 1e-25, 3e37, 1e-37, 1e-40] {
+    fn unit_normals_and_areas_at_every_scale() {
+        for s in [1.0f32, 1e10, 1e-10, 1e19, 1e-19, 1e25, 1e-25, 3e37, 1e-37, 1e-40] {
             let t = Triangle::new(tri().v0 * s, tri().v1 * s, tri().v2 * s);
             assert_eq!(t.unit_normal(), Vec3::Z, "{s:e}");
+            let area = 0.5 * s as f64 * s as f64;
+            if (1e-30..1e30).contains(&area) {
+                assert!((t.area() as f64 / area - 1.0).abs() < 1e-6, "{s:e}: area {} against {area:e}", t.area());
+            }
         }
         let p = Vec3::ONE;
         assert_eq!(Triangle::new(p, p, p).unit_normal(), Vec3::ZERO);
