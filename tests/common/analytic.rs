@@ -1,6 +1,6 @@
-//! Exact answers shared by the CPU and GPU render tests: a closed emitting shell (a geometric
-//! series), and a diffuse floor under a square area light (Lambert's closed form for a polygon's
-//! irradiance).
+//! Exact answers shared by the CPU and GPU render tests: the white furnace, a closed emitting
+//! shell (a geometric series), and a diffuse floor under a square area light (Lambert's closed
+//! form for a polygon's irradiance).
 
 use arbor::image_io::Image;
 use arbor::render::film::Film;
@@ -12,6 +12,39 @@ const RADIANCE: f32 = 10.0;
 /// The light's half width and height above the floor.
 const HALF: f32 = 0.25;
 const HEIGHT: f32 = 1.0;
+
+/// `scene` with every object and the camera scaled by `s` about the origin.
+pub fn scaled_scene(scene: &Scene, s: f32) -> Scene {
+    let mut scene = scene.clone();
+    for o in &mut scene.objects {
+        o.world_from_object = glam::Mat4::from_scale(Vec3::splat(s)) * o.world_from_object;
+    }
+    scene.camera.position *= s;
+    scene.camera.look_at *= s;
+    scene.camera.focus_distance *= s;
+    scene
+}
+
+/// `scenes/furnace.toml` scaled by `scale` and rendered by `render`: a convex sphere of albedo
+/// 0.8 under environment radiance 1, so every pixel of the sphere's middle reads 0.8 (to
+/// `tolerance`) and the background exactly 1.
+pub fn check_furnace(tag: &str, unit: &Scene, scale: f32, tolerance: f32, render: impl FnOnce(&Scene) -> Film) {
+    let image = render(&scaled_scene(unit, scale)).mean();
+    let at = |x: u32, y: u32| Vec3::from(image.pixels[(y * image.width + x) as usize]);
+    let c = image.width / 2;
+    for y in c - 20..c + 20 {
+        for x in c - 20..c + 20 {
+            let p = at(x, y);
+            assert!(
+                (p - Vec3::splat(0.8)).abs().max_element() < tolerance,
+                "{tag}, scale {scale:e}: pixel ({x}, {y}) = {p}"
+            );
+        }
+    }
+    for (x, y) in [(0, 0), (image.width - 1, 0), (0, image.height - 1)] {
+        assert_eq!(at(x, y), Vec3::ONE, "{tag}, scale {scale:e}: background pixel ({x}, {y})");
+    }
+}
 
 /// The irradiance scene, 48×48 pixels: render it with max depth 2 (direct light only).
 pub fn irradiance_scene_text() -> String {
