@@ -222,7 +222,7 @@ fn followed_sah_matches_the_full_sum_and_scale_changes_nothing() {
     for strategy in [LockStrategy::Aggressive, LockStrategy::Conservative] {
         let mut trees = Vec::new();
         for scale in [1.0f32, 2f32.powi(66), 2f32.powi(-66)] {
-            let prims: Vec<Aabb> = base.iter().map(|b| Aabb::new(b.min * scale, b.max * scale)).collect();
+            let prims: Vec<Aabb> = base.iter().map(|b| b.scaled(scale)).collect();
             let config = PrbvhConfig { collapse: None, strategy, ..Default::default() };
             let (bvh, stats) = optimize_and_check(&prims, &config);
             let full = sah_cost(&bvh);

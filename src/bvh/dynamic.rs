@@ -70,7 +70,7 @@ fn is_hole(n: &BvhNode) -> bool {
 /// [`Aabb::area_scale`] of the root and `b`, so that they neither overflow nor underflow.
 pub(crate) fn best_sibling(nodes: &[BvhNode], b: &Aabb, skip: impl Fn(&BvhNode) -> bool) -> u32 {
     let scale = nodes[0].aabb().union(*b).area_scale();
-    let area = |a: Aabb| if scale == 1.0 { a.half_area() } else { Aabb::new(a.min * scale, a.max * scale).half_area() };
+    let area = |a: Aabb| a.scaled(scale).half_area();
     let area_b = area(*b);
     // Min-heap on the induced cost: non-negative floats order like their bits.
     let mut heap = BinaryHeap::new();

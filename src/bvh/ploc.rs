@@ -108,11 +108,7 @@ fn build_counting(prim_aabbs: &[Aabb], config: &PlocConfig) -> (Bvh, usize) {
 /// merged box has the smallest surface area, ties broken by [`tie_key`]. Areas are of the boxes
 /// multiplied by `scale`, a power of two.
 fn nearest_neighbours(clusters: &[BvhNode], radius: usize, scale: f32, out: &mut Vec<u32>) {
-    let boxes: Vec<Aabb> = if scale == 1.0 {
-        clusters.par_iter().with_min_len(4096).map(BvhNode::aabb).collect()
-    } else {
-        clusters.par_iter().with_min_len(4096).map(|c| Aabb::new(c.aabb_min * scale, c.aabb_max * scale)).collect()
-    };
+    let boxes: Vec<Aabb> = clusters.par_iter().with_min_len(4096).map(|c| c.aabb().scaled(scale)).collect();
     out.clear();
     out.par_extend((0..clusters.len()).into_par_iter().with_min_len(1024).map(|i| {
         let b = boxes[i];

@@ -114,7 +114,7 @@ pub fn optimize(bvh: &mut Bvh, config: &RbvhConfig) -> RbvhStats {
 fn select(bvh: &Bvh, count: usize, excluded: impl Fn(u32) -> bool) -> Vec<u32> {
     let nodes = &bvh.nodes;
     let scale = nodes[0].aabb().area_scale();
-    let area = |b: Aabb| Aabb::new(b.min * scale, b.max * scale).half_area_nonempty();
+    let area = |b: Aabb| b.scaled(scale).half_area_nonempty();
     let mut ranked: Vec<(f32, u32)> = (2..nodes.len() as u32)
         .filter(|&i| !nodes[i as usize].is_leaf() && !excluded(i))
         .map(|i| {
@@ -165,7 +165,7 @@ fn remove_and_reinsert(bvh: &mut Bvh, n: u32) {
     // The orphans, larger first.
     let (mut a, mut b) = (bvh.nodes[node.first as usize], bvh.nodes[node.first as usize + 1]);
     let scale = bvh.nodes[0].aabb().area_scale();
-    let area = |b: &BvhNode| Aabb::new(b.aabb_min * scale, b.aabb_max * scale).half_area_nonempty();
+    let area = |b: &BvhNode| b.aabb().scaled(scale).half_area_nonempty();
     if area(&b) > area(&a) {
         std::mem::swap(&mut a, &mut b);
     }

@@ -24,6 +24,13 @@ impl Default for Aabb {
     }
 }
 
+/// `2^-⌊log2 x⌋` for a finite positive `x`, the exponent clamped to ±127: the power of two that
+/// brings `x` into [1, 2) (as near as f32 allows for subnormal `x`). Multiplying by a power of
+/// two is exact, so it changes no comparison, only where overflow and underflow set in.
+pub(crate) fn pow2_normalizer(x: f32) -> f32 {
+    2f32.powi((-(x.log2().floor() as i32)).clamp(-127, 127))
+}
+
 impl Aabb {
     /// The empty box: the identity of `union`, with zero surface area.
     pub const EMPTY: Aabb = Aabb { min: Vec3::INFINITY, max: Vec3::NEG_INFINITY };
@@ -87,7 +94,13 @@ impl Aabb {
         if !extent.is_finite() || extent <= 0.0 || (2f32.powi(-32)..=2f32.powi(32)).contains(&extent) {
             return 1.0;
         }
-        2f32.powi(-(extent.log2().floor() as i32))
+        pow2_normalizer(extent)
+    }
+
+    /// The box with both corners multiplied by `s` (by [`Aabb::area_scale`], exactly).
+    #[inline]
+    pub fn scaled(self, s: f32) -> Self {
+        Self { min: self.min * s, max: self.max * s }
     }
 
     /// Half the surface area: what the SAH ratios need, one multiply cheaper.

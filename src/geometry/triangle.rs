@@ -89,7 +89,7 @@ impl Triangle {
         if !(largest.is_finite() && largest > 0.0) {
             return None;
         }
-        let scale = 2f32.powi((-(largest.log2().floor() as i32)).clamp(-126, 127));
+        let scale = super::aabb::pow2_normalizer(largest);
         Some(((e1 * scale).cross(e2 * scale), scale))
     }
 
