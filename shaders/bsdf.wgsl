@@ -19,6 +19,12 @@ fn is_finite_f(x: f32) -> bool {
     return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
 }
 
+// f32::is_normal: neither zero, subnormal, infinite nor NaN.
+fn is_normal_f(x: f32) -> bool {
+    let e = bitcast<u32>(x) & 0x7f800000u;
+    return e != 0u && e != 0x7f800000u;
+}
+
 fn is_inf_f(x: f32) -> bool {
     return (bitcast<u32>(x) & 0x7fffffffu) == 0x7f800000u;
 }

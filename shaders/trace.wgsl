@@ -198,25 +198,62 @@ fn difference_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
 
 // The watertight test (Woop et al. 2013), as Triangle::intersect: (t, u, v), t < 0 for a miss.
 fn intersect_triangle(tri: GpuTriangle, r: TraceRay, t_max: f32) -> vec3<f32> {
-    let miss = vec3<f32>(-1.0, 0.0, 0.0);
     let a = tri.v0 - r.origin;
     let b = tri.v1 - r.origin;
     let c = tri.v2 - r.origin;
-    let ax = a[r.kx] - r.shear.x * a[r.kz];
-    let ay = a[r.ky] - r.shear.y * a[r.kz];
-    let bx = b[r.kx] - r.shear.x * b[r.kz];
-    let by = b[r.ky] - r.shear.y * b[r.kz];
-    let cx = c[r.kx] - r.shear.x * c[r.kz];
-    let cy = c[r.ky] - r.shear.y * c[r.kz];
-    var u = cx * by - cy * bx;
-    var v = ax * cy - ay * cx;
-    var w = bx * ay - by * ax;
-    if u == 0.0 || v == 0.0 || w == 0.0 {
-        // The CPU recomputes in f64; WGSL has no portable f64, so the exact-sign fallback is
-        // Kahan's difference of products.
-        u = difference_of_products(cx, by, cy, bx);
-        v = difference_of_products(ax, cy, ay, cx);
-        w = difference_of_products(bx, ay, by, ax);
+    // The sheared coordinates of the three vertices, by axis; the z coordinates before the
+    // shear's scaling too (lengths, for the error bound).
+    let x = vec3<f32>(a[r.kx], b[r.kx], c[r.kx]);
+    let y = vec3<f32>(a[r.ky], b[r.ky], c[r.ky]);
+    let raw_z = vec3<f32>(a[r.kz], b[r.kz], c[r.kz]);
+    let sx = x - r.shear.x * raw_z;
+    let sy = y - r.shear.y * raw_z;
+    let sz = r.shear.z * raw_z;
+    let h = woop_2d(sx, sy, sz, max3(abs(raw_z)), r, t_max, false, 1.0);
+    if h.w == 0.0 {
+        return h.xyz;
+    }
+    // An edge function zero (a ray through an edge or vertex), subnormal or not finite, or T or
+    // 1/det out of f32's normal range (scenes beyond about 10^±12): the CPU goes on in f64;
+    // WGSL has no portable f64, so the same floats are multiplied by powers of two that bring
+    // their largest to [1, 2) (the x and y by one, z by another), which changes no rounding
+    // but moves every product back into range.
+    let xy_scale = pow2_normalizer(max(max3(abs(sx)), max3(abs(sy))), 254);
+    // Kept below 2^127 so that its inverse, the factor back to `t`, is a normal f32.
+    let z_scale = pow2_normalizer(max3(abs(sz)), 253);
+    let z_unscale = bitcast<f32>((254u - (bitcast<u32>(z_scale) >> 23u)) << 23u);
+    let s = woop_2d(sx * xy_scale, sy * xy_scale, sz * z_scale, max3(abs(raw_z)) * xy_scale, r, t_max, true, z_unscale);
+    return s.xyz;
+}
+
+// The 2D part of the watertight test, from the sheared vertices (x, y and z by vertex) and the
+// largest |z| before the shear's scaling (`shear_z`), all in units where `t` is the z unit times
+// `t_unscale`. (t, u, v, 0) for a hit, (-1, 0, 0, 0) for a miss, and w = 1 where `careful` is
+// false and the plain arithmetic cannot decide.
+fn woop_2d(
+    x: vec3<f32>,
+    y: vec3<f32>,
+    z: vec3<f32>,
+    shear_z: f32,
+    r: TraceRay,
+    t_max: f32,
+    careful: bool,
+    t_unscale: f32,
+) -> vec4<f32> {
+    let miss = vec4<f32>(-1.0, 0.0, 0.0, 0.0);
+    var u = x.z * y.y - y.z * x.y;
+    var v = x.x * y.z - y.x * x.z;
+    var w = x.y * y.x - y.y * x.x;
+    if careful {
+        // Products of the scaled floats round as those of the floats did, so an edge shared with
+        // a triangle that took the plain path gets the same value; zeros get Kahan's, as before.
+        if u == 0.0 || v == 0.0 || w == 0.0 {
+            u = difference_of_products(x.z, y.y, y.z, x.y);
+        v = difference_of_products(x.x, y.z, y.x, x.z);
+            w = difference_of_products(x.y, y.x, y.y, x.x);
+        }
+    } else if !(is_normal_f(u) && is_normal_f(v) && is_normal_f(w)) {
+        return vec4<f32>(-1.0, 0.0, 0.0, 1.0);
     }
     if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
         return miss;
@@ -225,31 +262,39 @@ fn intersect_triangle(tri: GpuTriangle, r: TraceRay, t_max: f32) -> vec3<f32> {
     if det == 0.0 {
         return miss;
     }
-    let az = r.shear.z * a[r.kz];
-    let bz = r.shear.z * b[r.kz];
-    let cz = r.shear.z * c[r.kz];
-    let t_scaled = u * az + v * bz + w * cz;
+    let t_scaled = u * z.x + v * z.y + w * z.z;
     let rcp = 1.0 / det;
-    let t = t_scaled * rcp;
+    if !careful && !(is_normal_f(t_scaled) && is_normal_f(rcp)) {
+        return vec4<f32>(-1.0, 0.0, 0.0, 1.0);
+    }
+    let t_here = t_scaled * rcp;
+    let t = t_here * t_unscale;
     if !(t > 0.0 && t <= t_max) {
         return miss;
     }
     // t is conservatively positive (pbrt-v4, section 6.8.7, with the shear's term in length
     // units as on the CPU): a ray leaving a surface cannot hit it again at a t of rounding noise.
-    let max_z = max3(abs(vec3<f32>(az, bz, cz)));
-    let shear_z = max3(abs(vec3<f32>(a[r.kz], b[r.kz], c[r.kz])));
-    let max_x = max3(abs(vec3<f32>(ax, bx, cx)));
-    let max_y = max3(abs(vec3<f32>(ay, by, cy)));
+    let max_z = max3(abs(z));
+    let max_x = max3(abs(x));
+    let max_y = max3(abs(y));
     let delta_z = GAMMA3 * max_z;
     let delta_x = GAMMA5 * (max_x + abs(r.shear.x) * shear_z);
     let delta_y = GAMMA5 * (max_y + abs(r.shear.y) * shear_z);
     let delta_e = 2.0 * (GAMMA2 * max_x * max_y + delta_y * max_x + delta_x * max_y);
     let max_e = max3(abs(vec3<f32>(u, v, w)));
     let delta_t = 3.0 * (GAMMA3 * max_e * max_z + delta_e * max_z + delta_z * max_e) * abs(rcp);
-    if t <= delta_t {
+    if t_here <= delta_t {
         return miss;
     }
-    return vec3<f32>(t, v * rcp, w * rcp);
+    return vec4<f32>(t, v * rcp, w * rcp, 0.0);
+}
+
+// A power of two p with p * m in [1, 2) for finite positive m (pow2_normalizer in
+// geometry/aabb.rs), from the exponent bits, so that it is exact; p's biased exponent is kept
+// in [1, max_biased].
+fn pow2_normalizer(m: f32, max_biased: i32) -> f32 {
+    let biased = i32((bitcast<u32>(m) >> 23u) & 0xffu);
+    return bitcast<f32>(u32(clamp(254 - biased, 1, max_biased)) << 23u);
 }
 
 // The box-culling slack of traverse.rs (cull_slack), with each length taken on the vector
@@ -281,7 +326,7 @@ fn unit_normal(v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>) -> vec3<f32> {
     if !(is_finite_f(largest) && largest > 0.0) {
         return vec3<f32>(0.0);
     }
-    let s = exp2(clamp(-floor(log2(largest)), -126.0, 126.0));
+    let s = pow2_normalizer(largest, 254);
     return normalize_or_zero(cross(e1 * s, e2 * s));
 }
 

@@ -48,14 +48,14 @@ fn render_cpu(scene: &RenderScene, seed: u64, spp: u32, max_depth: u32) -> Film 
 }
 
 /// A convex sphere of albedo 0.8 under environment radiance 1 reads exactly 0.8 (f32 on the GPU:
-/// to 1e-5), and the background exactly 1; also scaled by 10^12 and 10^-12, where f32 squares
-/// of edge lengths overflow and underflow (the GPU's range: its triangle test has no f64
-/// fallback, and misses from about 10^±16).
+/// to 1e-5), and the background exactly 1; also scaled by 10^±12, where f32 squares of edge
+/// lengths overflow and underflow, and by 10^±16 and 10^±18, where the triangle test's products
+/// do (the GPU then reruns it on coordinates rescaled by powers of two).
 #[test]
 fn furnace_sphere_is_exactly_its_albedo_on_the_gpu() {
     let Some(ctx) = gpu_or_skip("furnace_sphere_is_exactly_its_albedo_on_the_gpu") else { return };
     let unit = Scene::load(scene_path("furnace.toml")).unwrap();
-    for s in [1.0f32, 1e12, 1e-12] {
+    for s in [1.0f32, 1e12, 1e-12, 1e16, 1e-16, 1e18, 1e-18] {
         analytic::check_furnace("gpu", &unit, s, 1e-5, |scene| {
             let (rs, _) = RenderScene::build(scene, &lbvh());
             render_gpu(ctx, &rs, scene.render.seed, 16, scene.render.max_depth)
@@ -67,14 +67,17 @@ fn furnace_sphere_is_exactly_its_albedo_on_the_gpu() {
 #[test]
 fn closed_shell_sums_the_geometric_series_on_the_gpu() {
     let Some(ctx) = gpu_or_skip("closed_shell_sums_the_geometric_series_on_the_gpu") else { return };
-    analytic::check_closed_shell("gpu", |scene, depth| {
-        let (rs, _) = RenderScene::build(scene, &lbvh());
-        render_gpu(ctx, &rs, 0, 64, depth)
-    });
+    for s in [1.0, 1e12, 1e-12, 1e16, 1e-16] {
+        analytic::check_closed_shell("gpu", s, |scene, depth| {
+            let (rs, _) = RenderScene::build(scene, &lbvh());
+            render_gpu(ctx, &rs, 0, 64, depth)
+        });
+    }
 }
 
 /// A diffuse floor under a square light, direct light only: each 8x8 block matches `albedo/π · E`
-/// from the closed form within 3 standard errors (as in render_accuracy.rs).
+/// from the closed form within 3 standard errors, at unit scale and scaled by 10^±12 and 10^±16,
+/// where the image must also be the unit-scale one (as in render_accuracy.rs).
 #[test]
 fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
     let Some(ctx) = gpu_or_skip("irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu") else {
@@ -83,10 +86,17 @@ fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
     let scene =
         Scene::parse(&analytic::irradiance_scene_text(), std::env::temp_dir().join("arbor-gpu-irradiance.toml"))
             .unwrap();
-    let (rs, _) = RenderScene::build(&scene, &lbvh());
-    let film = render_gpu(ctx, &rs, 0, 256, 2);
-    let (blocks, worst) = analytic::check_irradiance(&scene, &film);
-    eprintln!("GPU irradiance: {blocks} blocks, worst z {worst:.2}");
+    let render = |s: f32| {
+        let (rs, _) = RenderScene::build(&analytic::scaled_scene(&scene, s), &lbvh());
+        render_gpu(ctx, &rs, 0, 256, 2)
+    };
+    let unit = render(1.0).mean();
+    for s in [1.0, 1e12, 1e-12, 1e16, 1e-16] {
+        let film = render(s);
+        let (blocks, worst) = analytic::check_irradiance(&scene, &film);
+        eprintln!("GPU irradiance at scale {s:e}: {blocks} blocks, worst z {worst:.2}");
+        analytic::check_same_image(&format!("gpu irradiance at scale {s:e}"), &unit, &film.mean(), 1e-3);
+    }
 }
 
 /// 8x8 blocks of `a` against `b`: the worst |z| over blocks and channels and the Bonferroni

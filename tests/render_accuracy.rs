@@ -116,17 +116,25 @@ fn furnace_sphere_is_exactly_its_albedo() {
 /// A camera inside a closed emitting shell sees a geometric series (`analytic::check_closed_shell`).
 #[test]
 fn closed_shell_sums_the_geometric_series() {
-    analytic::check_closed_shell("cpu", |scene, depth| render(scene, 64, depth));
+    for s in [1.0, 1e12, 1e-12, 1e16, 1e-16] {
+        analytic::check_closed_shell("cpu", s, |scene, depth| render(scene, 64, depth));
+    }
 }
 
 /// A diffuse floor under a square area light, direct light only: each 8x8 block of pixels
-/// must match `albedo/π · E` from the closed form, within 3 standard errors.
+/// must match `albedo/π · E` from the closed form, within 3 standard errors; also with the scene
+/// scaled by 10^±12 and 10^±16, where the image must also be the unit-scale one (to 10^-3;
+/// measured: 2·10^-6): a light lost to the scale would leave the closed form met, but noisier.
 #[test]
 fn irradiance_under_a_square_light_matches_the_closed_form() {
     let scene = scene_from(&analytic::irradiance_scene_text(), "irradiance");
-    let film = render(&scene, 256, 2);
-    let (blocks, worst) = analytic::check_irradiance(&scene, &film);
-    eprintln!("irradiance: {blocks} blocks, worst z {worst:.2}");
+    let unit = render(&scene, 256, 2).mean();
+    for s in [1.0, 1e12, 1e-12, 1e16, 1e-16] {
+        let film = render(&analytic::scaled_scene(&scene, s), 256, 2);
+        let (blocks, worst) = analytic::check_irradiance(&scene, &film);
+        eprintln!("irradiance at scale {s:e}: {blocks} blocks, worst z {worst:.2}");
+        analytic::check_same_image(&format!("cpu irradiance at scale {s:e}"), &unit, &film.mean(), 1e-3);
+    }
 }
 
 /// Same scene, seed and spp: the same image to the bit, whatever the thread count.

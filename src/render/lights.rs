@@ -52,7 +52,7 @@ impl Lights {
             let p = std::f32::consts::PI * luminance(radiance) * area * if two_sided { 2.0 } else { 1.0 };
             // A triangle so small that its area is subnormal has no usable normal or density
             // (1/area overflows); it can be neither sampled nor hit, so it is no light.
-            let normal = t.normal().normalize_or_zero();
+            let normal = t.unit_normal();
             if !(p > 0.0 && p.is_finite() && area.is_normal() && (1.0 / area).is_finite() && normal != Vec3::ZERO) {
                 continue;
             }
@@ -132,4 +132,31 @@ impl Lights {
 /// Rec. 709 luminance.
 pub fn luminance(c: Vec3) -> f32 {
     c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A light far from unit scale is still a light, with its unit normal and its density.
+    /// Before, its normal came from normalising the raw cross product, whose squared length
+    /// overflows beyond edges of about 10^9 (and underflows below about 3·10^-10): the light was
+    /// dropped, and scenes at 10^12 rendered without next-event estimation.
+    #[test]
+    fn lights_at_extreme_scales_are_kept() {
+        for s in [1.0f32, 1e-16, 1e-12, 1e12, 1e16] {
+            let tri = Triangle::new(Vec3::ZERO, Vec3::new(s, 0.0, 0.0), Vec3::new(0.0, s, 0.0));
+            let other = Triangle::new(Vec3::new(0.0, 0.0, s), Vec3::new(s, 0.0, s), Vec3::new(0.0, 2.0 * s, s));
+            let lights = Lights::new(&[tri, other], |_| Some((Vec3::ONE, false)));
+            assert_eq!(lights.lights.len(), 2, "scale {s:e}");
+            let n = lights.lights[0].normal;
+            assert!((n - Vec3::Z).length() <= 1e-6, "scale {s:e}: normal {n}");
+            // Chosen by power (area), then uniform by area: the density is 1 / total area.
+            let want = 1.0 / (1.5 * s * s);
+            for prim in 0..2 {
+                let p = lights.pdf_area(prim);
+                assert!((p - want).abs() <= 1e-6 * want, "scale {s:e}: pdf {p}, want {want}");
+            }
+        }
+    }
 }

@@ -46,6 +46,20 @@ pub fn check_furnace(tag: &str, unit: &Scene, scale: f32, tolerance: f32, render
     }
 }
 
+/// Asserts that `b` is `a` to `tolerance`, relative per channel (absolute below 10^-3), and
+/// prints the worst difference.
+pub fn check_same_image(tag: &str, a: &Image, b: &Image, tolerance: f32) {
+    assert_eq!((a.width, a.height), (b.width, b.height), "{tag}: sizes differ");
+    let worst = a
+        .pixels
+        .iter()
+        .zip(&b.pixels)
+        .flat_map(|(p, q)| (0..3).map(move |c| (p[c] - q[c]).abs() / p[c].abs().max(1e-3)))
+        .fold(0.0f32, |m, d| if d.is_nan() { f32::INFINITY } else { m.max(d) });
+    eprintln!("{tag}: worst relative difference {worst:e}");
+    assert!(worst <= tolerance, "{tag}: images differ by {worst:e} (relative), tolerance {tolerance:e}");
+}
+
 /// The irradiance scene, 48×48 pixels: render it with max depth 2 (direct light only).
 pub fn irradiance_scene_text() -> String {
     let (albedo, radiance, half, height) = (ALBEDO, RADIANCE, HALF, HEIGHT);
@@ -144,7 +158,7 @@ pub fn check_irradiance(scene: &Scene, film: &Film) -> (usize, f32) {
 /// `1 + a + ... + a^(D-1) = (1 - a^D) / (1 - a)` at max depth D. Renders the shell for three
 /// (a, D) with `render(scene, D)` and asserts that the image mean is within 3 standard errors of
 /// that. `tag` names the temporary folder and the printed lines.
-pub fn check_closed_shell(tag: &str, mut render: impl FnMut(&Scene, u32) -> Film) {
+pub fn check_closed_shell(tag: &str, scale: f32, mut render: impl FnMut(&Scene, u32) -> Film) {
     let dir = std::env::temp_dir().join(format!("arbor-shell-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     // An icosphere with its triangles turned inward.
@@ -164,13 +178,15 @@ pub fn check_closed_shell(tag: &str, mut render: impl FnMut(&Scene, u32) -> Film
              [[objects]]\nmesh = \"shell.obj\"\nmaterial = \"shell\"\n"
         );
         std::fs::write(dir.join("scene.toml"), text).unwrap();
-        let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
+        let scene = scaled_scene(&Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}")), scale);
         let film = render(&scene, depth);
         let (mean, se, _) = region(&film.mean(), &film.stderr(), |_, _| true);
         let expected = (1.0 - a.powi(depth as i32)) / (1.0 - a);
         let z = ((mean - Vec3::splat(expected)).abs() / se.max(Vec3::splat(1e-7))).max_element();
-        eprintln!("{tag} shell a = {a}, D = {depth}: mean {mean}, expected {expected}, standard error {se}, z {z:.2}");
-        assert!(z <= 3.0, "{tag}: a = {a}, D = {depth}: {mean} vs {expected} (standard error {se})");
+        eprintln!(
+            "{tag} shell at scale {scale:e}, a = {a}, D = {depth}: mean {mean}, expected {expected}, standard error {se}, z {z:.2}"
+        );
+        assert!(z <= 3.0, "{tag}, scale {scale:e}: a = {a}, D = {depth}: {mean} vs {expected} (standard error {se})");
     }
     std::fs::remove_dir_all(&dir).ok();
 }
