@@ -216,8 +216,9 @@ fn intersect_triangle(tri: GpuTriangle, r: TraceRay, t_max: f32) -> vec3<f32> {
     // An edge function zero (a ray through an edge or vertex), subnormal or not finite, or T or
     // 1/det out of f32's normal range (scenes beyond about 10^±12): the CPU goes on in f64;
     // WGSL has no portable f64, so the same floats are multiplied by powers of two that bring
-    // their largest to [1, 2) (the x and y by one, z by another), which changes no rounding
-    // but moves every product back into range.
+    // their largest to [1, 2) (the x and y by one, z by another). That is exact, unless a
+    // coordinate far smaller than the largest falls below 2^-126, and it moves every product
+    // back into range. Unlike the CPU's f64, the edge functions are still rounded f32 products.
     let xy_scale = pow2_normalizer(max(max3(abs(sx)), max3(abs(sy))), 254);
     // Kept below 2^127 so that its inverse, the factor back to `t`, is a normal f32.
     let z_scale = pow2_normalizer(max3(abs(sz)), 253);
@@ -245,11 +246,13 @@ fn woop_2d(
     var v = x.x * y.z - y.x * x.z;
     var w = x.y * y.x - y.y * x.x;
     if careful {
-        // Products of the scaled floats round as those of the floats did, so an edge shared with
-        // a triangle that took the plain path gets the same value; zeros get Kahan's, as before.
+        // Products of the scaled floats round as those of the floats did (barring subnormals),
+        // so an edge shared with a triangle that took the plain path gets the same sign; zeros
+        // get Kahan's, as before. (This, like watertightness itself, assumes the compiler
+        // evaluates `a * b - c * d` alike wherever it appears, fused or not.)
         if u == 0.0 || v == 0.0 || w == 0.0 {
             u = difference_of_products(x.z, y.y, y.z, x.y);
-        v = difference_of_products(x.x, y.z, y.x, x.z);
+            v = difference_of_products(x.x, y.z, y.x, x.z);
             w = difference_of_products(x.y, y.x, y.y, x.x);
         }
     } else if !(is_normal_f(u) && is_normal_f(v) && is_normal_f(w)) {
@@ -269,7 +272,8 @@ fn woop_2d(
     }
     let t_here = t_scaled * rcp;
     let t = t_here * t_unscale;
-    if !(t > 0.0 && t <= t_max) {
+    // Bits decide finiteness: WGSL may assume no NaN or infinity in the comparisons.
+    if !(is_finite_f(t) && t > 0.0 && t <= t_max) {
         return miss;
     }
     // t is conservatively positive (pbrt-v4, section 6.8.7, with the shear's term in length
@@ -282,16 +286,19 @@ fn woop_2d(
     let delta_y = GAMMA5 * (max_y + abs(r.shear.y) * shear_z);
     let delta_e = 2.0 * (GAMMA2 * max_x * max_y + delta_y * max_x + delta_x * max_y);
     let max_e = max3(abs(vec3<f32>(u, v, w)));
-    let delta_t = 3.0 * (GAMMA3 * max_e * max_z + delta_e * max_z + delta_z * max_e) * abs(rcp);
+    // Grouped as on the CPU so that no product grows as the cube of the scene's size:
+    // max_e / |det| lies in [1/3, 1].
+    let delta_t = 3.0 * ((GAMMA3 * max_z + delta_z) * (max_e * abs(rcp)) + (delta_e * abs(rcp)) * max_z);
     if t_here <= delta_t {
         return miss;
     }
     return vec4<f32>(t, v * rcp, w * rcp, 0.0);
 }
 
-// A power of two p with p * m in [1, 2) for finite positive m (pow2_normalizer in
-// geometry/aabb.rs), from the exponent bits, so that it is exact; p's biased exponent is kept
-// in [1, max_biased].
+// A power of two p with p * m in [1, 2) for normal m below 2^127 (as pow2_normalizer in
+// geometry/aabb.rs), from the exponent bits, so that it is exact. p's biased exponent is kept
+// in [1, max_biased]: m of 2^127 or more gets 2^-126 (p * m in [2, 4)), subnormal m and zero
+// 2^(max_biased - 127), infinity and NaN 2^-126 (they stay what they are).
 fn pow2_normalizer(m: f32, max_biased: i32) -> f32 {
     let biased = i32((bitcast<u32>(m) >> 23u) & 0xffu);
     return bitcast<f32>(u32(clamp(254 - biased, 1, max_biased)) << 23u);

@@ -174,7 +174,10 @@ impl Triangle {
         let delta_y = gamma(5) * (max_y + ray.sy.abs() * shear_z);
         let delta_e = 2.0 * (gamma(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
         let max_e = max3(u, v, w);
-        let delta_t = 3.0 * (gamma(3) * max_e * max_z + delta_e * max_z + delta_z * max_e) * rcp.abs();
+        // Grouped so that no product grows as the cube of the scene's size (from about 10^15 it
+        // could overflow and reject a hit, near 10^-13 underflow to no bound): max_e / |det|
+        // lies in [1/3, 1].
+        let delta_t = 3.0 * ((gamma(3) * max_z + delta_z) * (max_e * rcp.abs()) + (delta_e * rcp.abs()) * max_z);
         if t <= delta_t {
             return None;
         }

@@ -40,8 +40,10 @@
 //! **Departures from the CPU integrator** (none changes the expected image):
 //! - random numbers: a 32-bit PCG (RXS-M-XS) stream per (seed, pixel, sample), seeded by a hash
 //!   of the triple, not the CPU's 64-bit PCG32; images agree statistically, not bit for bit;
-//! - the watertight test's fallback for edge functions that are exactly 0 is Kahan's
-//!   difference of products (correctly signed) rather than f64, which WGSL lacks portably;
+//! - the watertight test's fallback, where an edge function is zero, subnormal or not finite,
+//!   or `T` or 1/det leaves f32's normal range, is not f64, which WGSL lacks portably: the
+//!   sheared coordinates are rescaled by powers of two (exact) and the test rerun in f32, with
+//!   Kahan's difference of products (correctly signed) for edge functions that are exactly 0;
 //! - ties between hits at the same distance go to the lowest leaf position, not the lowest
 //!   original triangle id (only duplicate triangles can tie);
 //! - WGSL's `sin`, `cos`, division and `sqrt` may be less accurate than Rust's, a few ULPs;
@@ -49,7 +51,7 @@
 //!   differs from the CPU's two-level one; it finds the same surfaces, up to rounding.
 //!
 //! Everything else is the CPU's, step for step: thin-lens camera rays, the slab test and box
-//! culling slack of the traversal, the watertight test with its conservative `t`, error-bound
+//! culling slack of the traversal, the watertight test's f32 path with its conservative `t`, error-bound
 //! ray offsets and shadow rays kept on the line to the light sample, every BSDF (Lambert, GGX
 //! conductors with height-correlated Smith, visible-normal sampling, complex or Schlick
 //! Fresnel, smooth and rough dielectrics), emitters front-only or two-sided, lights chosen by

@@ -50,8 +50,9 @@ impl Lights {
             let area = t.area();
             // Emitted power of a Lambertian emitter: π · L · area per side.
             let p = std::f32::consts::PI * luminance(radiance) * area * if two_sided { 2.0 } else { 1.0 };
-            // A triangle so small that its area is subnormal has no usable normal or density
-            // (1/area overflows); it can be neither sampled nor hit, so it is no light.
+            // A triangle so small that its area is subnormal has no usable density (1/area
+            // overflows), and one whose area or power overflows none either; such a triangle
+            // can be neither sampled nor hit, so it is no light.
             let normal = t.unit_normal();
             if !(p > 0.0 && p.is_finite() && area.is_normal() && (1.0 / area).is_finite() && normal != Vec3::ZERO) {
                 continue;
