@@ -286,8 +286,8 @@ fn woop_2d(
     let delta_y = GAMMA5 * (max_y + abs(r.shear.y) * shear_z);
     let delta_e = 2.0 * (GAMMA2 * max_x * max_y + delta_y * max_x + delta_x * max_y);
     let max_e = max3(abs(vec3<f32>(u, v, w)));
-    // Grouped as on the CPU so that no product grows as the cube of the scene's size:
-    // max_e / |det| lies in [1/3, 1].
+    // t_error_bound of geometry/triangle.rs, which is f64 there; here in f32, grouped so that no
+    // product grows as the cube of the scene's size: max_e / |det| lies in [1/3, 1].
     let delta_t = 3.0 * ((GAMMA3 * max_z + delta_z) * (max_e * abs(rcp)) + (delta_e * abs(rcp)) * max_z);
     if t_here <= delta_t {
         return miss;
@@ -295,9 +295,9 @@ fn woop_2d(
     return vec4<f32>(t, v * rcp, w * rcp, 0.0);
 }
 
-// A power of two p with p * m in [1, 2) for normal m below 2^127 (as pow2_normalizer in
-// geometry/aabb.rs), from the exponent bits, so that it is exact. p's biased exponent is kept
-// in [1, max_biased]: m of 2^127 or more gets 2^-126 (p * m in [2, 4)), subnormal m and zero
+// pow2_normalizer of geometry/aabb.rs, with p's biased exponent kept in [1, max_biased] (254
+// there): a power of two p with p * m in [1, 2) for normal m below 2^127, from the exponent
+// bits. m of 2^127 or more gets 2^-126 (p * m in [2, 4)), subnormal m and zero
 // 2^(max_biased - 127), infinity and NaN 2^-126 (they stay what they are).
 fn pow2_normalizer(m: f32, max_biased: i32) -> f32 {
     let biased = i32((bitcast<u32>(m) >> 23u) & 0xffu);

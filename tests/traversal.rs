@@ -101,13 +101,19 @@ fn check(name: &str, tris: &[Triangle], rays: &[Ray]) -> usize {
     expected.iter().filter(|e| e.full.is_some()).count()
 }
 
-#[test]
-fn random_triangles_match_brute_force() {
-    let mut r = rng(10);
-    let tris = random_triangles(20_000, 0.05, &mut r);
+/// `triangles` random triangles (seeded by `seed`) and `rays` rays aimed at their vertices.
+fn random_scene(seed: u64, triangles: usize, rays: usize) -> (Vec<Triangle>, Vec<Ray>) {
+    let mut r = rng(seed);
+    let tris = random_triangles(triangles, 0.05, &mut r);
     let targets: Vec<_> = tris.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect();
     let bounds = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
-    let rays = rays_at(&bounds, &targets, 4000, &mut r);
+    let rays = rays_at(&bounds, &targets, rays, &mut r);
+    (tris, rays)
+}
+
+#[test]
+fn random_triangles_match_brute_force() {
+    let (tris, rays) = random_scene(10, 20_000, 4000);
     let hits = check("random", &tris, &rays);
     assert!(hits > 2000, "the rays should mostly hit: {hits}");
 }
@@ -118,11 +124,7 @@ fn random_triangles_match_brute_force() {
 /// are decided in f32 and here in f64). Direction lengths scale too, as for shadow rays.
 #[test]
 fn extreme_scales_hit_what_unit_scale_hits() {
-    let mut r = rng(12);
-    let tris = random_triangles(5000, 0.05, &mut r);
-    let targets: Vec<_> = tris.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect();
-    let bounds = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
-    let rays = rays_at(&bounds, &targets, 2000, &mut r);
+    let (tris, rays) = random_scene(12, 5000, 2000);
     let ids = |tris: &[Triangle], rays: &[Ray]| -> Vec<Option<u32>> {
         rays.par_iter().map(|ray| brute_force_closest(tris, ray, f32::INFINITY).map(|h| h.prim_id)).collect()
     };

@@ -24,11 +24,14 @@ impl Default for Aabb {
     }
 }
 
-/// `2^-⌊log2 x⌋` for a finite positive `x`, the exponent clamped to ±127: the power of two that
-/// brings `x` into [1, 2) (as near as f32 allows for subnormal `x`). Multiplying by a power of
-/// two is exact, so it changes no comparison, only where overflow and underflow set in.
+/// The power of two `2^-⌊log2 x⌋` that brings a normal `x` below 2^127 into [1, 2), from `x`'s
+/// exponent bits, kept a normal f32: `x` of 2^127 or more gets 2^-126 (into [2, 4)), subnormal
+/// `x` and zero 2^127. Multiplying by a power of two is exact, so it changes no comparison,
+/// only where overflow and underflow set in. The GPU's copy is `pow2_normalizer` in
+/// shaders/trace.wgsl, the same bits.
 pub(crate) fn pow2_normalizer(x: f32) -> f32 {
-    2f32.powi((-(x.log2().floor() as i32)).clamp(-127, 127))
+    let biased = ((x.to_bits() >> 23) & 0xff) as i32;
+    f32::from_bits(((254 - biased).clamp(1, 254) as u32) << 23)
 }
 
 impl Aabb {
@@ -210,6 +213,18 @@ impl RayInv {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pow2_normalizer_brings_values_into_one_to_two() {
+        for x in [1.0f32, 1.5, 2.0, 3.0, 0.7, 1e-30, 1e30, 1e-37, f32::MIN_POSITIVE, 2f32.powi(126)] {
+            let p = pow2_normalizer(x);
+            assert!(p.is_normal() && p.to_bits() & 0x007f_ffff == 0, "{x:e}: {p:e} is no power of two");
+            assert!((1.0..2.0).contains(&(p * x)), "{x:e}: scaled to {:e}", p * x);
+        }
+        assert_eq!(pow2_normalizer(f32::MAX), 2f32.powi(-126));
+        assert_eq!(pow2_normalizer(1e-40), 2f32.powi(127));
+        assert_eq!(pow2_normalizer(0.0), 2f32.powi(127));
+    }
 
     #[test]
     fn empty_box_is_union_identity_and_has_no_area() {

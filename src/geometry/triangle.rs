@@ -157,28 +157,10 @@ impl Triangle {
         if !(t > 0.0 && t <= t_max) {
             return None;
         }
-        // `t` is conservatively positive (pbrt-v4, 4th ed., section 6.8.7): its error bound from
-        // the shear, the edge functions and the weighted sum. Without it a ray leaving a
-        // surface, offset by only the hit point's error bound, can still hit that surface at a
-        // tiny positive `t` that is rounding noise (glass lost energy that way). Computed only
-        // for hits, which are rare among tests.
-        // One departure: pbrt bounds the shear's error by the scaled z (`t` units), which is
-        // length only for unit directions; ours are not (shadow rays span `p` to the light), so
-        // the shear's term is `|s_x| max |z|` in length units, as the shear computes it.
-        let max3 = |a: f32, b: f32, c: f32| a.abs().max(b.abs()).max(c.abs());
-        let max_z = max3(az, bz, cz);
-        let shear_z = max3(a[kz], b[kz], c[kz]);
-        let (max_x, max_y) = (max3(ax, bx, cx), max3(ay, by, cy));
-        let delta_z = gamma(3) * max_z;
-        let delta_x = gamma(5) * (max_x + ray.sx.abs() * shear_z);
-        let delta_y = gamma(5) * (max_y + ray.sy.abs() * shear_z);
-        let delta_e = 2.0 * (gamma(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
-        let max_e = max3(u, v, w);
-        // Grouped so that no product grows as the cube of the scene's size (from about 10^15 it
-        // could overflow and reject a hit, near 10^-13 underflow to no bound): max_e / |det|
-        // lies in [1/3, 1].
-        let delta_t = 3.0 * ((gamma(3) * max_z + delta_z) * (max_e * rcp.abs()) + (delta_e * rcp.abs()) * max_z);
-        if t <= delta_t {
+        // Computed only for hits, which are rare among tests.
+        let d = |v: [f32; 3]| v.map(f64::from);
+        let coords = [d([ax, bx, cx]), d([ay, by, cy]), d([az, bz, cz]), d([a[kz], b[kz], c[kz]])];
+        if f64::from(t) <= t_error_bound(ray, coords, d([u, v, w]), f64::from(rcp.abs())) {
             return None;
         }
         Some(TriangleHit { t, u: v * rcp, v: w * rcp })
@@ -214,24 +196,41 @@ impl Triangle {
         if !(t32 > 0.0 && t32 <= t_max) {
             return None;
         }
-        // The f32 path's error bound (see there), in f64: the shear rounded in f32, the rest
-        // is nearly exact here, so this is conservative.
-        let g = |n: u32| f64::from(gamma(n));
-        let max3 = |a: f64, b: f64, c: f64| a.abs().max(b.abs()).max(c.abs());
-        let max_z = max3(az, bz, cz);
-        let shear_z = max3(a, b, c);
-        let (max_x, max_y) = (max3(ax, bx, cx), max3(ay, by, cy));
-        let delta_z = g(3) * max_z;
-        let delta_x = g(5) * (max_x + f64::from(ray.sx).abs() * shear_z);
-        let delta_y = g(5) * (max_y + f64::from(ray.sy).abs() * shear_z);
-        let delta_e = 2.0 * (g(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
-        let max_e = max3(u, v, w);
-        let delta_t = 3.0 * (g(3) * max_e * max_z + delta_e * max_z + delta_z * max_e) / det.abs();
-        if t <= delta_t {
+        // The f32 path's bound: the shear rounded in f32, the rest is nearly exact here, so
+        // this is conservative.
+        let coords = [[ax, bx, cx], [ay, by, cy], [az, bz, cz], [a, b, c]];
+        if t <= t_error_bound(ray, coords, [u, v, w], 1.0 / det.abs()) {
             return None;
         }
         Some(TriangleHit { t: t32, u: (v / det) as f32, v: (w / det) as f32 })
     }
+}
+
+/// The bound on the error of a hit's `t` (pbrt-v4, 4th ed., section 6.8.7), from the three
+/// vertices' sheared coordinates `[x, y, z, raw_z]` (z in `t` units, raw z before the shear's
+/// scaling: a length), the edge functions `e` and `|1 / det|`. With it `t` is conservatively
+/// positive: without it a ray leaving a surface, offset by only the hit point's error bound,
+/// can still hit that surface at a tiny positive `t` that is rounding noise (glass lost energy
+/// that way).
+///
+/// One departure: pbrt bounds the shear's error by the scaled z (`t` units), which is length
+/// only for unit directions; ours are not (shadow rays span `p` to the light), so the shear's
+/// term is `|s_x| max |raw z|` in length units, as the shear computes it.
+///
+/// One definition for the f32 test and its f64 fallback, evaluated in f64, where nothing
+/// overflows or underflows (in f32, `max |e| * max |z|` grows as the cube of the scene's size).
+/// The GPU's copy (`woop_2d` in shaders/trace.wgsl) is f32 and groups the terms so that no
+/// product does: `max |e| / |det|` lies in [1/3, 1].
+fn t_error_bound(ray: &WatertightRay, sheared: [[f64; 3]; 4], e: [f64; 3], inv_det: f64) -> f64 {
+    let max_abs = |v: [f64; 3]| v[0].abs().max(v[1].abs()).max(v[2].abs());
+    let [max_x, max_y, max_z, shear_z] = sheared.map(max_abs);
+    let max_e = max_abs(e);
+    let g = |n: u32| f64::from(gamma(n));
+    let delta_z = g(3) * max_z;
+    let delta_x = g(5) * (max_x + f64::from(ray.sx).abs() * shear_z);
+    let delta_y = g(5) * (max_y + f64::from(ray.sy).abs() * shear_z);
+    let delta_e = 2.0 * (g(2) * max_x * max_y + delta_y * max_x + delta_x * max_y);
+    3.0 * (g(3) * max_e * max_z + delta_e * max_z + delta_z * max_e) * inv_det
 }
 
 /// A ray prepared for the watertight test: the axis permutation and shear of section 3.
