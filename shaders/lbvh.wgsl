@@ -18,6 +18,7 @@
 @group(0) @binding(12) var<storage, read_write> leaf_slots: array<u32>;
 @group(0) @binding(13) var<storage, read_write> visits: array<atomic<u32>>;
 @group(0) @binding(14) var<storage, read_write> centroids: array<vec4<f32>>;
+@group(0) @binding(15) var<storage, read_write> refit_boxes: array<atomic<u32>>;
 
 var<workgroup> wg_min: array<vec3<f32>, WORKGROUP_SIZE>;
 var<workgroup> wg_max: array<vec3<f32>, WORKGROUP_SIZE>;

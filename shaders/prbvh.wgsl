@@ -17,6 +17,7 @@
 @group(0) @binding(7) var<storage, read_write> winners: array<u32>;
 @group(0) @binding(8) var<storage, read_write> visits: array<atomic<u32>>;
 @group(0) @binding(9) var<storage, read_write> sah_sums: array<f32>;
+@group(0) @binding(12) var<storage, read_write> refit_boxes: array<atomic<u32>>;
 
 var<workgroup> wg_sum: array<f32, WORKGROUP_SIZE>;
 

@@ -76,8 +76,9 @@ fn closed_shell_sums_the_geometric_series_on_the_gpu() {
 }
 
 /// A diffuse floor under a square light, direct light only: each 8x8 block matches `albedo/π · E`
-/// from the closed form within 3 standard errors, at unit scale and scaled by 10^±12 and 10^±16,
-/// where the image must also be the unit-scale one (as in render_accuracy.rs).
+/// from the closed form within 3 standard errors, at unit scale and scaled by 2^±40 and 2^±53,
+/// where the image must also be the unit-scale one, to 10^-5 (as in render_accuracy.rs; the
+/// GPU's rescaled fallback is exact there, and measured 0 on lavapipe and an H100).
 #[test]
 fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
     let Some(ctx) = gpu_or_skip("irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu") else {
@@ -93,11 +94,11 @@ fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
     let unit = render(1.0);
     let (blocks, worst) = analytic::check_irradiance(&scene, &unit);
     eprintln!("GPU irradiance: {blocks} blocks, worst z {worst:.2}");
-    for s in [1e12, 1e-12, 1e16, 1e-16] {
+    for s in analytic::EXTREME_SCALES {
         let film = render(s);
         let (blocks, worst) = analytic::check_irradiance(&scene, &film);
         eprintln!("GPU irradiance at scale {s:e}: {blocks} blocks, worst z {worst:.2}");
-        analytic::check_same_image(&format!("gpu irradiance at scale {s:e}"), &unit.mean(), &film.mean(), 1e-3);
+        analytic::check_same_image(&format!("gpu irradiance at scale {s:e}"), &unit.mean(), &film.mean(), 1e-5);
     }
 }
 

@@ -123,19 +123,21 @@ fn closed_shell_sums_the_geometric_series() {
 
 /// A diffuse floor under a square area light, direct light only: each 8x8 block of pixels
 /// must match `albedo/π · E` from the closed form, within 3 standard errors; also with the scene
-/// scaled by 10^±12 and 10^±16, where the image must also be the unit-scale one (to 10^-3;
-/// measured: 2·10^-6): a light lost to the scale would leave the closed form met, but noisier.
+/// scaled by 2^±40 and 2^±53 (`analytic::EXTREME_SCALES`), where the image must also be the
+/// unit-scale one, to 10^-5 (measured: 1.3·10^-6, where the triangle test's f64 fallback rounds
+/// differently from its f32 path): a light lost to the scale would leave the closed form met,
+/// but noisier (the image then differed by 3.4).
 #[test]
 fn irradiance_under_a_square_light_matches_the_closed_form() {
     let scene = scene_from(&analytic::irradiance_scene_text(), "irradiance");
     let unit = render(&scene, 256, 2);
     let (blocks, worst) = analytic::check_irradiance(&scene, &unit);
     eprintln!("irradiance: {blocks} blocks, worst z {worst:.2}");
-    for s in [1e12, 1e-12, 1e16, 1e-16] {
+    for s in analytic::EXTREME_SCALES {
         let film = render(&analytic::scaled_scene(&scene, s), 256, 2);
         let (blocks, worst) = analytic::check_irradiance(&scene, &film);
         eprintln!("irradiance at scale {s:e}: {blocks} blocks, worst z {worst:.2}");
-        analytic::check_same_image(&format!("cpu irradiance at scale {s:e}"), &unit.mean(), &film.mean(), 1e-3);
+        analytic::check_same_image(&format!("cpu irradiance at scale {s:e}"), &unit.mean(), &film.mean(), 1e-5);
     }
 }
 

@@ -13,7 +13,9 @@
 //! [`GpuContext::storage_buffer`] with the limit's name.
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Mutex, OnceLock};
+use std::time::{Duration, Instant};
 
 use wgpu::util::DeviceExt;
 
@@ -59,6 +61,10 @@ pub struct GpuContext {
     pub features: wgpu::Features,
     pub limits: wgpu::Limits,
     pipelines: Mutex<HashMap<String, wgpu::ComputePipeline>>,
+    /// lampshade's radix sorter (the LBVH's), made once: it compiles its own pipelines.
+    sorter: Mutex<Option<lampshade::KeyValueSorter>>,
+    /// Nanoseconds spent compiling pipelines ([`GpuContext::compile_time`]).
+    compile_nanos: AtomicU64,
 }
 
 /// Features used where present.
@@ -106,7 +112,16 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| GpuError::Device { adapter: describe(&info), message: e.to_string() })?;
-        Ok(GpuContext { device, queue, info, features, limits, pipelines: Mutex::new(HashMap::new()) })
+        Ok(GpuContext {
+            device,
+            queue,
+            info,
+            features,
+            limits,
+            pipelines: Mutex::new(HashMap::new()),
+            sorter: Mutex::new(None),
+            compile_nanos: AtomicU64::new(0),
+        })
     }
 
     /// One context per process, software allowed: what tests and `--device gpu` share, so that
@@ -143,6 +158,7 @@ impl GpuContext {
         if let Some(p) = cache.get(&full_key) {
             return p.clone();
         }
+        let start = Instant::now();
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(key),
             source: wgpu::ShaderSource::Wgsl(source().into()),
@@ -156,7 +172,31 @@ impl GpuContext {
             cache: None,
         });
         cache.insert(full_key, pipeline.clone());
+        self.add_compile_time(start.elapsed());
         pipeline
+    }
+
+    /// Time this context has spent compiling pipelines, its own and the radix sorter's: a cost
+    /// paid once per process, which build times report apart (on an H100 it was 0.6 s of the
+    /// first GPU build's 0.7 s).
+    pub fn compile_time(&self) -> Duration {
+        Duration::from_nanos(self.compile_nanos.load(Ordering::Relaxed))
+    }
+
+    fn add_compile_time(&self, d: Duration) {
+        self.compile_nanos.fetch_add(u64::try_from(d.as_nanos()).unwrap_or(u64::MAX), Ordering::Relaxed);
+    }
+
+    /// Runs `f` with the context's radix sorter, made (and its pipelines compiled) on first use.
+    pub fn with_sorter<R>(&self, f: impl FnOnce(&mut lampshade::KeyValueSorter) -> R) -> R {
+        let mut sorter = self.sorter.lock().unwrap_or_else(|e| e.into_inner());
+        let sorter = sorter.get_or_insert_with(|| {
+            let start = Instant::now();
+            let made = lampshade::KeyValueSorter::new_for_adapter(&self.device, &self.queue, &self.info);
+            self.add_compile_time(start.elapsed());
+            made
+        });
+        f(sorter)
     }
 
     /// A storage buffer holding `data` (at least 4 bytes, as wgpu requires), usable as a copy

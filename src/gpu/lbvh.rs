@@ -120,6 +120,7 @@ pub fn build_on_device(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(GpuBvh,
     let parents = u32s("BVH parents", 2 * n)?;
     let leaf_slots = u32s("leaf slots", n)?;
     let visits = u32s("visit counters", 2 * n)?;
+    let refit_boxes = u32s("refit boxes", 6 * 2 * n)?;
     let centroids = ctx.storage_buffer_zeroed("centroids", (n * 16) as u64)?;
     let mut params = LbvhParams { prim_count: n32, pad: partial_count, ..Default::default() };
     let params_buf = ctx.uniform_buffer("LBVH parameters", &params);
@@ -156,13 +157,15 @@ pub fn build_on_device(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(GpuBvh,
         grid,
     );
     ctx.queue.submit([encoder.finish()]);
-    let mut sorter = lampshade::KeyValueSorter::new_for_adapter(&ctx.device, &ctx.queue, &ctx.info);
-    let sort_error = |e: lampshade::Error| GpuError::Other(format!("GPU radix sort: {e}"));
-    sorter.sort_gpu_to_gpu(&keys, &sorted, n32).map_err(sort_error)?;
+    let sort = || {
+        ctx.with_sorter(|sorter| sorter.sort_gpu_to_gpu(&keys, &sorted, n32))
+            .map_err(|e| GpuError::Other(format!("GPU radix sort: {e}")))
+    };
+    sort()?;
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
     run(&mut encoder, "gather_hi", &[(0, &params_buf), (3, &hi_codes), (5, &keys), (6, &sorted)], grid);
     ctx.queue.submit([encoder.finish()]);
-    sorter.sort_gpu_to_gpu(&keys, &sorted, n32).map_err(sort_error)?;
+    sort()?;
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
     run(
         &mut encoder,
@@ -188,7 +191,7 @@ pub fn build_on_device(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(GpuBvh,
     run(
         &mut encoder,
         "refit",
-        &[(0, &params_buf), (10, &nodes), (11, &parents), (12, &leaf_slots), (13, &visits)],
+        &[(0, &params_buf), (10, &nodes), (11, &parents), (12, &leaf_slots), (13, &visits), (15, &refit_boxes)],
         grid,
     );
     ctx.queue.submit([encoder.finish()]);

@@ -83,6 +83,8 @@ pub fn optimize_on_device(
     let lock_idx = u32s("PRBVH locks (index)")?;
     let winners = u32s("PRBVH winners")?;
     let visits = u32s("refit visits")?;
+    // Six words per node, zero between refits (the refit clears what it reads: `_refit.wgsl`).
+    let refit_boxes = ctx.storage_buffer_zeroed("refit boxes", u64::from(node_count) * 24)?;
     let locks64 = ctx.storage_buffer_zeroed("PRBVH locks (64-bit)", u64::from(node_count) * 8)?;
     let grid = ctx.dispatch_size(node_count);
     let partial_count = grid.0 * grid.1;
@@ -113,6 +115,7 @@ pub fn optimize_on_device(
         (9, &sah_partial),
         (10, &locks64),
         (11, &locks64),
+        (12, &refit_boxes),
     ];
     // Each kernel gets the bindings its entry point uses (the layouts are derived per entry).
     let pass = |encoder: &mut wgpu::CommandEncoder, entry: &str, bindings: &[u32], groups: (u32, u32)| {
@@ -160,7 +163,7 @@ pub fn optimize_on_device(
         }
         pass(&mut encoder, "reinsert", &[0, 1, 2, 3, 7], grid);
         encoder.clear_buffer(&visits, 0, None);
-        pass(&mut encoder, "refit", &[0, 1, 2, 8], grid);
+        pass(&mut encoder, "refit", &[0, 1, 2, 8, 12], grid);
         sah(&mut encoder);
         ctx.queue.submit([encoder.finish()]);
         let current = read_sah()?;
