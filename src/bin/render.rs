@@ -251,7 +251,10 @@ fn run_gpu(
             (None, None) => {
                 let frame_count = frames.as_ref().map_or(1, |f| f.len());
                 let rays = RenderScene::estimated_rays(scene, settings.spp, settings.max_depth, frame_count);
-                RenderScene::build_auto(scene, rays)
+                let (seed, depth) = (settings.seed, settings.max_depth);
+                let mut measure = |rs: &RenderScene| trace::measure_speed(ctx, rs, seed, depth);
+                let samples = u64::from(settings.spp) * frame_count as u64;
+                RenderScene::build_auto_for(scene, rays, trace::auto_device(samples, &mut measure))
             }
         };
         if !args.quiet {

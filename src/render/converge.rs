@@ -206,10 +206,23 @@ pub fn measure_curve(
     let steps = config.spp_steps();
     let mut points = Vec::with_capacity(steps.len());
     let mut detail = String::new();
+    // `auto` on the GPU judges the render's length by the GPU's measured speed.
     let build = |spp: u32| match choice {
         BuilderChoice::Fixed(builder) => RenderScene::build(scene, builder),
         BuilderChoice::Auto => {
-            RenderScene::build_auto(scene, RenderScene::estimated_rays(scene, spp, config.max_depth, 1))
+            let rays = RenderScene::estimated_rays(scene, spp, config.max_depth, 1);
+            match device {
+                ConvergeDevice::Cpu => RenderScene::build_auto(scene, rays),
+                ConvergeDevice::Gpu(ctx) => {
+                    let mut measure =
+                        |rs: &RenderScene| crate::gpu::trace::measure_speed(ctx, rs, config.seed, config.max_depth);
+                    RenderScene::build_auto_for(
+                        scene,
+                        rays,
+                        crate::gpu::trace::auto_device(u64::from(spp), &mut measure),
+                    )
+                }
+            }
         }
     };
     match (choice, device) {

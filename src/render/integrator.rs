@@ -70,6 +70,19 @@ pub struct BuildReport {
     pub builder: String,
 }
 
+/// The device a render for [`RenderScene::build_auto_for`] runs on.
+pub enum AutoDevice<'a> {
+    /// The CPU, whose speed the probes measure.
+    Cpu,
+    /// Another device (a GPU), timed by rendering a little of the LBVH scene: `measure` returns
+    /// the seconds one sample per pixel takes there and the time to leave out of the build (a
+    /// kernel's compilation, paid once per process), or `None` to fall back on the CPU's
+    /// estimate. `samples` is the render's samples per pixel over all its frames.
+    Measured { samples: f64, measure: &'a mut dyn FnMut(&RenderScene) -> Option<(f64, std::time::Duration)> },
+    /// Another device, on a render too short to be worth timing: the LBVH, not optimised.
+    Unmeasured,
+}
+
 /// Rays per second of closest-hit queries on the leaf-collapsed `bvh`, measured on a 64x64 grid
 /// of camera rays.
 fn probe_trace_speed(bvh: &crate::bvh::Bvh, triangles: &[Triangle], camera: &crate::scene::Camera) -> f64 {
@@ -148,21 +161,57 @@ impl RenderScene {
     /// An instanced scene builds its meshes' BVHs with `lbvh+prbvh`: they are built once and
     /// serve every frame.
     pub fn build_auto(scene: &Scene, rays: f64) -> (Self, BuildReport) {
+        Self::build_auto_for(scene, rays, AutoDevice::Cpu)
+    }
+
+    /// [`RenderScene::build_auto`] for a render on `device`. On another device than the CPU
+    /// the CPU's probe cannot tell the render's length: an H100 rendered the dragon scene
+    /// about 20 times faster than the CPU probe predicted, and `auto` spent up to 0.26 s
+    /// optimising for renders of 0.1 s. So the device renders a little of the LBVH scene
+    /// ([`AutoDevice::Measured`]), and the render's length is its time per sample times the
+    /// samples, which also corrects [`RenderScene::estimated_rays`]. The CPU probes' times are
+    /// scaled to match: trees still compare by the CPU's probe, only the render's length
+    /// changes. Where the LBVH is kept unoptimised, the timed scene itself is returned.
+    pub fn build_auto_for(scene: &Scene, rays: f64, device: AutoDevice<'_>) -> (Self, BuildReport) {
         if wants_instancing(scene) {
             return Self::build_instanced(scene, &"lbvh+prbvh".parse().expect("a builder name"));
         }
-        let t = Instant::now();
+        let mut t = Instant::now();
         let (triangles, material_of) = scene.world_triangles();
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
         let mut bvh = lbvh::build(&prims);
         let lbvh_seconds = t.elapsed().as_secs_f64();
-        let mut render_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
+        let cpu_speed = probe_trace_speed(&bvh, &triangles, &scene.camera);
+        // The device's render time over the CPU probe's estimate.
+        let mut speedup = 1.0;
+        let mut measured = String::new();
+        let mut timed_scene = None;
+        match device {
+            AutoDevice::Cpu => {}
+            AutoDevice::Unmeasured => {
+                let label = "auto: lbvh, a render too short to time on the device".to_owned();
+                return Self::assemble(scene, triangles, material_of, &bvh, t, label);
+            }
+            AutoDevice::Measured { samples, measure } => {
+                let (lbvh_scene, report) =
+                    Self::assemble(scene, triangles.clone(), material_of.clone(), &bvh, Instant::now(), String::new());
+                if let Some((seconds_per_sample, excluded)) = measure(&lbvh_scene) {
+                    t += excluded;
+                    let device_seconds = seconds_per_sample * samples;
+                    speedup = rays / cpu_speed / device_seconds.max(1e-9);
+                    measured = format!(", timed on the device at {:.1} ms per sample", seconds_per_sample * 1e3);
+                    timed_scene = Some((lbvh_scene, report));
+                }
+            }
+        }
+        let probe = |b: &crate::bvh::Bvh| probe_trace_speed(b, &triangles, &scene.camera) * speedup;
+        let mut render_seconds = rays / (cpu_speed * speedup);
         let mut base = "lbvh";
         // A quarter of the render saved (binned SAH traced the dragon 27% faster) must repay the
         // binned build, estimated at 6 LBVH builds, twice over.
         if 0.25 * render_seconds > 2.0 * 6.0 * lbvh_seconds {
             let binned = crate::bvh::binned_sah::build(&prims, &Default::default());
-            let binned_seconds = rays / probe_trace_speed(&binned, &triangles, &scene.camera);
+            let binned_seconds = rays / probe(&binned);
             if binned_seconds < render_seconds {
                 (bvh, render_seconds, base) = (binned, binned_seconds, "binned-sah");
             }
@@ -178,7 +227,7 @@ impl RenderScene {
             let sweep_start = Instant::now();
             let s1 = prbvh::optimize_while(&mut bvh, &first, |_| true);
             iterations += s1.iterations.len();
-            let after = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
+            let after = rays / probe(&bvh);
             let (gained, spent) = (render_seconds - after, sweep_start.elapsed().as_secs_f64());
             let sah_fraction = (s1.initial_sah - s1.sah_before_collapse) / s1.initial_sah;
             if gained > spent && sah_fraction > 0.0 {
@@ -197,9 +246,16 @@ impl RenderScene {
                 iterations += rest.iterations.len();
             }
         }
-        let label =
-            format!("auto: {base}+prbvh, {iterations} iterations for a render estimated at {render_seconds:.1} s");
-        Self::assemble(scene, triangles, material_of, &bvh, t, label)
+        let label = format!(
+            "auto: {base}+prbvh, {iterations} iterations for a render estimated at {render_seconds:.2} s{measured}"
+        );
+        match timed_scene {
+            Some((lbvh_scene, mut report)) if base == "lbvh" && iterations == 0 => {
+                (report.builder, report.build_ms) = (label, t.elapsed().as_secs_f64() * 1e3);
+                (lbvh_scene, report)
+            }
+            _ => Self::assemble(scene, triangles, material_of, &bvh, t, label),
+        }
     }
 
     /// The rays a render of `scene` traces, roughly, for [`RenderScene::build_auto`]: each path
