@@ -131,6 +131,35 @@ fn auto_builder_scales_optimisation_with_the_ray_budget() {
     );
 }
 
+/// `auto` for another device judges the render by the device's own time per sample, not the
+/// CPU probe's: the same huge ray budget optimises when the device is slow and keeps the timed
+/// LBVH scene when it is fast; a render too short to time keeps the LBVH. The device here is a
+/// stand-in that reports a fixed time, so the test runs without a GPU.
+#[test]
+fn auto_builder_judges_another_device_by_its_own_time() {
+    use arbor::render::{AutoDevice, RenderScene};
+    let showcase = arbor::scene::Scene::load(scene("showcase.toml")).unwrap();
+    let rays = 1e13;
+    let mut calls = 0;
+    let mut slow = |_: &RenderScene| {
+        calls += 1;
+        Some((10.0, std::time::Duration::ZERO))
+    };
+    let (_, optimised) =
+        RenderScene::build_auto_for(&showcase, rays, AutoDevice::Measured { samples: 1024.0, measure: &mut slow });
+    assert_eq!(calls, 1);
+    assert!(optimised.builder.contains("timed on the device at 10000.0 ms per sample"), "{}", optimised.builder);
+    assert!(!optimised.builder.contains(", 0 iterations"), "{}", optimised.builder);
+    let mut fast = |_: &RenderScene| Some((1e-9, std::time::Duration::ZERO));
+    let (_, kept) =
+        RenderScene::build_auto_for(&showcase, rays, AutoDevice::Measured { samples: 1024.0, measure: &mut fast });
+    assert!(kept.builder.starts_with("auto: lbvh+prbvh, 0 iterations"), "{}", kept.builder);
+    assert!(kept.sah > optimised.sah, "{} vs {}", kept.sah, optimised.sah);
+    let (_, short) = RenderScene::build_auto_for(&showcase, rays, AutoDevice::Unmeasured);
+    assert!(short.builder.starts_with("auto: lbvh, a render too short"), "{}", short.builder);
+    assert_eq!(short.sah, kept.sah);
+}
+
 /// `--frames` renders a numbered sequence, `--frame` one frame, and a sequence needs a pattern.
 #[test]
 fn frames_render_numbered_sequences() {
