@@ -251,10 +251,8 @@ fn run_gpu(
             (None, None) => {
                 let frame_count = frames.as_ref().map_or(1, |f| f.len());
                 let rays = RenderScene::estimated_rays(scene, settings.spp, settings.max_depth, frame_count);
-                let (seed, depth) = (settings.seed, settings.max_depth);
-                let mut measure = |rs: &RenderScene| trace::measure_speed(ctx, rs, seed, depth);
                 let samples = u64::from(settings.spp) * frame_count as u64;
-                RenderScene::build_auto_for(scene, rays, trace::auto_device(samples, &mut measure))
+                trace::build_auto(ctx, scene, rays, samples, settings.seed, settings.max_depth)
             }
         };
         if !args.quiet {

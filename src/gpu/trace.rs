@@ -486,20 +486,28 @@ pub fn measure_speed(
     Some((second / f64::from(PASS_SPP), compiled))
 }
 
-/// The `auto` device for a GPU render of `samples` samples per pixel (all frames): timed where
-/// the timing costs at most a sixteenth of the render ([`MEASURE_SPP`] samples of at least 16
-/// times as many), else the LBVH unoptimised, since no optimisation is tried blind: unrepaid
-/// optimisation can cost several times the render, while the most a skipped one could have
-/// saved is the render's trace-speed gain (20% on the dragon scene on an H100).
-pub fn auto_device<'a>(
+/// `auto`'s build for a GPU render of `samples` samples per pixel over all its frames
+/// ([`RenderScene::build_auto_for`]): the GPU is timed by [`measure_speed`] where that costs at
+/// most a sixteenth of the render (at least 16 × [`MEASURE_SPP`] samples); shorter renders keep
+/// the LBVH unoptimised, since no optimisation is tried blind: unrepaid optimisation can cost
+/// several times the render, while the most a skipped one could have saved is the render's
+/// trace-speed gain (20% on the dragon scene on an H100).
+pub fn build_auto(
+    ctx: &GpuContext,
+    scene: &crate::scene::Scene,
+    rays: f64,
     samples: u64,
-    measure: &'a mut dyn FnMut(&RenderScene) -> Option<(f64, std::time::Duration)>,
-) -> crate::render::AutoDevice<'a> {
-    if samples >= 16 * u64::from(MEASURE_SPP) {
-        crate::render::AutoDevice::Measured { samples: samples as f64, measure }
+    seed: u64,
+    max_depth: u32,
+) -> (RenderScene, crate::render::BuildReport) {
+    use crate::render::AutoDevice;
+    let mut measure = |rs: &RenderScene| measure_speed(ctx, rs, seed, max_depth);
+    let device = if samples >= 16 * u64::from(MEASURE_SPP) {
+        AutoDevice::Measured { samples: samples as f64, measure: &mut measure }
     } else {
-        crate::render::AutoDevice::Unmeasured
-    }
+        AutoDevice::Unmeasured
+    };
+    RenderScene::build_auto_for(scene, rays, device)
 }
 
 /// The film's f64 sums from the device's shifted f32 sums (see [`GpuPixel`]). `sum_sq` is

@@ -214,13 +214,7 @@ pub fn measure_curve(
             match device {
                 ConvergeDevice::Cpu => RenderScene::build_auto(scene, rays),
                 ConvergeDevice::Gpu(ctx) => {
-                    let mut measure =
-                        |rs: &RenderScene| crate::gpu::trace::measure_speed(ctx, rs, config.seed, config.max_depth);
-                    RenderScene::build_auto_for(
-                        scene,
-                        rays,
-                        crate::gpu::trace::auto_device(u64::from(spp), &mut measure),
-                    )
+                    crate::gpu::trace::build_auto(ctx, scene, rays, u64::from(spp), config.seed, config.max_depth)
                 }
             }
         }

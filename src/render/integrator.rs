@@ -167,11 +167,12 @@ impl RenderScene {
     /// [`RenderScene::build_auto`] for a render on `device`. On another device than the CPU
     /// the CPU's probe cannot tell the render's length: it predicts the CPU's render, and an
     /// H100 rendered the dragon scene 21 times as fast as its machine's 16 cores, so `auto`
-    /// spent up to 0.26 s optimising for GPU renders of 0.1 s. So the device renders a little of the LBVH scene
-    /// ([`AutoDevice::Measured`]), and the render's length is its time per sample times the
-    /// samples, which also corrects [`RenderScene::estimated_rays`]. The CPU probes' times are
-    /// scaled to match: trees still compare by the CPU's probe, only the render's length
-    /// changes. Where the LBVH is kept unoptimised, the timed scene itself is returned.
+    /// spent up to 0.26 s optimising for GPU renders of 0.1 s. So the device renders a little
+    /// of the LBVH scene ([`AutoDevice::Measured`]; for a GPU, `gpu::trace::build_auto`), and
+    /// the render's length is its time per sample times the samples, which also corrects
+    /// [`RenderScene::estimated_rays`]. The CPU probes' times are scaled to match: trees still
+    /// compare by the CPU's probe, only the render's length changes. Where the LBVH is kept
+    /// unoptimised, the timed scene itself is returned.
     pub fn build_auto_for(scene: &Scene, rays: f64, device: AutoDevice<'_>) -> (Self, BuildReport) {
         if wants_instancing(scene) {
             return Self::build_instanced(scene, &"lbvh+prbvh".parse().expect("a builder name"));
