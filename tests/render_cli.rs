@@ -150,7 +150,7 @@ fn auto_builder_judges_another_device_by_its_own_time() {
     let (_, optimised) =
         RenderScene::build_auto_for(&showcase, rays, AutoDevice::Measured { samples: 1024.0, measure: &mut slow });
     assert_eq!(calls, 1);
-    assert!(optimised.builder.contains("timed on the device at 10000.0 ms per sample"), "{}", optimised.builder);
+    assert!(optimised.builder.contains("timed at 10000.0 ms per sample"), "{}", optimised.builder);
     assert!(!optimised.builder.contains(", 0 iterations"), "{}", optimised.builder);
     let mut fast = |_: &RenderScene| Some((1e-9, std::time::Duration::ZERO));
     let (_, kept) =
@@ -160,6 +160,44 @@ fn auto_builder_judges_another_device_by_its_own_time() {
     let (_, short) = RenderScene::build_auto_for(&showcase, rays, AutoDevice::Unmeasured);
     assert!(short.builder.starts_with("auto: lbvh, a render too short"), "{}", short.builder);
     assert_eq!(short.sah, kept.sah);
+}
+
+/// The CPU's `auto` times real paths on its trees where the render affords it: from 16 × 3 ×
+/// `TIMED_PATHS` samples in all (frames included), on a scene whose builds cost more than a
+/// timing (the dragon's 202k triangles). A shorter render, or a scene that builds in less time
+/// than a timing takes (the Cornell box's 36 triangles), keeps the camera-ray estimate. A time
+/// budget bounds the render's length.
+#[test]
+fn cpu_auto_times_paths_where_the_render_affords_it() {
+    use arbor::render::RenderScene;
+    use arbor::render::integrator::TIMED_PATHS;
+    let Some(_) = common::shared_model_path("dragon_res2.obj") else { return };
+    let bench_scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/scenes/dragon.toml");
+    let mut dragon = arbor::scene::Scene::load(bench_scene).unwrap();
+    (dragon.camera.width, dragon.camera.height) = (64, 64);
+    assert_eq!(TIMED_PATHS, 64 * 64);
+    let timed_ms = |label: &str| -> Option<f64> {
+        let rest = label.split(", paths timed at ").nth(1)?;
+        Some(rest.strip_suffix(" ms per sample").unwrap().parse().unwrap())
+    };
+    // 48 spp of 64 × 64 pixels: 16 × 3 × TIMED_PATHS samples.
+    for (spp, frames) in [(48, 1), (16, 3)] {
+        let (_, timed) = RenderScene::build_auto_cpu(&dragon, spp, 6, frames, 7, None);
+        let ms = timed_ms(&timed.builder).unwrap_or_else(|| panic!("not timed: {}", timed.builder));
+        assert!(ms.is_finite() && ms > 0.0, "{}", timed.builder);
+    }
+    let (_, short) = RenderScene::build_auto_cpu(&dragon, 47, 6, 1, 7, None);
+    assert_eq!(timed_ms(&short.builder), None, "{}", short.builder);
+    // A long render optimises; the same render under a time budget of 1 ms per frame is no
+    // longer than that, and keeps the LBVH.
+    let (_, long) = RenderScene::build_auto_cpu(&dragon, 1 << 20, 6, 2, 7, None);
+    assert!(timed_ms(&long.builder).is_some() && !long.builder.contains(" 0 iterations"), "{}", long.builder);
+    let (_, limited) = RenderScene::build_auto_cpu(&dragon, 1 << 20, 6, 2, 7, Some(1e-3));
+    assert!(limited.builder.starts_with("auto: lbvh+prbvh, 0 iterations"), "{}", limited.builder);
+    assert!(limited.sah > long.sah, "{} vs {}", limited.sah, long.sah);
+    let cornell = arbor::scene::Scene::load(scene("cornell-box.toml")).unwrap();
+    let (_, cheap) = RenderScene::build_auto_cpu(&cornell, 1 << 14, 6, 1, 7, None);
+    assert!(cheap.builder.starts_with("auto: ") && timed_ms(&cheap.builder).is_none(), "{}", cheap.builder);
 }
 
 /// `--frames` renders a numbered sequence, `--frame` one frame, and a sequence needs a pattern.

@@ -149,7 +149,7 @@ fn run() -> Result<()> {
         Some(b) => RenderScene::build(&scene, b),
         None => {
             let frame_count = frames.as_ref().map_or(1, |f| f.len());
-            RenderScene::build_auto(&scene, RenderScene::estimated_rays(&scene, spp, max_depth, frame_count))
+            RenderScene::build_auto_cpu(&scene, spp, max_depth, frame_count, seed, time)
         }
     };
     render_scene.sample_clamp = args.clamp;

@@ -10,9 +10,9 @@
 //! - A fixed builder builds once; its curve renders sample ranges `[0, 1), [1, 2), [2, 4), ...`
 //!   into one film and times each, so the point at `n` spp costs the build plus the render
 //!   time of samples `0..n`, as a separate render of `n` spp would.
-//! - `auto` decides how long to optimise from the render's ray count
-//!   ([`RenderScene::build_auto`]), so each of its points is a separate build and render with
-//!   that point's sample count.
+//! - `auto` decides how long to optimise from the render's length, timed on its device
+//!   ([`RenderScene::build_auto_cpu`], `gpu::trace::build_auto`), so each of its points is a
+//!   separate build and render with that point's sample count.
 //! - On the GPU ([`ConvergeDevice::Gpu`]) every point is a separate render of `0..n` samples
 //!   (its film is read back once per render); the tree is built and uploaded once per curve
 //!   for a fixed builder, per point for `auto`, and that time counts as build time.
@@ -206,18 +206,16 @@ pub fn measure_curve(
     let steps = config.spp_steps();
     let mut points = Vec::with_capacity(steps.len());
     let mut detail = String::new();
-    // `auto` on the GPU judges the render's length by the GPU's measured speed.
+    // `auto` judges the render's length by timing paths on the device that renders.
     let build = |spp: u32| match choice {
         BuilderChoice::Fixed(builder) => RenderScene::build(scene, builder),
-        BuilderChoice::Auto => {
-            let rays = RenderScene::estimated_rays(scene, spp, config.max_depth, 1);
-            match device {
-                ConvergeDevice::Cpu => RenderScene::build_auto(scene, rays),
-                ConvergeDevice::Gpu(ctx) => {
-                    crate::gpu::trace::build_auto(ctx, scene, rays, u64::from(spp), config.seed, config.max_depth)
-                }
+        BuilderChoice::Auto => match device {
+            ConvergeDevice::Cpu => RenderScene::build_auto_cpu(scene, spp, config.max_depth, 1, config.seed, None),
+            ConvergeDevice::Gpu(ctx) => {
+                let rays = RenderScene::estimated_rays(scene, spp, config.max_depth, 1);
+                crate::gpu::trace::build_auto(ctx, scene, rays, u64::from(spp), config.seed, config.max_depth)
             }
-        }
+        },
     };
     match (choice, device) {
         (BuilderChoice::Fixed(_), ConvergeDevice::Cpu) => {

@@ -72,8 +72,12 @@ pub struct BuildReport {
 
 /// The device a render for [`RenderScene::build_auto_for`] runs on.
 pub enum AutoDevice<'a> {
-    /// The CPU, whose speed the probes measure.
+    /// The CPU, whose speed the camera-ray probes measure.
     Cpu,
+    /// The CPU, each tree judged by timing paths on it (see [`RenderScene::build_auto_cpu`])
+    /// for a render of `samples` samples per pixel over all its frames, within `budget`
+    /// seconds over all frames if it has a time budget.
+    CpuPaths { samples: f64, seed: u64, max_depth: u32, budget: Option<f64> },
     /// Another device (a GPU), timed by rendering a little of the LBVH scene: `measure` returns
     /// the seconds one sample per pixel takes there and the time to leave out of the build (a
     /// kernel's compilation, paid once per process), or `None` to fall back on the CPU's
@@ -96,6 +100,23 @@ fn probe_trace_speed(bvh: &crate::bvh::Bvh, triangles: &[Triangle], camera: &cra
     let hits = rays.par_iter().filter(|r| mesh.closest_hit(r, f32::INFINITY).is_some()).count();
     std::hint::black_box(hits);
     rays.len() as f64 / t.elapsed().as_secs_f64().max(1e-9)
+}
+
+/// Paths [`RenderScene::cpu_seconds_per_sample`] traces: one from each cell of a 64 × 64 grid
+/// over the image.
+pub const TIMED_PATHS: u32 = 64 * 64;
+
+/// The sample index of the timed paths' random numbers: no render reaches it.
+const TIMING_SAMPLE: u64 = 1 << 63;
+
+/// How `auto` judges a tree's render time.
+#[derive(Clone, Copy)]
+enum Judge {
+    /// By the camera-ray probe's time, divided by `speedup` (the device's measured render time
+    /// over the probe's estimate of it, 1 on the CPU).
+    Camera { speedup: f64 },
+    /// By timing paths on the CPU, for a render of `samples` samples per pixel.
+    Paths { samples: f64, seed: u64, max_depth: u32 },
 }
 
 /// The time of a scene's first frame (0 for a static scene).
@@ -141,27 +162,64 @@ impl RenderScene {
 
     /// `--builder auto`: the tree that makes build plus render shortest for a render of about
     /// `rays` rays, among LBVH and binned SAH, each optimised by parallel reinsertion for as long
-    /// as that pays for itself.
+    /// as that pays for itself. Here each tree's render is estimated from its trace speed on a
+    /// probe of 4096 camera rays; [`RenderScene::build_auto_cpu`], what `render` uses, times
+    /// real paths instead wherever the render is long enough to afford it.
     ///
-    /// 1. LBVH, and the render's length with it, estimated from its trace speed on a probe of
-    ///    4096 camera rays.
-    /// 2. If a quarter of that render would repay a binned-SAH build (estimated at 6 LBVH
-    ///    builds, about its cost on 10⁵–10⁶ triangles here) twice over, the binned-SAH tree is
-    ///    built and probed too, and the tree with the shorter estimated render is kept.
+    /// 1. LBVH, and the render's length with it.
+    /// 2. If 16% of that render (what binned SAH saved on the dragon scene) would repay a
+    ///    binned-SAH build (estimated at 9 LBVH builds, its cost on the dragon here) one and a
+    ///    half times over, the binned-SAH tree is built and probed too, and the tree with the
+    ///    shorter estimated render is kept.
     /// 3. Parallel reinsertion on the kept tree, in sweeps (μ iterations, which search every
-    ///    node once between them), if a 20% gain could repay a sweep (about 8 LBVH builds). The first sweep's gain is measured by a second probe: it goes on only if the
-    ///    render got shorter by more than the sweep took, and that gain per unit of SAH gained
-    ///    calibrates the rest. Each later sweep's saving is its SAH decrease, as a fraction,
-    ///    times the estimated render time times that factor, and optimisation stops when the
-    ///    last sweep saved less than it took. (SAH alone overstates gains: on the dragon scene
-    ///    LBVH + PRBVH cut the SAH by 66% but traced 20% faster, and reinsertion on the
-    ///    binned-SAH tree cost more than it returned. Judging single iterations stopped the
-    ///    dragon after 5 of its ~40: one iteration searches a ninth of the nodes.)
+    ///    node once between them), if the gain to expect (20% from the LBVH, 5% from binned
+    ///    SAH) could repay a sweep (about 8 LBVH builds). The first sweep's gain is measured by
+    ///    a second probe: it goes on only if the render got shorter by more than the sweep
+    ///    took, and that gain per unit of SAH gained calibrates the rest. Each later sweep's saving is its SAH decrease, as a fraction, times the
+    ///    estimated render time times that factor, and optimisation stops when the last sweep
+    ///    saved less than it took. (SAH alone overstates gains: on the dragon scene LBVH + PRBVH
+    ///    cut the SAH by 66% but traced 20% faster, and reinsertion on the binned-SAH tree cost
+    ///    more than it returned. Judging single iterations stopped the dragon after 5 of its
+    ///    ~40: one iteration searches a ninth of the nodes.)
     ///
     /// An instanced scene builds its meshes' BVHs with `lbvh+prbvh`: they are built once and
     /// serve every frame.
     pub fn build_auto(scene: &Scene, rays: f64) -> (Self, BuildReport) {
         Self::build_auto_for(scene, rays, AutoDevice::Cpu)
+    }
+
+    /// `--builder auto` for a CPU render of `spp` samples per pixel in each of `frames` frames.
+    ///
+    /// Each tree is judged by timing paths on it, not by the camera-ray probe: its scene is
+    /// assembled and [`RenderScene::cpu_seconds_per_sample`] traces real paths from
+    /// [`TIMED_PATHS`] pixels, three times (the fastest counts: the first, on cold caches, ran
+    /// up to 20% slower on the dragon scene). The render's length is that time per sample times
+    /// the render's samples. The camera-ray estimate it replaces counted five segments and a
+    /// shadow ray for every path and priced them all as camera rays, and it compared trees by
+    /// coherent rays: on the dragon scene it overstated the render about 2.7×, and it took
+    /// binned SAH + PRBVH to trace that scene 2.3× as fast as the LBVH, where the render was
+    /// 1.4× as fast. The first timing costs a sixteenth of the render or less: renders of fewer
+    /// than 16 × 3 × [`TIMED_PATHS`] samples in all keep the camera-ray estimate, and so do
+    /// scenes whose builds cost less than timing (a timing costs more than a sweep, 8 LBVH
+    /// builds: on the Cornell box, timing made `auto` 23% slower than the best fixed builder).
+    /// The scene of the last tree timed is the one rendered, if the tree did not change after
+    /// it.
+    ///
+    /// `budget` is the render's time limit per frame (`render --time`), if it has one: the
+    /// render is then no longer than it, and a faster tree is worth the time the LBVH would
+    /// need for the samples it adds.
+    pub fn build_auto_cpu(
+        scene: &Scene,
+        spp: u32,
+        max_depth: u32,
+        frames: usize,
+        seed: u64,
+        budget: Option<f64>,
+    ) -> (Self, BuildReport) {
+        let rays = Self::estimated_rays(scene, spp, max_depth, frames);
+        let samples = f64::from(spp) * frames as f64;
+        let budget = budget.map(|b| b * frames as f64);
+        Self::build_auto_for(scene, rays, AutoDevice::CpuPaths { samples, seed, max_depth, budget })
     }
 
     /// [`RenderScene::build_auto`] for a render on `device`. On another device than the CPU
@@ -182,53 +240,96 @@ impl RenderScene {
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
         let mut bvh = lbvh::build(&prims);
         let lbvh_seconds = t.elapsed().as_secs_f64();
-        let cpu_speed = probe_trace_speed(&bvh, &triangles, &scene.camera);
-        // The device's render time over the CPU probe's estimate.
-        let mut speedup = 1.0;
+        let assemble = |b: &crate::bvh::Bvh| {
+            Self::assemble(scene, triangles.clone(), material_of.clone(), b, Instant::now(), String::new())
+        };
+        let mut judge = Judge::Camera { speedup: 1.0 };
         let mut measured = String::new();
-        let mut timed_scene = None;
+        // The scene assembled for the last tree timed, while `bvh` is still that tree.
+        let mut timed: Option<(Self, BuildReport)> = None;
+        let mut render_seconds = None;
         match device {
             AutoDevice::Cpu => {}
+            AutoDevice::CpuPaths { samples, seed, max_depth, budget } => {
+                // The render, first by the camera estimate, at most the time budget. Timing paths
+                // is worth it only where it costs at most a sixteenth of the render, and where it
+                // costs less than what is at stake, a sweep (8 LBVH builds): on the Cornell
+                // box's 36 triangles a timing took 8 ms and every build together 1 ms. Its cost is
+                // priced here by the camera estimate, which overstates it.
+                let camera_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
+                let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
+                let timing_seconds = camera_seconds / samples / pixels * 3.0 * f64::from(TIMED_PATHS);
+                let long = pixels * samples >= 16.0 * 3.0 * f64::from(TIMED_PATHS);
+                if long && timing_seconds <= 8.0 * lbvh_seconds {
+                    let lbvh_scene = assemble(&bvh);
+                    let per_sample = lbvh_scene.0.fastest_seconds_per_sample(seed, max_depth);
+                    // Under a time budget, the samples the LBVH would render in it: a faster tree
+                    // renders more in the same time, worth the time it saves on these.
+                    let samples = budget.map_or(samples, |b| samples.min(b / per_sample.max(1e-12)));
+                    judge = Judge::Paths { samples, seed, max_depth };
+                    render_seconds = Some(per_sample * samples);
+                    measured = format!(", paths timed at {:.1} ms per sample", per_sample * 1e3);
+                    timed = Some(lbvh_scene);
+                } else {
+                    let capped = budget.map_or(camera_seconds, |b| camera_seconds.min(b));
+                    judge = Judge::Camera { speedup: camera_seconds / capped.max(1e-12) };
+                    render_seconds = Some(capped);
+                }
+            }
             AutoDevice::Unmeasured => {
                 let label = "auto: lbvh, a render too short to time on the device".to_owned();
                 return Self::assemble(scene, triangles, material_of, &bvh, t, label);
             }
             AutoDevice::Measured { samples, measure } => {
-                let (lbvh_scene, report) =
-                    Self::assemble(scene, triangles.clone(), material_of.clone(), &bvh, Instant::now(), String::new());
-                if let Some((seconds_per_sample, excluded)) = measure(&lbvh_scene) {
+                let cpu_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
+                let lbvh_scene = assemble(&bvh);
+                render_seconds = Some(cpu_seconds);
+                if let Some((seconds_per_sample, excluded)) = measure(&lbvh_scene.0) {
                     t += excluded;
                     let device_seconds = seconds_per_sample * samples;
-                    speedup = rays / cpu_speed / device_seconds.max(1e-9);
-                    measured = format!(", timed on the device at {:.1} ms per sample", seconds_per_sample * 1e3);
-                    timed_scene = Some((lbvh_scene, report));
+                    judge = Judge::Camera { speedup: cpu_seconds / device_seconds.max(1e-9) };
+                    render_seconds = Some(device_seconds);
+                    measured = format!(", timed at {:.1} ms per sample", seconds_per_sample * 1e3);
+                    timed = Some(lbvh_scene);
                 }
             }
         }
-        let probe = |b: &crate::bvh::Bvh| probe_trace_speed(b, &triangles, &scene.camera) * speedup;
-        let mut render_seconds = rays / (cpu_speed * speedup);
+        // A tree's estimated render time, and its scene where it was assembled to time paths.
+        let probe = |b: &crate::bvh::Bvh| match judge {
+            Judge::Camera { speedup } => (rays / (probe_trace_speed(b, &triangles, &scene.camera) * speedup), None),
+            Judge::Paths { samples, seed, max_depth } => {
+                let (rs, report) = assemble(b);
+                (rs.fastest_seconds_per_sample(seed, max_depth) * samples, Some((rs, report)))
+            }
+        };
+        let mut render_seconds = render_seconds.unwrap_or_else(|| probe(&bvh).0);
         let mut base = "lbvh";
-        // A quarter of the render saved (binned SAH traced the dragon 27% faster) must repay the
-        // binned build, estimated at 6 LBVH builds, twice over.
-        if 0.25 * render_seconds > 2.0 * 6.0 * lbvh_seconds {
+        // The render time binned SAH saves, 16% (the dragon scene's render with timed paths),
+        // must repay its build, 9 LBVH builds (8.5 there), with half as much again to spare.
+        if 0.16 * render_seconds > 1.5 * 9.0 * lbvh_seconds {
             let binned = crate::bvh::binned_sah::build(&prims, &Default::default());
-            let binned_seconds = rays / probe(&binned);
+            let (binned_seconds, binned_scene) = probe(&binned);
             if binned_seconds < render_seconds {
                 (bvh, render_seconds, base) = (binned, binned_seconds, "binned-sah");
+                timed = binned_scene;
             }
         }
         let config = PrbvhConfig { collapse: None, ..Default::default() };
         // The first sweep is measured, not predicted: SAH overstates trace gains on some scenes
         // (the dragon's room), so its real gain, from a second probe, decides whether to go on
         // and calibrates the SAH-to-time factor for the sweeps after it. A sweep costs about 8
-        // LBVH builds (dragon, 2 cores); none is tried when a 20% gain could not repay that.
+        // LBVH builds (dragon, 2 cores); none is tried when the gain to expect could not repay
+        // that: 20% from the LBVH, 5% from binned SAH (on the dragon scene, timed paths gained
+        // 1-5% from a first sweep there).
         let mut iterations = 0;
-        if 0.2 * render_seconds > 8.0 * lbvh_seconds {
+        let expected_gain = if base == "lbvh" { 0.2 } else { 0.05 };
+        if expected_gain * render_seconds > 8.0 * lbvh_seconds {
             let first = PrbvhConfig { max_iterations: config.mu, ..config };
             let sweep_start = Instant::now();
             let s1 = prbvh::optimize_while(&mut bvh, &first, |_| true);
             iterations += s1.iterations.len();
-            let after = rays / probe(&bvh);
+            let (after, swept_scene) = probe(&bvh);
+            timed = swept_scene;
             let (gained, spent) = (render_seconds - after, sweep_start.elapsed().as_secs_f64());
             let sah_fraction = (s1.initial_sah - s1.sah_before_collapse) / s1.initial_sah;
             if gained > spent && sah_fraction > 0.0 {
@@ -245,18 +346,52 @@ impl RenderScene {
                     saved > spent
                 });
                 iterations += rest.iterations.len();
+                if !rest.iterations.is_empty() {
+                    timed = None;
+                    // The label's estimate, for the tree as it ends.
+                    render_seconds *=
+                        1.0 - (rest.initial_sah - rest.sah_before_collapse) / rest.initial_sah * efficiency;
+                }
             }
         }
         let label = format!(
             "auto: {base}+prbvh, {iterations} iterations for a render estimated at {render_seconds:.2} s{measured}"
         );
-        match timed_scene {
-            Some((lbvh_scene, mut report)) if base == "lbvh" && iterations == 0 => {
+        match timed {
+            Some((rs, mut report)) => {
                 (report.builder, report.build_ms) = (label, t.elapsed().as_secs_f64() * 1e3);
-                (lbvh_scene, report)
+                (rs, report)
             }
-            _ => Self::assemble(scene, triangles, material_of, &bvh, t, label),
+            None => Self::assemble(scene, triangles, material_of, &bvh, t, label),
         }
+    }
+
+    /// The CPU's time to trace one sample of every pixel, in seconds, estimated by tracing paths
+    /// of at most `max_depth` segments from [`TIMED_PATHS`] pixels, one in each cell of a 64 ×
+    /// 64 grid over the image, on all worker threads. They are real paths (bounces, shadow
+    /// rays, escapes and Russian roulette as the render has them), not a count of rays at a
+    /// camera ray's price. Their random numbers come from sample indices no render uses.
+    pub fn cpu_seconds_per_sample(&self, seed: u64, max_depth: u32) -> f64 {
+        let (w, h) = (self.width as f32 / 64.0, self.height as f32 / 64.0);
+        let start = Instant::now();
+        let rays: u64 = (0..TIMED_PATHS)
+            .into_par_iter()
+            .map(|i| {
+                let mut rng = Rng::for_sample(seed, u64::from(i), TIMING_SAMPLE);
+                let cell = Vec2::new((i % 64) as f32, (i / 64) as f32);
+                let ray = self.camera.ray((cell + rng.next_vec2()) * Vec2::new(w, h), rng.next_vec2());
+                u64::from(self.radiance(ray, &mut rng, max_depth).1)
+            })
+            .sum();
+        std::hint::black_box(rays);
+        let pixels = f64::from(self.width) * f64::from(self.height);
+        start.elapsed().as_secs_f64() * pixels / f64::from(TIMED_PATHS)
+    }
+
+    /// The fastest of three [`RenderScene::cpu_seconds_per_sample`]: the first, on cold caches,
+    /// ran up to 20% slower on the dragon scene.
+    fn fastest_seconds_per_sample(&self, seed: u64, max_depth: u32) -> f64 {
+        (0..3).map(|_| self.cpu_seconds_per_sample(seed, max_depth)).fold(f64::INFINITY, f64::min)
     }
 
     /// The rays a render of `scene` traces, roughly, for [`RenderScene::build_auto`]: each path

@@ -73,6 +73,13 @@ pub fn models_dir() -> PathBuf {
 /// Loads a mesh from `../shared/models`. Where the folder is missing the test is skipped with a
 /// printed reason, except under `CI=true`, where that is a failure.
 pub fn shared_model(name: &str) -> Option<TriangleMesh> {
+    let path = shared_model_path(name)?;
+    Some(TriangleMesh::load_obj(&path).unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// The path of a mesh in `../shared/models`, or `None` (a skip, or a failure under `CI=true`) as
+/// for [`shared_model`]: for tests that load it through a scene.
+pub fn shared_model_path(name: &str) -> Option<PathBuf> {
     let path = models_dir().join(name);
     if !path.exists() {
         let ci = std::env::var("CI").is_ok_and(|v| v == "true");
@@ -80,7 +87,7 @@ pub fn shared_model(name: &str) -> Option<TriangleMesh> {
         eprintln!("skipping: {} not found (the shared test meshes live beside the repository)", path.display());
         return None;
     }
-    Some(TriangleMesh::load_obj(&path).unwrap_or_else(|e| panic!("{e}")))
+    Some(path)
 }
 
 /// Every `.obj` in `../shared/models`, by file name.
