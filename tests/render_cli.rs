@@ -135,8 +135,9 @@ fn auto_builder_scales_optimisation_with_the_ray_budget() {
 
 /// `auto` for another device judges the render by the device's own time per sample, not the
 /// CPU probe's: the same huge ray budget optimises when the device is slow and keeps the timed
-/// LBVH scene when it is fast; a render too short to time keeps the LBVH. The device here is a
-/// stand-in that reports a fixed time, so the test runs without a GPU.
+/// LBVH scene when it is fast or under a short time budget; a render too short to time keeps
+/// the LBVH. The device here is a stand-in that reports a fixed time, so the test runs without
+/// a GPU.
 #[test]
 fn auto_builder_judges_another_device_by_its_own_time() {
     use arbor::render::{AutoDevice, RenderScene};
@@ -147,16 +148,27 @@ fn auto_builder_judges_another_device_by_its_own_time() {
         calls += 1;
         Some((10.0, std::time::Duration::ZERO))
     };
-    let (_, optimised) =
-        RenderScene::build_auto_for(&showcase, rays, AutoDevice::Measured { samples: 1024.0, measure: &mut slow });
+    let (_, optimised) = RenderScene::build_auto_for(
+        &showcase,
+        rays,
+        AutoDevice::Measured { samples: 1024.0, budget: None, measure: &mut slow },
+    );
     assert_eq!(calls, 1);
     assert!(optimised.builder.contains("timed at 10000.0 ms per sample"), "{}", optimised.builder);
     assert!(!optimised.builder.contains(", 0 iterations"), "{}", optimised.builder);
     let mut fast = |_: &RenderScene| Some((1e-9, std::time::Duration::ZERO));
-    let (_, kept) =
-        RenderScene::build_auto_for(&showcase, rays, AutoDevice::Measured { samples: 1024.0, measure: &mut fast });
+    let (_, kept) = RenderScene::build_auto_for(
+        &showcase,
+        rays,
+        AutoDevice::Measured { samples: 1024.0, budget: None, measure: &mut fast },
+    );
     assert!(kept.builder.starts_with("auto: lbvh+prbvh, 0 iterations"), "{}", kept.builder);
     assert!(kept.sah > optimised.sah, "{} vs {}", kept.sah, optimised.sah);
+    // The slow device under a time budget of 1 ms: a render no longer than that.
+    let mut slow_again = |_: &RenderScene| Some((10.0, std::time::Duration::ZERO));
+    let limited = AutoDevice::Measured { samples: 1024.0, budget: Some(1e-3), measure: &mut slow_again };
+    let (_, limited) = RenderScene::build_auto_for(&showcase, rays, limited);
+    assert!(limited.builder.starts_with("auto: lbvh+prbvh, 0 iterations"), "{}", limited.builder);
     let (_, short) = RenderScene::build_auto_for(&showcase, rays, AutoDevice::Unmeasured);
     assert!(short.builder.starts_with("auto: lbvh, a render too short"), "{}", short.builder);
     assert_eq!(short.sah, kept.sah);

@@ -252,7 +252,8 @@ fn run_gpu(
                 let frame_count = frames.as_ref().map_or(1, |f| f.len());
                 let rays = RenderScene::estimated_rays(scene, settings.spp, settings.max_depth, frame_count);
                 let samples = u64::from(settings.spp) * frame_count as u64;
-                trace::build_auto(ctx, scene, rays, samples, settings.seed, settings.max_depth)
+                let budget = settings.time.map(|t| t * frame_count as f64);
+                trace::build_auto(ctx, scene, rays, samples, budget, settings.seed, settings.max_depth)
             }
         };
         if !args.quiet {

@@ -486,7 +486,8 @@ pub fn measure_speed(
     Some((second / f64::from(PASS_SPP), compiled))
 }
 
-/// `auto`'s build for a GPU render of `samples` samples per pixel over all its frames
+/// `auto`'s build for a GPU render of `samples` samples per pixel over all its frames, within
+/// `budget` seconds over all frames where it has a time budget
 /// ([`RenderScene::build_auto_for`]): the GPU is timed by [`measure_speed`] where that costs at
 /// most a sixteenth of the render (at least 16 × [`MEASURE_SPP`] samples); shorter renders keep
 /// the LBVH unoptimised, since no optimisation is tried blind: unrepaid optimisation can cost
@@ -497,13 +498,14 @@ pub fn build_auto(
     scene: &crate::scene::Scene,
     rays: f64,
     samples: u64,
+    budget: Option<f64>,
     seed: u64,
     max_depth: u32,
 ) -> (RenderScene, crate::render::BuildReport) {
     use crate::render::AutoDevice;
     let mut measure = |rs: &RenderScene| measure_speed(ctx, rs, seed, max_depth);
     let device = if samples >= 16 * u64::from(MEASURE_SPP) {
-        AutoDevice::Measured { samples: samples as f64, measure: &mut measure }
+        AutoDevice::Measured { samples: samples as f64, budget, measure: &mut measure }
     } else {
         AutoDevice::Unmeasured
     };

@@ -213,7 +213,7 @@ pub fn measure_curve(
             ConvergeDevice::Cpu => RenderScene::build_auto_cpu(scene, spp, config.max_depth, 1, config.seed, None),
             ConvergeDevice::Gpu(ctx) => {
                 let rays = RenderScene::estimated_rays(scene, spp, config.max_depth, 1);
-                crate::gpu::trace::build_auto(ctx, scene, rays, u64::from(spp), config.seed, config.max_depth)
+                crate::gpu::trace::build_auto(ctx, scene, rays, u64::from(spp), None, config.seed, config.max_depth)
             }
         },
     };

@@ -82,7 +82,12 @@ pub enum AutoDevice<'a> {
     /// the seconds one sample per pixel takes there and the time to leave out of the build (a
     /// kernel's compilation, paid once per process), or `None` to fall back on the CPU's
     /// estimate. `samples` is the render's samples per pixel over all its frames.
-    Measured { samples: f64, measure: &'a mut dyn FnMut(&RenderScene) -> Option<(f64, std::time::Duration)> },
+    /// `budget` is as for [`AutoDevice::CpuPaths`].
+    Measured {
+        samples: f64,
+        budget: Option<f64>,
+        measure: &'a mut dyn FnMut(&RenderScene) -> Option<(f64, std::time::Duration)>,
+    },
     /// Another device, on a render too short to be worth timing: the LBVH, not optimised.
     Unmeasured,
 }
@@ -280,13 +285,14 @@ impl RenderScene {
                 let label = "auto: lbvh, a render too short to time on the device".to_owned();
                 return Self::assemble(scene, triangles, material_of, &bvh, t, label);
             }
-            AutoDevice::Measured { samples, measure } => {
+            AutoDevice::Measured { samples, budget, measure } => {
                 let cpu_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
                 let lbvh_scene = assemble(&bvh);
                 render_seconds = Some(cpu_seconds);
                 if let Some((seconds_per_sample, excluded)) = measure(&lbvh_scene.0) {
                     t += excluded;
                     let device_seconds = seconds_per_sample * samples;
+                    let device_seconds = budget.map_or(device_seconds, |b| device_seconds.min(b));
                     judge = Judge::Camera { speedup: cpu_seconds / device_seconds.max(1e-9) };
                     render_seconds = Some(device_seconds);
                     measured = format!(", timed at {:.1} ms per sample", seconds_per_sample * 1e3);
