@@ -176,9 +176,9 @@ fn auto_builder_judges_another_device_by_its_own_time() {
 
 /// The CPU's `auto` times real paths on its trees where the render affords it: from 16 × 3 ×
 /// `TIMED_PATHS` samples in all (frames included), on a scene whose builds cost more than a
-/// timing (the dragon's 202k triangles). A shorter render, or a scene that builds in less time
-/// than a timing takes (the Cornell box's 36 triangles), keeps the camera-ray estimate. A time
-/// budget bounds the render's length.
+/// timing (the dragon's 202k triangles: its LBVH takes 7-10 times what a timing is estimated
+/// at, so a busy machine slows both alike). A shorter render keeps the camera-ray estimate.
+/// (The rule itself, budget and build cost included, is unit-tested in the integrator.)
 #[test]
 fn cpu_auto_times_paths_where_the_render_affords_it() {
     use arbor::render::RenderScene;
@@ -192,24 +192,26 @@ fn cpu_auto_times_paths_where_the_render_affords_it() {
         let rest = label.split(", paths timed at ").nth(1)?;
         Some(rest.strip_suffix(" ms per sample").unwrap().parse().unwrap())
     };
-    // 48 spp of 64 × 64 pixels: 16 × 3 × TIMED_PATHS samples.
-    for (spp, frames) in [(48, 1), (16, 3)] {
-        let (_, timed) = RenderScene::build_auto_cpu(&dragon, spp, 6, frames, 7, None);
-        let ms = timed_ms(&timed.builder).unwrap_or_else(|| panic!("not timed: {}", timed.builder));
-        assert!(ms.is_finite() && ms > 0.0, "{}", timed.builder);
-    }
+    // 16 spp in each of 3 frames of 64 × 64 pixels: 16 × 3 × TIMED_PATHS samples.
+    let (_, timed) = RenderScene::build_auto_cpu(&dragon, 16, 6, 3, 7, None);
+    let ms = timed_ms(&timed.builder).unwrap_or_else(|| panic!("not timed: {}", timed.builder));
+    assert!(ms.is_finite() && ms > 0.0, "{}", timed.builder);
     let (_, short) = RenderScene::build_auto_cpu(&dragon, 47, 6, 1, 7, None);
     assert_eq!(timed_ms(&short.builder), None, "{}", short.builder);
-    // A long render optimises; the same render under a time budget of 1 ms per frame is no
-    // longer than that, and keeps the LBVH.
-    let (_, long) = RenderScene::build_auto_cpu(&dragon, 1 << 20, 6, 2, 7, None);
-    assert!(timed_ms(&long.builder).is_some() && !long.builder.contains(" 0 iterations"), "{}", long.builder);
-    let (_, limited) = RenderScene::build_auto_cpu(&dragon, 1 << 20, 6, 2, 7, Some(1e-3));
+}
+
+/// Under a time budget the CPU's `auto` takes the render to last no longer than the budget: a
+/// render of 2^20 spp optimises, and the same render limited to 1 ms per frame keeps the LBVH.
+#[test]
+fn cpu_auto_weighs_a_time_budget() {
+    use arbor::render::RenderScene;
+    let mut showcase = arbor::scene::Scene::load(scene("showcase.toml")).unwrap();
+    (showcase.camera.width, showcase.camera.height) = (64, 64);
+    let (_, long) = RenderScene::build_auto_cpu(&showcase, 1 << 20, 6, 2, 7, None);
+    assert!(!long.builder.contains(", 0 iterations"), "{}", long.builder);
+    let (_, limited) = RenderScene::build_auto_cpu(&showcase, 1 << 20, 6, 2, 7, Some(1e-3));
     assert!(limited.builder.starts_with("auto: lbvh+prbvh, 0 iterations"), "{}", limited.builder);
     assert!(limited.sah > long.sah, "{} vs {}", limited.sah, long.sah);
-    let cornell = arbor::scene::Scene::load(scene("cornell-box.toml")).unwrap();
-    let (_, cheap) = RenderScene::build_auto_cpu(&cornell, 1 << 14, 6, 1, 7, None);
-    assert!(cheap.builder.starts_with("auto: ") && timed_ms(&cheap.builder).is_none(), "{}", cheap.builder);
 }
 
 /// `--frames` renders a numbered sequence, `--frame` one frame, and a sequence needs a pattern.

@@ -492,7 +492,8 @@ pub fn measure_speed(
 /// most a sixteenth of the render (at least 16 × [`MEASURE_SPP`] samples); shorter renders keep
 /// the LBVH unoptimised, since no optimisation is tried blind: unrepaid optimisation can cost
 /// several times the render, while the most a skipped one could have saved is the render's
-/// trace-speed gain (20% on the dragon scene on an H100).
+/// trace-speed gain (20% on the dragon scene on an H100). The sixteenth is of the samples, not
+/// of a time budget: the GPU's speed is not known before it is timed.
 pub fn build_auto(
     ctx: &GpuContext,
     scene: &crate::scene::Scene,

@@ -117,11 +117,28 @@ const TIMING_SAMPLE: u64 = 1 << 63;
 /// How `auto` judges a tree's render time.
 #[derive(Clone, Copy)]
 enum Judge {
-    /// By the camera-ray probe's time, divided by `speedup` (the device's measured render time
-    /// over the probe's estimate of it, 1 on the CPU).
+    /// By the camera-ray probe's estimate, divided by `speedup`: that estimate for the LBVH
+    /// over the time the render is taken to last (the device's measured time, or the time
+    /// budget); 1 with neither.
     Camera { speedup: f64 },
     /// By timing paths on the CPU, for a render of `samples` samples per pixel.
     Paths { samples: f64, seed: u64, max_depth: u32 },
+}
+
+fn judge_is_camera(judge: Judge) -> bool {
+    matches!(judge, Judge::Camera { .. })
+}
+
+/// Whether the CPU's `auto` times paths, for a render of `samples` samples in all (pixels ×
+/// spp × frames) where one timing (3 × [`TIMED_PATHS`] paths) is estimated at
+/// `timing_seconds` and the LBVH took `lbvh_seconds`: only where the timing costs at most a
+/// sixteenth of the render (and of its time budget, if it has one), and no more than what is
+/// at stake, a reinsertion sweep (8 LBVH builds). On the Cornell box's 36 triangles a timing
+/// took 8 ms and every build together 1 ms.
+fn worth_timing(samples: f64, timing_seconds: f64, lbvh_seconds: f64, budget: Option<f64>) -> bool {
+    samples >= 16.0 * 3.0 * f64::from(TIMED_PATHS)
+        && budget.is_none_or(|b| 16.0 * timing_seconds <= b)
+        && timing_seconds <= 8.0 * lbvh_seconds
 }
 
 /// The time of a scene's first frame (0 for a static scene).
@@ -201,18 +218,16 @@ impl RenderScene {
     /// up to 20% slower on the dragon scene). The render's length is that time per sample times
     /// the render's samples. The camera-ray estimate it replaces counted five segments and a
     /// shadow ray for every path and priced them all as camera rays, and it compared trees by
-    /// coherent rays: on the dragon scene it overstated the render about 2.7×, and it took
-    /// binned SAH + PRBVH to trace that scene 2.3× as fast as the LBVH, where the render was
-    /// 1.4× as fast. The first timing costs a sixteenth of the render or less: renders of fewer
-    /// than 16 × 3 × [`TIMED_PATHS`] samples in all keep the camera-ray estimate, and so do
-    /// scenes whose builds cost less than timing (a timing costs more than a sweep, 8 LBVH
-    /// builds: on the Cornell box, timing made `auto` 23% slower than the best fixed builder).
-    /// The scene of the last tree timed is the one rendered, if the tree did not change after
-    /// it.
+    /// coherent rays. On the dragon scene at 512² it overstated the render about 2.7×, and at
+    /// 32 spp it took binned SAH + PRBVH to render 2.3× as fast as the LBVH, where the render
+    /// was 1.4× as fast. Timing is done only where one timing costs at most a sixteenth of the
+    /// render (16 × 3 × [`TIMED_PATHS`] samples in all) and of its time budget, and no more
+    /// than a reinsertion sweep (8 LBVH builds); otherwise the camera-ray estimate is kept (on
+    /// the Cornell box, timing made `auto` 23% slower than the best fixed builder).
     ///
     /// `budget` is the render's time limit per frame (`render --time`), if it has one: the
-    /// render is then no longer than it, and a faster tree is worth the time the LBVH would
-    /// need for the samples it adds.
+    /// render then lasts no longer than it, and a faster tree is worth the time it saves on the
+    /// samples the LBVH would render in it.
     pub fn build_auto_cpu(
         scene: &Scene,
         spp: u32,
@@ -227,15 +242,21 @@ impl RenderScene {
         Self::build_auto_for(scene, rays, AutoDevice::CpuPaths { samples, seed, max_depth, budget })
     }
 
-    /// [`RenderScene::build_auto`] for a render on `device`. On another device than the CPU
-    /// the CPU's probe cannot tell the render's length: it predicts the CPU's render, and an
-    /// H100 rendered the dragon scene 21 times as fast as its machine's 16 cores, so `auto`
-    /// spent up to 0.26 s optimising for GPU renders of 0.1 s. So the device renders a little
-    /// of the LBVH scene ([`AutoDevice::Measured`]; for a GPU, `gpu::trace::build_auto`), and
-    /// the render's length is its time per sample times the samples, which also corrects
-    /// [`RenderScene::estimated_rays`]. The CPU probes' times are scaled to match: trees still
-    /// compare by the CPU's probe, only the render's length changes. Where the LBVH is kept
-    /// unoptimised, the timed scene itself is returned.
+    /// [`RenderScene::build_auto`] for a render on `device`.
+    ///
+    /// - [`AutoDevice::CpuPaths`]: each tree is timed on paths ([`RenderScene::build_auto_cpu`]),
+    ///   and the scene of the last tree timed is returned if the tree did not change after it.
+    /// - [`AutoDevice::Measured`]: on another device than the CPU the CPU's probe cannot tell the
+    ///   render's length: it predicts the CPU's render, and an H100 rendered the dragon scene 21
+    ///   times as fast as its machine's 16 cores, so `auto` spent up to 0.26 s optimising for GPU
+    ///   renders of 0.1 s. So the device renders a little of the LBVH scene (for a GPU,
+    ///   `gpu::trace::build_auto`), and the render's length is its time per sample times the
+    ///   samples, which also corrects [`RenderScene::estimated_rays`]. The CPU probes' times are
+    ///   scaled to match: trees still compare by the CPU's camera-ray probe, only the render's
+    ///   length changes. Where the LBVH is kept unoptimised, the timed scene itself is returned.
+    ///
+    /// At most one probed scene is kept alive at a time (beside the triangles), so that `auto`
+    /// does not double a large scene's peak memory.
     pub fn build_auto_for(scene: &Scene, rays: f64, device: AutoDevice<'_>) -> (Self, BuildReport) {
         if wants_instancing(scene) {
             return Self::build_instanced(scene, &"lbvh+prbvh".parse().expect("a builder name"));
@@ -252,24 +273,24 @@ impl RenderScene {
         let mut measured = String::new();
         // The scene assembled for the last tree timed, while `bvh` is still that tree.
         let mut timed: Option<(Self, BuildReport)> = None;
+        // What one probe costs beyond the camera rays: assembling and timing paths.
+        let mut probe_cost = 0.0;
         let mut render_seconds = None;
         match device {
             AutoDevice::Cpu => {}
             AutoDevice::CpuPaths { samples, seed, max_depth, budget } => {
-                // The render, first by the camera estimate, at most the time budget. Timing paths
-                // is worth it only where it costs at most a sixteenth of the render, and where it
-                // costs less than what is at stake, a sweep (8 LBVH builds): on the Cornell
-                // box's 36 triangles a timing took 8 ms and every build together 1 ms. Its cost is
-                // priced here by the camera estimate, which overstates it.
                 let camera_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
                 let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
+                // One timing's cost (3 × TIMED_PATHS paths), priced by the camera estimate, which
+                // overstates it.
                 let timing_seconds = camera_seconds / samples / pixels * 3.0 * f64::from(TIMED_PATHS);
-                let long = pixels * samples >= 16.0 * 3.0 * f64::from(TIMED_PATHS);
-                if long && timing_seconds <= 8.0 * lbvh_seconds {
+                if worth_timing(pixels * samples, timing_seconds, lbvh_seconds, budget) {
+                    let start = Instant::now();
                     let lbvh_scene = assemble(&bvh);
                     let per_sample = lbvh_scene.0.fastest_seconds_per_sample(seed, max_depth);
-                    // Under a time budget, the samples the LBVH would render in it: a faster tree
-                    // renders more in the same time, worth the time it saves on these.
+                    probe_cost = start.elapsed().as_secs_f64();
+                    // Under a time budget, the samples the LBVH renders in it: a faster tree is
+                    // worth the time it saves on those.
                     let samples = budget.map_or(samples, |b| samples.min(b / per_sample.max(1e-12)));
                     judge = Judge::Paths { samples, seed, max_depth };
                     render_seconds = Some(per_sample * samples);
@@ -288,16 +309,16 @@ impl RenderScene {
             AutoDevice::Measured { samples, budget, measure } => {
                 let cpu_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
                 let lbvh_scene = assemble(&bvh);
-                render_seconds = Some(cpu_seconds);
+                let mut device_seconds = cpu_seconds;
                 if let Some((seconds_per_sample, excluded)) = measure(&lbvh_scene.0) {
                     t += excluded;
-                    let device_seconds = seconds_per_sample * samples;
-                    let device_seconds = budget.map_or(device_seconds, |b| device_seconds.min(b));
-                    judge = Judge::Camera { speedup: cpu_seconds / device_seconds.max(1e-9) };
-                    render_seconds = Some(device_seconds);
+                    device_seconds = seconds_per_sample * samples;
                     measured = format!(", timed at {:.1} ms per sample", seconds_per_sample * 1e3);
                     timed = Some(lbvh_scene);
                 }
+                let device_seconds = budget.map_or(device_seconds, |b| device_seconds.min(b));
+                judge = Judge::Camera { speedup: cpu_seconds / device_seconds.max(1e-12) };
+                render_seconds = Some(device_seconds);
             }
         }
         // A tree's estimated render time, and its scene where it was assembled to time paths.
@@ -310,34 +331,46 @@ impl RenderScene {
         };
         let mut render_seconds = render_seconds.unwrap_or_else(|| probe(&bvh).0);
         let mut base = "lbvh";
-        // The render time binned SAH saves, 16% (the dragon scene's render with timed paths),
-        // must repay its build, 9 LBVH builds (8.5 there), with half as much again to spare.
-        if 0.16 * render_seconds > 1.5 * 9.0 * lbvh_seconds {
+        // The render time binned SAH saves, 16% (the dragon scene, 256², 32 spp, timed paths:
+        // 1.50 against 1.78 s), must repay its build, 9 LBVH builds (8.5 there), and its probe,
+        // with half as much again to spare.
+        if 0.16 * render_seconds > 1.5 * (9.0 * lbvh_seconds + probe_cost) {
             let binned = crate::bvh::binned_sah::build(&prims, &Default::default());
+            // The LBVH's scene goes first: one probed scene at a time.
+            let lbvh_scene = timed.take();
             let (binned_seconds, binned_scene) = probe(&binned);
             if binned_seconds < render_seconds {
                 (bvh, render_seconds, base) = (binned, binned_seconds, "binned-sah");
                 timed = binned_scene;
+            } else if judge_is_camera(judge) {
+                // The camera probe assembles nothing: the LBVH's scene (a GPU's timed one) stays.
+                timed = lbvh_scene;
             }
         }
         let config = PrbvhConfig { collapse: None, ..Default::default() };
         // The first sweep is measured, not predicted: SAH overstates trace gains on some scenes
         // (the dragon's room), so its real gain, from a second probe, decides whether to go on
         // and calibrates the SAH-to-time factor for the sweeps after it. A sweep costs about 8
-        // LBVH builds (dragon, 2 cores); none is tried when the gain to expect could not repay
-        // that: 20% from the LBVH, 5% from binned SAH (on the dragon scene, timed paths gained
-        // 1-5% from a first sweep there).
+        // LBVH builds (dragon, 2 cores), plus its probe; none is tried when the gain to expect
+        // could not repay that: 20% from the LBVH, 5% from binned SAH (on the dragon scene, 256²,
+        // timed paths gained 1-5% from a first sweep there).
         let mut iterations = 0;
         let expected_gain = if base == "lbvh" { 0.2 } else { 0.05 };
-        if expected_gain * render_seconds > 8.0 * lbvh_seconds {
+        if expected_gain * render_seconds > 8.0 * lbvh_seconds + probe_cost {
             let first = PrbvhConfig { max_iterations: config.mu, ..config };
+            // The probe below assembles its own scene: one at a time.
+            drop(timed.take());
             let sweep_start = Instant::now();
             let s1 = prbvh::optimize_while(&mut bvh, &first, |_| true);
+            let spent = sweep_start.elapsed().as_secs_f64();
             iterations += s1.iterations.len();
             let (after, swept_scene) = probe(&bvh);
             timed = swept_scene;
-            let (gained, spent) = (render_seconds - after, sweep_start.elapsed().as_secs_f64());
+            let gained = render_seconds - after;
             let sah_fraction = (s1.initial_sah - s1.sah_before_collapse) / s1.initial_sah;
+            // A sweep that did not pay is kept all the same: its cost is spent, its SAH is lower,
+            // and a timing cannot tell a gain of a few percent from its noise (on the dragon
+            // scene one sweep from binned SAH timed slower, and rendered 4% faster).
             if gained > spent && sah_fraction > 0.0 {
                 let efficiency = (gained / render_seconds / sah_fraction).clamp(0.05, 1.0);
                 render_seconds = after;
@@ -361,6 +394,8 @@ impl RenderScene {
                     render_seconds *=
                         1.0 - (rest.initial_sah - rest.sah_before_collapse) / rest.initial_sah * efficiency;
                 }
+            } else {
+                render_seconds = after;
             }
         }
         let label = format!(
@@ -640,5 +675,25 @@ impl RenderScene {
                 rays
             })
             .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The timing rule: enough samples for a timing to be a sixteenth of the render, a timing
+    /// no dearer than a sweep (8 LBVH builds), and, under a budget, a sixteenth of the budget.
+    /// The Cornell box's case (a timing of 8 ms against LBVH builds of 0.3 ms) is not timed.
+    #[test]
+    fn paths_are_timed_only_where_it_pays() {
+        let least = 16.0 * 3.0 * f64::from(TIMED_PATHS);
+        assert!(worth_timing(least, 0.01, 0.02, None));
+        assert!(!worth_timing(least - 1.0, 0.01, 0.02, None));
+        assert!(worth_timing(1e9, 0.16, 0.02, None));
+        assert!(!worth_timing(1e9, 0.17, 0.02, None));
+        assert!(!worth_timing(1e9, 0.008, 0.0003, None));
+        assert!(worth_timing(1e9, 0.01, 0.02, Some(0.16)));
+        assert!(!worth_timing(1e9, 0.01, 0.02, Some(0.15)));
     }
 }
