@@ -8,8 +8,8 @@
 // store made by one workgroup need not be visible to another in the same dispatch, even after
 // that one has seen an atomic the first wrote later. On an H100 the second thread read stale
 // boxes (its L1 cache's) and left boxes that did not hold their children; lavapipe never showed
-// it. So the boxes travel in `refit_boxes`, through atomics only: six words per node, each the
-// complement of a float's bits, where 0 (the complement of a NaN) means "not written yet". Every
+// it. So the boxes travel in `refit_boxes`, through atomics only: REFIT_BOX_WORDS (six) words
+// per node, each the complement of a float's bits, where 0 (the complement of a NaN) means "not written yet". Every
 // thread publishes its box before it counts its visit at the parent. The second to arrive reads
 // its sibling's words and waits on any still 0: the sibling's thread stored them before the visit
 // that was seen, so the wait ends. It then clears both children's words, which leaves the buffer
@@ -20,7 +20,7 @@
 const REFIT_SPIN_LIMIT: u32 = 1048576u;
 
 fn publish_box(n: u32, lo: vec3<f32>, hi: vec3<f32>) {
-    let b = 6u * n;
+    let b = REFIT_BOX_WORDS * n;
     atomicStore(&refit_boxes[b], ~bitcast<u32>(lo.x));
     atomicStore(&refit_boxes[b + 1u], ~bitcast<u32>(lo.y));
     atomicStore(&refit_boxes[b + 2u], ~bitcast<u32>(lo.z));
@@ -53,11 +53,11 @@ fn refit_from(start: u32) {
             break;
         }
         let first = nodes[p].first;
-        let b = 6u * select(first, first + 1u, node == first);
+        let b = REFIT_BOX_WORDS * select(first, first + 1u, node == first);
         let sibling_lo = vec3<f32>(take_word(b), take_word(b + 1u), take_word(b + 2u));
         let sibling_hi = vec3<f32>(take_word(b + 3u), take_word(b + 4u), take_word(b + 5u));
-        for (var k = 0u; k < 6u; k++) {
-            atomicStore(&refit_boxes[6u * node + k], 0u);
+        for (var k = 0u; k < REFIT_BOX_WORDS; k++) {
+            atomicStore(&refit_boxes[REFIT_BOX_WORDS * node + k], 0u);
         }
         lo = min(lo, sibling_lo);
         hi = max(hi, sibling_hi);

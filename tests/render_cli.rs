@@ -174,6 +174,12 @@ fn auto_builder_judges_another_device_by_its_own_time() {
     assert_eq!(short.sah, kept.sah);
 }
 
+/// A render of `spp` samples per pixel in each of `frames` frames, paths of 6 segments, for
+/// `auto`, with a time limit per frame.
+fn job(spp: u32, frames: usize, time: Option<f64>) -> arbor::render::AutoRender {
+    arbor::render::AutoRender { spp, max_depth: 6, frames, seed: 7, time }
+}
+
 /// The CPU's `auto` times real paths on its trees where the render affords it: from 16 × 3 ×
 /// `TIMED_PATHS` samples in all (frames included), on a scene whose builds cost more than a
 /// timing (the dragon's 202k triangles: its LBVH takes 7-10 times what a timing is estimated
@@ -193,10 +199,10 @@ fn cpu_auto_times_paths_where_the_render_affords_it() {
         Some(rest.strip_suffix(" ms per sample").unwrap().parse().unwrap())
     };
     // 16 spp in each of 3 frames of 64 × 64 pixels: 16 × 3 × TIMED_PATHS samples.
-    let (_, timed) = RenderScene::build_auto_cpu(&dragon, 16, 6, 3, 7, None);
+    let (_, timed) = RenderScene::build_auto_cpu(&dragon, &job(16, 3, None));
     let ms = timed_ms(&timed.builder).unwrap_or_else(|| panic!("not timed: {}", timed.builder));
     assert!(ms.is_finite() && ms > 0.0, "{}", timed.builder);
-    let (_, short) = RenderScene::build_auto_cpu(&dragon, 47, 6, 1, 7, None);
+    let (_, short) = RenderScene::build_auto_cpu(&dragon, &job(47, 1, None));
     assert_eq!(timed_ms(&short.builder), None, "{}", short.builder);
 }
 
@@ -207,9 +213,9 @@ fn cpu_auto_weighs_a_time_budget() {
     use arbor::render::RenderScene;
     let mut showcase = arbor::scene::Scene::load(scene("showcase.toml")).unwrap();
     (showcase.camera.width, showcase.camera.height) = (64, 64);
-    let (_, long) = RenderScene::build_auto_cpu(&showcase, 1 << 20, 6, 2, 7, None);
+    let (_, long) = RenderScene::build_auto_cpu(&showcase, &job(1 << 20, 2, None));
     assert!(!long.builder.contains(", 0 iterations"), "{}", long.builder);
-    let (_, limited) = RenderScene::build_auto_cpu(&showcase, 1 << 20, 6, 2, 7, Some(1e-3));
+    let (_, limited) = RenderScene::build_auto_cpu(&showcase, &job(1 << 20, 2, Some(1e-3)));
     assert!(limited.builder.starts_with("auto: lbvh+prbvh, 0 iterations"), "{}", limited.builder);
     assert!(limited.sah > long.sah, "{} vs {}", limited.sah, long.sah);
 }

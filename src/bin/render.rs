@@ -17,7 +17,7 @@ use arbor::image_io::{check_output_path, frame_path, has_frame_pattern, write_im
 use arbor::render::film::Film;
 use arbor::render::geometry::wants_instancing;
 use arbor::render::integrator::first_frame_time;
-use arbor::render::{BuildReport, RenderScene};
+use arbor::render::{AutoRender, BuildReport, RenderScene};
 use arbor::scene::Scene;
 use clap::{Parser, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -149,7 +149,7 @@ fn run() -> Result<()> {
         Some(b) => RenderScene::build(&scene, b),
         None => {
             let frame_count = frames.as_ref().map_or(1, |f| f.len());
-            RenderScene::build_auto_cpu(&scene, spp, max_depth, frame_count, seed, time)
+            RenderScene::build_auto_cpu(&scene, &AutoRender { spp, max_depth, frames: frame_count, seed, time })
         }
     };
     render_scene.sample_clamp = args.clamp;
@@ -250,10 +250,14 @@ fn run_gpu(
             (None, Some(b)) => RenderScene::build(scene, b),
             (None, None) => {
                 let frame_count = frames.as_ref().map_or(1, |f| f.len());
-                let rays = RenderScene::estimated_rays(scene, settings.spp, settings.max_depth, frame_count);
-                let samples = u64::from(settings.spp) * frame_count as u64;
-                let budget = settings.time.map(|t| t * frame_count as f64);
-                trace::build_auto(ctx, scene, rays, samples, budget, settings.seed, settings.max_depth)
+                let job = AutoRender {
+                    spp: settings.spp,
+                    max_depth: settings.max_depth,
+                    frames: frame_count,
+                    seed: settings.seed,
+                    time: settings.time,
+                };
+                trace::build_auto(ctx, scene, &job)
             }
         };
         if !args.quiet {

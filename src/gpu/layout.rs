@@ -15,6 +15,10 @@ use crate::geometry::Aabb;
 /// Threads per workgroup of every 1D kernel.
 pub const WORKGROUP_SIZE: u32 = 256;
 
+/// Words per node of the refit's `refit_boxes` buffer (`shaders/_refit.wgsl`): a box's six
+/// coordinates, each passed between threads as an atomic.
+pub const REFIT_BOX_WORDS: u32 = 6;
+
 /// A primitive's box as the GPU reads it: `vec3` members align to 16 bytes in WGSL, so each
 /// corner carries a padding word.
 #[repr(C)]
@@ -74,6 +78,7 @@ pub fn prelude() -> String {
         "// Generated from src/gpu/layout.rs: do not edit here.\n\
          const WORKGROUP_SIZE: u32 = {WORKGROUP_SIZE}u;\n\
          const INVALID_INDEX: u32 = {INVALID_INDEX}u;\n\
+         const REFIT_BOX_WORDS: u32 = {REFIT_BOX_WORDS}u;\n\
          const MORTON_BITS: u32 = {}u;\n{}\n{}",
         crate::geometry::morton::MORTON_BITS,
         trace_constants(),

@@ -23,7 +23,7 @@
 use std::time::{Duration, Instant};
 
 use super::context::{GpuContext, GpuError};
-use super::layout::{BvhNode, GpuAabb, LbvhParams, with_prelude};
+use super::layout::{BvhNode, GpuAabb, LbvhParams, REFIT_BOX_WORDS, with_prelude};
 use crate::bvh::{Bvh, Nodes};
 use crate::geometry::Aabb;
 use crate::geometry::morton::MortonQuantizer;
@@ -120,7 +120,7 @@ pub fn build_on_device(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(GpuBvh,
     let parents = u32s("BVH parents", 2 * n)?;
     let leaf_slots = u32s("leaf slots", n)?;
     let visits = u32s("visit counters", 2 * n)?;
-    let refit_boxes = u32s("refit boxes", 6 * 2 * n)?;
+    let refit_boxes = u32s("refit boxes", REFIT_BOX_WORDS as usize * 2 * n)?;
     let centroids = ctx.storage_buffer_zeroed("centroids", (n * 16) as u64)?;
     let mut params = LbvhParams { prim_count: n32, pad: partial_count, ..Default::default() };
     let params_buf = ctx.uniform_buffer("LBVH parameters", &params);

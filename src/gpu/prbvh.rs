@@ -21,7 +21,7 @@
 use std::time::Instant;
 
 use super::context::{GpuContext, GpuError};
-use super::layout::{BvhNode, PrbvhParams, with_prelude};
+use super::layout::{BvhNode, PrbvhParams, REFIT_BOX_WORDS, with_prelude};
 use super::lbvh::GpuBvh;
 use crate::bvh::prbvh::{IterationStats, PrbvhConfig, PrbvhStats};
 use crate::bvh::{Bvh, collapse_leaves};
@@ -83,8 +83,8 @@ pub fn optimize_on_device(
     let lock_idx = u32s("PRBVH locks (index)")?;
     let winners = u32s("PRBVH winners")?;
     let visits = u32s("refit visits")?;
-    // Six words per node, zero between refits (the refit clears what it reads: `_refit.wgsl`).
-    let refit_boxes = ctx.storage_buffer_zeroed("refit boxes", u64::from(node_count) * 24)?;
+    // REFIT_BOX_WORDS words per node, zero between refits (the refit clears what it reads: `_refit.wgsl`).
+    let refit_boxes = ctx.storage_buffer_zeroed("refit boxes", u64::from(node_count * REFIT_BOX_WORDS) * 4)?;
     let locks64 = ctx.storage_buffer_zeroed("PRBVH locks (64-bit)", u64::from(node_count) * 8)?;
     let grid = ctx.dispatch_size(node_count);
     let partial_count = grid.0 * grid.1;

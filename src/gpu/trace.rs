@@ -486,31 +486,26 @@ pub fn measure_speed(
     Some((second / f64::from(PASS_SPP), compiled))
 }
 
-/// `auto`'s build for a GPU render of `samples` samples per pixel over all its frames, within
-/// `budget` seconds over all frames where it has a time budget
-/// ([`RenderScene::build_auto_for`]): the GPU is timed by [`measure_speed`] where that costs at
-/// most a sixteenth of the render (at least 16 × [`MEASURE_SPP`] samples); shorter renders keep
-/// the LBVH unoptimised, since no optimisation is tried blind: unrepaid optimisation can cost
-/// several times the render, while the most a skipped one could have saved is the render's
-/// trace-speed gain (20% on the dragon scene on an H100). The sixteenth is of the samples, not
-/// of a time budget: the GPU's speed is not known before it is timed.
+/// `auto`'s build for a GPU render ([`RenderScene::build_auto_for`]): the GPU is timed by
+/// [`measure_speed`] where that costs at most a sixteenth of the render (at least 16 ×
+/// [`MEASURE_SPP`] samples over all frames); shorter renders keep the LBVH unoptimised, since
+/// no optimisation is tried blind: unrepaid optimisation can cost several times the render,
+/// while the most a skipped one could have saved is the render's trace-speed gain (20% on the
+/// dragon scene on an H100). The sixteenth is of the samples, not of a time limit: the GPU's
+/// speed is not known before it is timed.
 pub fn build_auto(
     ctx: &GpuContext,
     scene: &crate::scene::Scene,
-    rays: f64,
-    samples: u64,
-    budget: Option<f64>,
-    seed: u64,
-    max_depth: u32,
+    job: &crate::render::AutoRender,
 ) -> (RenderScene, crate::render::BuildReport) {
     use crate::render::AutoDevice;
-    let mut measure = |rs: &RenderScene| measure_speed(ctx, rs, seed, max_depth);
-    let device = if samples >= 16 * u64::from(MEASURE_SPP) {
-        AutoDevice::Measured { samples: samples as f64, budget, measure: &mut measure }
+    let mut measure = |rs: &RenderScene| measure_speed(ctx, rs, job.seed, job.max_depth);
+    let device = if job.samples() >= 16.0 * f64::from(MEASURE_SPP) {
+        AutoDevice::Measured { samples: job.samples(), budget: job.budget(), measure: &mut measure }
     } else {
         AutoDevice::Unmeasured
     };
-    RenderScene::build_auto_for(scene, rays, device)
+    RenderScene::build_auto_for(scene, job.rays(scene), device)
 }
 
 /// The film's f64 sums from the device's shifted f32 sums (see [`GpuPixel`]). `sum_sq` is

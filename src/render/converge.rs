@@ -38,8 +38,8 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::RenderScene;
 use super::film::Film;
+use super::{AutoRender, RenderScene};
 use crate::bvh::builders::Builder;
 use crate::image_io::Image;
 use crate::scene::Scene;
@@ -209,13 +209,13 @@ pub fn measure_curve(
     // `auto` judges the render's length by timing paths on the device that renders.
     let build = |spp: u32| match choice {
         BuilderChoice::Fixed(builder) => RenderScene::build(scene, builder),
-        BuilderChoice::Auto => match device {
-            ConvergeDevice::Cpu => RenderScene::build_auto_cpu(scene, spp, config.max_depth, 1, config.seed, None),
-            ConvergeDevice::Gpu(ctx) => {
-                let rays = RenderScene::estimated_rays(scene, spp, config.max_depth, 1);
-                crate::gpu::trace::build_auto(ctx, scene, rays, u64::from(spp), None, config.seed, config.max_depth)
+        BuilderChoice::Auto => {
+            let job = AutoRender { spp, max_depth: config.max_depth, frames: 1, seed: config.seed, time: None };
+            match device {
+                ConvergeDevice::Cpu => RenderScene::build_auto_cpu(scene, &job),
+                ConvergeDevice::Gpu(ctx) => crate::gpu::trace::build_auto(ctx, scene, &job),
             }
-        },
+        }
     };
     match (choice, device) {
         (BuilderChoice::Fixed(_), ConvergeDevice::Cpu) => {

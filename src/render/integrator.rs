@@ -70,6 +70,35 @@ pub struct BuildReport {
     pub builder: String,
 }
 
+/// The render `auto` builds for, as far as its length goes: the same for either device
+/// ([`RenderScene::build_auto_cpu`], `gpu::trace::build_auto`).
+#[derive(Clone, Copy, Debug)]
+pub struct AutoRender {
+    pub spp: u32,
+    pub max_depth: u32,
+    pub frames: usize,
+    pub seed: u64,
+    /// The time limit per frame in seconds (`render --time`), if it has one.
+    pub time: Option<f64>,
+}
+
+impl AutoRender {
+    /// Samples per pixel over all frames.
+    pub fn samples(&self) -> f64 {
+        f64::from(self.spp) * self.frames as f64
+    }
+
+    /// The time limit over all frames, if there is one.
+    pub fn budget(&self) -> Option<f64> {
+        self.time.map(|t| t * self.frames as f64)
+    }
+
+    /// [`RenderScene::estimated_rays`] for this render.
+    pub fn rays(&self, scene: &Scene) -> f64 {
+        RenderScene::estimated_rays(scene, self.spp, self.max_depth, self.frames)
+    }
+}
+
 /// The device a render for [`RenderScene::build_auto_for`] runs on.
 pub enum AutoDevice<'a> {
     /// The CPU, whose speed the camera-ray probes measure.
@@ -125,8 +154,10 @@ enum Judge {
     Paths { samples: f64, seed: u64, max_depth: u32 },
 }
 
-fn judge_is_camera(judge: Judge) -> bool {
-    matches!(judge, Judge::Camera { .. })
+impl Judge {
+    fn is_camera(self) -> bool {
+        matches!(self, Judge::Camera { .. })
+    }
 }
 
 /// Whether the CPU's `auto` times paths, for a render of `samples` samples in all (pixels ×
@@ -190,19 +221,20 @@ impl RenderScene {
     ///
     /// 1. LBVH, and the render's length with it.
     /// 2. If 16% of that render (what binned SAH saved on the dragon scene) would repay a
-    ///    binned-SAH build (estimated at 9 LBVH builds, its cost on the dragon here) one and a
-    ///    half times over, the binned-SAH tree is built and probed too, and the tree with the
+    ///    binned-SAH build (estimated at 9 LBVH builds, its cost on the dragon here) and its
+    ///    probe one and a half times over, the binned-SAH tree is built and probed too, and the tree with the
     ///    shorter estimated render is kept.
     /// 3. Parallel reinsertion on the kept tree, in sweeps (μ iterations, which search every
     ///    node once between them), if the gain to expect (20% from the LBVH, 5% from binned
-    ///    SAH) could repay a sweep (about 8 LBVH builds). The first sweep's gain is measured by
-    ///    a second probe: it goes on only if the render got shorter by more than the sweep
-    ///    took, and that gain per unit of SAH gained calibrates the rest. Each later sweep's saving is its SAH decrease, as a fraction, times the
-    ///    estimated render time times that factor, and optimisation stops when the last sweep
-    ///    saved less than it took. (SAH alone overstates gains: on the dragon scene LBVH + PRBVH
-    ///    cut the SAH by 66% but traced 20% faster, and reinsertion on the binned-SAH tree cost
-    ///    more than it returned. Judging single iterations stopped the dragon after 5 of its
-    ///    ~40: one iteration searches a ninth of the nodes.)
+    ///    SAH) could repay a sweep (about 8 LBVH builds) and its probe. The first sweep's gain
+    ///    is measured by a second probe: it goes on only if the render got shorter by more than
+    ///    the sweep took, and that gain per unit of SAH gained calibrates the rest. Each later
+    ///    sweep's saving is its SAH decrease, as a fraction, times the estimated render time
+    ///    times that factor, and optimisation stops when the last sweep (μ iterations) saved
+    ///    less than it took. (SAH alone overstates gains: on the dragon scene LBVH + PRBVH cut
+    ///    the SAH by 66% but traced 20% faster, and reinsertion on the binned-SAH tree cost more
+    ///    than it returned. Judging single iterations stopped the dragon after 5 of its ~40:
+    ///    one iteration searches a ninth of the nodes.)
     ///
     /// An instanced scene builds its meshes' BVHs with `lbvh+prbvh`: they are built once and
     /// serve every frame.
@@ -210,7 +242,7 @@ impl RenderScene {
         Self::build_auto_for(scene, rays, AutoDevice::Cpu)
     }
 
-    /// `--builder auto` for a CPU render of `spp` samples per pixel in each of `frames` frames.
+    /// `--builder auto` for a CPU render.
     ///
     /// Each tree is judged by timing paths on it, not by the camera-ray probe: its scene is
     /// assembled and [`RenderScene::cpu_seconds_per_sample`] traces real paths from
@@ -225,21 +257,16 @@ impl RenderScene {
     /// than a reinsertion sweep (8 LBVH builds); otherwise the camera-ray estimate is kept (on
     /// the Cornell box, timing made `auto` 23% slower than the best fixed builder).
     ///
-    /// `budget` is the render's time limit per frame (`render --time`), if it has one: the
-    /// render then lasts no longer than it, and a faster tree is worth the time it saves on the
-    /// samples the LBVH would render in it.
-    pub fn build_auto_cpu(
-        scene: &Scene,
-        spp: u32,
-        max_depth: u32,
-        frames: usize,
-        seed: u64,
-        budget: Option<f64>,
-    ) -> (Self, BuildReport) {
-        let rays = Self::estimated_rays(scene, spp, max_depth, frames);
-        let samples = f64::from(spp) * frames as f64;
-        let budget = budget.map(|b| b * frames as f64);
-        Self::build_auto_for(scene, rays, AutoDevice::CpuPaths { samples, seed, max_depth, budget })
+    /// Under a time limit (`render --time`) the render lasts no longer than it, and a faster
+    /// tree is worth the time it saves on the samples the LBVH would render in it.
+    pub fn build_auto_cpu(scene: &Scene, job: &AutoRender) -> (Self, BuildReport) {
+        let device = AutoDevice::CpuPaths {
+            samples: job.samples(),
+            seed: job.seed,
+            max_depth: job.max_depth,
+            budget: job.budget(),
+        };
+        Self::build_auto_for(scene, job.rays(scene), device)
     }
 
     /// [`RenderScene::build_auto`] for a render on `device`.
@@ -342,7 +369,7 @@ impl RenderScene {
             if binned_seconds < render_seconds {
                 (bvh, render_seconds, base) = (binned, binned_seconds, "binned-sah");
                 timed = binned_scene;
-            } else if judge_is_camera(judge) {
+            } else if judge.is_camera() {
                 // The camera probe assembles nothing: the LBVH's scene (a GPU's timed one) stays.
                 timed = lbvh_scene;
             }

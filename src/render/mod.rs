@@ -10,4 +10,4 @@ pub mod lights;
 pub mod rng;
 pub mod sampling;
 
-pub use integrator::{AutoDevice, BuildReport, RenderScene};
+pub use integrator::{AutoDevice, AutoRender, BuildReport, RenderScene};
