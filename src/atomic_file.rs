@@ -6,6 +6,11 @@
 //! writers that choose a format by it), which is created exclusively, synced, then renamed over
 //! the target. On any error the temporary is removed and the target is untouched; only a
 //! process killed mid-write can leave a temporary behind.
+//!
+//! Where the target is a symbolic link, the file it points to is replaced (the link stays a
+//! link). Where it is an existing file that is not a regular one (`/dev/stdout`, a FIFO, a
+//! device), the content is written into it as a stream: renaming over it would put a plain file
+//! where the device was. A stream cannot be atomic.
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, BufWriter};
@@ -19,6 +24,57 @@ pub enum AtomicWriteError<E> {
     Write(E),
 }
 
+/// Where a write to a path lands ([`destination`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Destination {
+    /// A regular file, existing or not (a symbolic link's target where the path is a link):
+    /// written to a temporary beside it, then renamed over it.
+    File(PathBuf),
+    /// An existing file that is not a regular one (device, FIFO): written in place.
+    Stream(PathBuf),
+}
+
+/// Where a write to `path` lands; an error for a directory.
+pub fn destination(path: &Path) -> io::Result<Destination> {
+    match fs::metadata(path) {
+        Ok(m) if m.is_dir() => Err(io::Error::new(io::ErrorKind::IsADirectory, "it is a directory")),
+        Ok(m) if m.is_file() => Ok(Destination::File(follow_links(path)?)),
+        Ok(_) => Ok(Destination::Stream(path.to_owned())),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(Destination::File(follow_links(path)?)),
+        Err(e) => Err(e),
+    }
+}
+
+/// `path` with the symbolic links of its last component followed, to a path that is not a link
+/// (a dangling link's target, which the write will create).
+fn follow_links(path: &Path) -> io::Result<PathBuf> {
+    let mut p = path.to_owned();
+    // Linux's own limit on links followed.
+    for _ in 0..40 {
+        match fs::symlink_metadata(&p) {
+            Ok(m) if m.file_type().is_symlink() => {
+                let target = fs::read_link(&p)?;
+                // A relative target is relative to the link's folder; `join` keeps an absolute one.
+                p = p.parent().map_or_else(|| target.clone(), |dir| dir.join(&target));
+            }
+            _ => return Ok(p),
+        }
+    }
+    Err(io::Error::other("too many levels of symbolic links"))
+}
+
+/// Checks before any work is spent that `path` can be written: not a directory, its folder
+/// created where missing, and a file creatable there (a temporary, removed again).
+pub fn prepare(path: &Path) -> io::Result<()> {
+    let Destination::File(target) = destination(path)? else { return Ok(()) };
+    if let Some(dir) = target.parent().filter(|d| !d.as_os_str().is_empty()) {
+        fs::create_dir_all(dir)?;
+    }
+    let tmp = temp_path(&target);
+    OpenOptions::new().write(true).create_new(true).open(&tmp)?;
+    fs::remove_file(&tmp)
+}
+
 /// The temporary path for `path`.
 pub fn temp_path(path: &Path) -> PathBuf {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
@@ -28,16 +84,30 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{stem}.tmp{}-{n}{ext}", std::process::id()))
 }
 
-/// Calls `write` with a fresh temporary path, then renames the file it wrote over `path`.
+/// Calls `write` with a fresh temporary path, then renames the file it wrote over `path` (see
+/// the module docs for links and streams; a stream's path is passed to `write` itself).
 /// `write` must create the file itself (for writers that only take a path); its own errors are
 /// [`AtomicWriteError::Write`].
 pub fn replace_via_temp<E>(
     path: &Path,
     write: impl FnOnce(&Path) -> Result<(), AtomicWriteError<E>>,
 ) -> Result<(), AtomicWriteError<E>> {
-    let tmp = temp_path(path);
-    let result = write(&tmp).and_then(|()| {
-        fs::rename(&tmp, path)
+    write_to(path, |to, _| write(to))
+}
+
+/// [`replace_via_temp`], telling `write` whether it writes a stream.
+fn write_to<E>(
+    path: &Path,
+    write: impl FnOnce(&Path, bool) -> Result<(), AtomicWriteError<E>>,
+) -> Result<(), AtomicWriteError<E>> {
+    let target = match destination(path) {
+        Ok(Destination::File(target)) => target,
+        Ok(Destination::Stream(stream)) => return write(&stream, true),
+        Err(source) => return Err(AtomicWriteError::Io { what: "cannot write", source }),
+    };
+    let tmp = temp_path(&target);
+    let result = write(&tmp, false).and_then(|()| {
+        fs::rename(&tmp, &target)
             .map_err(|source| AtomicWriteError::Io { what: "cannot rename the temporary file over", source })
     });
     if result.is_err() {
@@ -53,18 +123,23 @@ pub fn write_atomic<E>(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> Result<(), E>,
 ) -> Result<(), AtomicWriteError<E>> {
-    replace_via_temp(path, |tmp| {
+    write_to(path, |to, stream| {
         let io = |what| move |source| AtomicWriteError::Io { what, source };
-        let file = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(tmp)
-            .map_err(io("cannot create a temporary file beside"))?;
+        let file = if stream {
+            OpenOptions::new().write(true).open(to).map_err(io("cannot open"))?
+        } else {
+            OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(to)
+                .map_err(io("cannot create a temporary file beside"))?
+        };
         let mut out = BufWriter::new(file);
         write(&mut out).map_err(AtomicWriteError::Write)?;
         let file =
             out.into_inner().map_err(|e| AtomicWriteError::Io { what: "cannot write", source: e.into_error() })?;
-        file.sync_all().map_err(io("cannot sync"))
+        // A device or FIFO has nothing to sync (and /dev/null refuses to).
+        if stream { Ok(()) } else { file.sync_all().map_err(io("cannot sync")) }
     })
 }
 
@@ -104,6 +179,52 @@ mod tests {
         assert!(leftovers(&d).is_empty(), "{:?}", leftovers(&d));
         let missing = write_atomic::<io::Error>(&d.join("no/such/dir.txt"), |_| Ok(()));
         assert!(matches!(missing, Err(AtomicWriteError::Io { what: "cannot create a temporary file beside", .. })));
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn links_are_followed_and_streams_written_in_place() {
+        use std::os::unix::fs::{FileTypeExt, symlink};
+        let d = dir("links");
+        let real = d.join("real.json");
+        fs::write(&real, b"old").unwrap();
+        let link = d.join("link.json");
+        let _ = fs::remove_file(&link);
+        symlink("real.json", &link).unwrap();
+        write_atomic::<io::Error>(&link, |f| f.write_all(b"new")).unwrap();
+        assert!(fs::symlink_metadata(&link).unwrap().file_type().is_symlink(), "the link was replaced");
+        assert_eq!(fs::read(&real).unwrap(), b"new");
+        // A dangling link: the file it names is created.
+        let dangling = d.join("dangling.json");
+        let _ = fs::remove_file(&dangling);
+        let _ = fs::remove_file(d.join("made.json"));
+        symlink("made.json", &dangling).unwrap();
+        write_atomic::<io::Error>(&dangling, |f| f.write_all(b"made")).unwrap();
+        assert_eq!(fs::read(d.join("made.json")).unwrap(), b"made");
+        // A link to a device: written through, the device and the link stay.
+        let null = d.join("null.json");
+        let _ = fs::remove_file(&null);
+        symlink("/dev/null", &null).unwrap();
+        assert_eq!(destination(&null).unwrap(), Destination::Stream(null.clone()));
+        write_atomic::<io::Error>(&null, |f| f.write_all(b"gone")).unwrap();
+        assert!(fs::symlink_metadata(&null).unwrap().file_type().is_symlink());
+        assert!(fs::metadata("/dev/null").unwrap().file_type().is_char_device());
+        assert!(leftovers(&d).is_empty(), "{:?}", leftovers(&d));
+    }
+
+    #[test]
+    fn prepare_makes_folders_and_refuses_directories() {
+        let d = dir("prepare");
+        let nested = d.join("a/b/out.png");
+        prepare(&nested).unwrap();
+        assert!(d.join("a/b").is_dir());
+        assert!(!nested.exists() && leftovers(&d.join("a/b")).is_empty());
+        let err = prepare(&d).unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::IsADirectory);
+        assert!(matches!(
+            write_atomic::<io::Error>(&d, |_| Ok(())),
+            Err(AtomicWriteError::Io { what: "cannot write", .. })
+        ));
     }
 
     #[test]

@@ -18,3 +18,13 @@ pub mod image_io;
 pub mod memory;
 pub mod render;
 pub mod scene;
+
+/// `println!` for the command-line tools' reports, ignoring a closed standard output (`| head`):
+/// the work, and the files it writes, go on; `println!` would panic.
+#[macro_export]
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}

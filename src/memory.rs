@@ -15,15 +15,49 @@ pub fn rss_bytes() -> Option<u64> {
     status_kib("VmRSS:").map(|k| k * 1024)
 }
 
+/// Memory the system can give this process now without swapping (`MemAvailable` of
+/// `/proc/meminfo`, Linux), bytes; `None` where unknown.
+pub fn available_bytes() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    kib_field(&info, "MemAvailable:").map(|k| k * 1024)
+}
+
+/// An error where `bytes`, what `what` needs, is more than the memory available
+/// ([`available_bytes`]): a clear message up front instead of an abort when the allocation
+/// fails. Nothing is checked where the available memory is unknown.
+pub fn check_fits(what: &str, bytes: f64) -> Result<(), String> {
+    match available_bytes() {
+        Some(available) if bytes > available as f64 => Err(format!(
+            "{what} needs about {:.1} GB of memory, and {:.1} GB is available",
+            bytes / 1e9,
+            available as f64 / 1e9
+        )),
+        _ => Ok(()),
+    }
+}
+
 fn status_kib(field: &str) -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with(field))?;
+    kib_field(&std::fs::read_to_string("/proc/self/status").ok()?, field)
+}
+
+/// The value of a `Name:   1234 kB` line of a `/proc` file.
+fn kib_field(text: &str, field: &str) -> Option<u64> {
+    let line = text.lines().find(|l| l.starts_with(field))?;
     line[field.len()..].trim().trim_end_matches("kB").trim().parse().ok()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn more_than_the_machine_has_does_not_fit() {
+        let Some(available) = available_bytes() else { return }; // not Linux
+        assert!(available > 0);
+        assert!(check_fits("a small thing", 1e3).is_ok());
+        let err = check_fits("--procedural city:1e15", 1e18).unwrap_err();
+        assert!(err.starts_with("--procedural city:1e15 needs about 1000000000.0 GB"), "{err}");
+    }
 
     #[test]
     fn touching_memory_raises_the_peak() {

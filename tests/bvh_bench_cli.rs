@@ -155,7 +155,16 @@ fn bad_input_is_a_clear_error() {
         (vec!["--procedural".into(), "city:lots".into()], "bad triangle count `lots`"),
         (vec!["--procedural".into(), "subdivided:1000".into()], "needs an input mesh"),
         (vec![obj.display().to_string(), "--plot".into(), "out.jpg".into()], "must end in .svg or .png"),
-        (vec![obj.display().to_string(), "--runs".into(), "0".into()], "--runs must be at least 1"),
+        (vec![obj.display().to_string(), "--runs".into(), "0".into()], "--runs must be from 1 to"),
+        (vec![obj.display().to_string(), "--runs".into(), "99999999999".into()], "--runs must be from 1 to"),
+        (vec![obj.display().to_string(), "--resolution".into(), "99999".into()], "--resolution must be from 1 to"),
+        (vec![obj.display().to_string(), "--epsilon".into(), "nan".into()], "--epsilon must be a finite number"),
+        (vec![obj.display().to_string(), "--builders".into(), "lbvh,ploc,lbvh".into()], "`lbvh` is listed twice"),
+        (vec!["--procedural".into(), "hairball:99999999999999999999".into()], "must be at most 10^12"),
+        (vec!["--procedural".into(), "hairball:1.5".into()], "must be a whole number"),
+        (vec!["--procedural".into(), "city:1e11".into()], "GB of memory"),
+        (vec!["--procedural-animated".into(), "1e11".into()], "GB of memory"),
+        (vec![obj.display().to_string(), "--csv".into(), dir.display().to_string()], "it is a directory"),
         (vec![], "give a mesh"),
     ];
     for (args, expected) in cases {
@@ -168,6 +177,43 @@ fn bad_input_is_a_clear_error() {
         let reason = "(os error 2)";
         assert!(stderr.matches(reason).count() <= 1, "{args:?}: repeated reason in: {stderr}");
     }
+}
+
+/// Outputs go where a user points them: through a symbolic link (which stays a link), into
+/// folders made where missing; and a closed standard output (`| head`) neither panics nor
+/// stops the report files.
+#[cfg(unix)]
+#[test]
+fn outputs_follow_links_make_folders_and_survive_a_closed_stdout() {
+    let dir = temp_dir("links");
+    let obj = dir.join("torus.obj");
+    write_obj(&obj);
+    let (real, link) = (dir.join("real.json"), dir.join("link.json"));
+    std::fs::write(&real, "{}").unwrap();
+    let _ = std::fs::remove_file(&link);
+    std::os::unix::fs::symlink(&real, &link).unwrap();
+    let csv = dir.join("new/folder/r.csv");
+    let _ = std::fs::remove_dir_all(dir.join("new"));
+    let mut child = bench()
+        .arg(&obj)
+        .args(["--builders", "lbvh", "--runs", "1", "--resolution", "16", "--json"])
+        .arg(&link)
+        .arg("--csv")
+        .arg(&csv)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Close the reading end before the table is printed.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink(), "the link was replaced by a file");
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&real).unwrap()).unwrap();
+    assert_eq!(report["builders"][0]["name"], "lbvh");
+    assert!(std::fs::read_to_string(&csv).unwrap().starts_with("name,"));
 }
 
 /// `--procedural-animated` and `--animated`: every strategy reported with the documented JSON

@@ -77,6 +77,12 @@ fn errors_are_clear_and_leave_nothing_behind() {
     }
     let o = render().arg(scene("furnace.toml")).arg("-o").arg(dir.join("out.jpg")).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("supported: .exr, .png"));
+    // An output that is a folder fails before the render (a million samples would take minutes).
+    let folder = dir.join("folder.exr");
+    std::fs::create_dir_all(&folder).unwrap();
+    let o = render().arg(scene("furnace.toml")).arg("-o").arg(&folder).args(["--spp", "1000000"]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && stderr.contains("it is a directory"), "{stderr}");
 }
 
 #[test]
@@ -260,12 +266,28 @@ fn frames_render_numbered_sequences() {
         (vec!["--frames", "3..1"], "x_%d.exr", "must be after"),
         (vec!["--frames", "3"], "x_%d.exr", "FIRST..END"),
         (vec!["--frames", "0..2", "--frame", "1"], "x_%d.exr", "cannot be used with"),
+        (vec!["--frames", "0..2"], "x_%d_%04d.exr", "more than one frame pattern"),
     ] {
         let o = run(&args, out);
         let stderr = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success() && stderr.contains(expected), "{args:?}: {stderr}");
     }
     assert!(!dir.join("nopattern.exr").exists());
+
+    // A closed standard output (`render ... | head -1`) stops neither the sequence nor its files.
+    let mut child = render()
+        .arg(scene("cornell-animated.toml"))
+        .arg("-o")
+        .arg(dir.join("piped/p_%d.png"))
+        .args(["--device", "cpu", "--spp", "1", "--max-depth", "2", "--frames", "0..3"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!((0..3).all(|f| dir.join(format!("piped/p_{f}.png")).exists()));
 }
 
 /// `--clamp R` bounds every sample, so every pixel, by R; without it the Cornell box's light

@@ -133,11 +133,12 @@ fn run() -> Result<()> {
         }
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
     }
-    if args.converge.is_some() {
-        return run_converge(&args);
-    }
     if let Some(builder) = &args.memory_child {
         return memory_child(&args, builder);
+    }
+    check_options(&args)?;
+    if args.converge.is_some() {
+        return run_converge(&args);
     }
     if args.memory {
         return run_memory(&args);
@@ -159,15 +160,6 @@ fn run() -> Result<()> {
         .map(|b| b.trim().parse::<Builder>())
         .collect::<Result<Vec<_>, _>>()
         .context("--builders")?;
-    if args.runs == 0 {
-        bail!("--runs must be at least 1");
-    }
-    if args.mu == 0 {
-        bail!("--mu must be at least 1");
-    }
-    if let Some(plot) = &args.plot {
-        plot_format(plot)?;
-    }
     let (name, mesh) = load_input(&args)?;
     if mesh.indices.is_empty() {
         bail!("{name}: no triangles");
@@ -198,6 +190,41 @@ fn run() -> Result<()> {
     Ok(())
 }
 
+/// Most runs a benchmark may repeat, and the largest --resolution: beyond them a mistyped number
+/// would run for days or ask for more memory than any machine has.
+const MAX_RUNS: usize = 10_000;
+const MAX_RESOLUTION: u32 = 8192;
+
+/// Checks of the options all modes share, before any work: numbers in range, builders listed
+/// once, and the output files writable (their folders made where missing).
+fn check_options(args: &Args) -> Result<()> {
+    if !(1..=MAX_RUNS).contains(&args.runs) {
+        bail!("--runs must be from 1 to {MAX_RUNS}, not {}", args.runs);
+    }
+    if !(1..=MAX_RESOLUTION).contains(&args.resolution) {
+        bail!("--resolution must be from 1 to {MAX_RESOLUTION}, not {}", args.resolution);
+    }
+    if args.mu == 0 {
+        bail!("--mu must be at least 1");
+    }
+    if !(args.epsilon.is_finite() && args.epsilon >= 0.0) {
+        bail!("--epsilon must be a finite number >= 0, not {}", args.epsilon);
+    }
+    if let Some(names) = &args.builders {
+        let mut seen = std::collections::HashSet::new();
+        if let Some(twice) = names.iter().map(|n| n.trim()).find(|n| !seen.insert(*n)) {
+            bail!("--builders: `{twice}` is listed twice");
+        }
+    }
+    if let Some(plot) = &args.plot {
+        plot_format(plot)?;
+    }
+    for path in [&args.json, &args.csv, &args.plot].into_iter().flatten() {
+        atomic_file::prepare(path).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
 /// Writes the report as JSON, the table as CSV and the plot, for each option given.
 fn write_outputs(
     args: &Args,
@@ -224,9 +251,6 @@ fn run_animated(args: &Args) -> Result<()> {
     if args.frames == 0 {
         bail!("--frames must be at least 1");
     }
-    if let Some(plot) = &args.plot {
-        plot_format(plot)?;
-    }
     let (name, anim) = match (&args.animated, &args.procedural_animated) {
         (Some(path), _) => {
             if args.moving.is_some() {
@@ -239,7 +263,11 @@ fn run_animated(args: &Args) -> Result<()> {
             (path.display().to_string(), AnimatedInstances::from_scene(&scene))
         }
         (None, Some(n)) => {
+            let spec = n;
             let n = parse_count(n).with_context(|| format!("--procedural-animated: bad instance count `{n}`"))?;
+            // About 1.6 kB per instance at the peak (200k instances, 2 frames).
+            arbor::memory::check_fits(&format!("--procedural-animated {spec}"), n as f64 * 2000.0)
+                .map_err(anyhow::Error::msg)?;
             let moving = args.moving.unwrap_or(10.0);
             if !(0.0..=100.0).contains(&moving) {
                 bail!("--moving must be a percentage from 0 to 100, not {moving}");
@@ -258,26 +286,46 @@ fn run_animated(args: &Args) -> Result<()> {
     );
     let config = AnimBenchConfig { frames: args.frames, resolution: args.resolution.min(256), ..Default::default() };
     let report = anim_bench::run(&anim, &config);
-    println!(
+    arbor::outln!(
         "{} instances, {} moving, {} triangles, {} frames, {} threads",
-        report.instances, report.moving, report.triangles, report.frames, report.threads
+        report.instances,
+        report.moving,
+        report.triangles,
+        report.frames,
+        report.threads
     );
-    println!(
+    arbor::outln!(
         "{:<16} {:>10} {:>10} {:>10} {:>10} {:>10} {:>9} {:>9} {:>9}",
-        "strategy", "update ms", "mean ms", "max ms", "SAH final", "SAH max", "rebuilds", "primary", "diffuse"
+        "strategy",
+        "update ms",
+        "mean ms",
+        "max ms",
+        "SAH final",
+        "SAH max",
+        "rebuilds",
+        "primary",
+        "diffuse"
     );
     for s in &report.strategies {
         let v = strategy_values(s);
-        println!(
+        arbor::outln!(
             "{:<16} {:>10.3} {:>10.3} {:>10.3} {:>10.3} {:>10.3} {:>9} {:>9.2} {:>9.2}",
-            s.name, v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]
+            s.name,
+            v[0],
+            v[1],
+            v[2],
+            v[3],
+            v[4],
+            v[5],
+            v[6],
+            v[7]
         );
     }
-    println!(
+    arbor::outln!(
         "(update: median per frame; SAH as a ratio to a fresh binned-SAH build; trace speeds in Mrays/s at the last frame)"
     );
     if report.single_level_differences > 0 {
-        println!(
+        arbor::outln!(
             "({} rays hit another triangle through the single-level tree's world-space copies: rounding at shared edges)",
             report.single_level_differences
         );
@@ -352,11 +400,8 @@ fn run_converge(args: &Args) -> Result<()> {
         .unwrap_or_else(|| ["lbvh", "lbvh+prbvh", "binned-sah", "auto"].map(String::from).to_vec());
     let choices =
         names.iter().map(|b| b.trim().parse::<BuilderChoice>()).collect::<Result<Vec<_>, _>>().context("--builders")?;
-    if args.max_spp == 0 || args.runs == 0 {
-        bail!("--max-spp and --runs must be at least 1");
-    }
-    if let Some(plot) = &args.plot {
-        plot_format(plot)?;
+    if args.max_spp == 0 {
+        bail!("--max-spp must be at least 1");
     }
     let mut scene = arbor::scene::Scene::load(path)?;
     if let Some((w, h)) = args.image_size {
@@ -417,24 +462,36 @@ fn run_converge(args: &Args) -> Result<()> {
         runs.push(curves);
     }
     let curves = converge::median_of_runs(runs);
-    println!(
+    arbor::outln!(
         "{:<14} {:>6} {:>6} {:>10} {:>10} {:>12} {:>10}",
-        "builder", "device", "spp", "time s", "build s", "rel MSE", "MAE"
+        "builder",
+        "device",
+        "spp",
+        "time s",
+        "build s",
+        "rel MSE",
+        "MAE"
     );
     for c in &curves {
         for p in &c.points {
-            println!(
+            arbor::outln!(
                 "{:<14} {:>6} {:>6} {:>10.3} {:>10.3} {:>12.4e} {:>10.4e}",
-                c.builder, c.device, p.spp, p.time_s, p.build_s, p.rel_mse, p.mae
+                c.builder,
+                c.device,
+                p.spp,
+                p.time_s,
+                p.build_s,
+                p.rel_mse,
+                p.mae
             );
         }
     }
     if args.runs > 1 {
-        println!("(times: the median of {} runs)", args.runs);
+        arbor::outln!("(times: the median of {} runs)", args.runs);
     }
     let auto = converge::compare_auto(&curves);
     for a in &auto {
-        println!(
+        arbor::outln!(
             "{}: auto against the best fixed builder at equal time ({:.3} to {:.3} s): worst rel MSE ratio {:.3} at {:.3} s ({} best there), worst MAE ratio {:.3}",
             a.device,
             a.compared_from_s,
@@ -501,9 +558,6 @@ fn run_gpu(args: &Args) -> Result<()> {
     use arbor::bvh::prbvh::{self, PrbvhConfig};
     use arbor::gpu::prbvh::{self as gpu_prbvh, LockScheme};
     use std::time::Instant;
-    if args.runs == 0 {
-        bail!("--runs must be at least 1");
-    }
     let ctx = arbor::gpu::GpuContext::shared()?;
     let (name, mesh) = load_input(args)?;
     let prims: Vec<arbor::geometry::Aabb> = mesh.triangles().iter().map(arbor::geometry::Triangle::aabb).collect();
@@ -562,15 +616,15 @@ fn run_gpu(args: &Args) -> Result<()> {
         let lock = if scheme == LockScheme::Atomic64 { "64-bit" } else { "32-bit" };
         rows.push(serde_json::json!({"stage": "prbvh", "device": "gpu", "locks": lock, "ms": median(times), "sah": sah, "iterations": iterations}));
     }
-    println!(
+    arbor::outln!(
         "{} triangles; {}; medians of {} runs (GPU times exclude pipeline compilation, upload and readback)",
         prims.len(),
         ctx.describe(),
         args.runs
     );
-    println!("{:<8} {:<6} {:<8} {:>12} {:>10}", "stage", "device", "locks", "ms", "SAH");
+    arbor::outln!("{:<8} {:<6} {:<8} {:>12} {:>10}", "stage", "device", "locks", "ms", "SAH");
     for r in &rows {
-        println!(
+        arbor::outln!(
             "{:<8} {:<6} {:<8} {:>12.2} {:>10.2}",
             r["stage"].as_str().unwrap_or(""),
             r["device"].as_str().unwrap_or(""),
@@ -615,13 +669,18 @@ fn run_memory(args: &Args) -> Result<()> {
         reports.push(r);
     }
     let triangles = reports.first().map_or(0, |r| r.triangles);
-    println!("{triangles} triangles; each builder in its own process");
-    println!(
+    arbor::outln!("{triangles} triangles; each builder in its own process");
+    arbor::outln!(
         "{:<26} {:>10} {:>12} {:>12} {:>14} {:>14}",
-        "builder", "build ms", "kept MB", "peak MB", "kept B/tri", "peak B/tri"
+        "builder",
+        "build ms",
+        "kept MB",
+        "peak MB",
+        "kept B/tri",
+        "peak B/tri"
     );
     for r in &reports {
-        println!(
+        arbor::outln!(
             "{:<26} {:>10.1} {:>12.1} {:>12.1} {:>14.1} {:>14.1}",
             r.name,
             r.build_ms,
@@ -631,7 +690,7 @@ fn run_memory(args: &Args) -> Result<()> {
             r.peak_bytes_per_triangle
         );
     }
-    println!(
+    arbor::outln!(
         "(kept: what tracing needs, triangles included; peak: the whole process, mesh and input triangles included)"
     );
     let report = serde_json::json!({ "triangles": triangles, "builders": reports });
@@ -684,7 +743,7 @@ fn memory_child(args: &Args, name: &str) -> Result<()> {
         kept_bytes_per_triangle: kept as f64 / n,
         peak_bytes_per_triangle: peak as f64 / n,
     };
-    println!("{}", serde_json::to_string(&r)?);
+    arbor::outln!("{}", serde_json::to_string(&r)?);
     Ok(())
 }
 
@@ -722,6 +781,9 @@ fn load_input(args: &Args) -> Result<(String, TriangleMesh)> {
     };
     let (kind, count) = spec.split_once(':').context("--procedural: expected KIND:N, e.g. city:1M")?;
     let n = parse_count(count).with_context(|| format!("--procedural: bad triangle count `{count}`"))?;
+    // About 460 bytes per triangle at the peak (hairball:1M, three builders), with room for
+    // the builders that keep more.
+    arbor::memory::check_fits(&format!("--procedural {spec}"), n as f64 * 600.0).map_err(anyhow::Error::msg)?;
     let mesh = match kind {
         "hairball" => procedural::hairball(n, args.seed),
         "city" => procedural::city(n, args.seed),
@@ -745,23 +807,44 @@ fn parse_count(s: &str) -> Result<usize> {
         _ => (s, 1.0),
     };
     let v: f64 = digits.parse()?;
-    if !(v.is_finite() && v >= 1.0) {
+    let n = v * scale;
+    if !(n.is_finite() && n >= 1.0) {
         bail!("must be at least 1");
     }
-    Ok((v * scale) as usize)
+    if n.fract() != 0.0 {
+        bail!("must be a whole number");
+    }
+    // Beyond this no machine holds the mesh; `check_fits` judges the counts below it.
+    if n > 1e12 {
+        bail!("must be at most 10^12");
+    }
+    Ok(n as usize)
 }
 
 fn print_table(r: &Report) {
-    println!(
+    arbor::outln!(
         "{} triangles, {} threads; rays: {} primary, {} shadow, {} diffuse",
-        r.triangles, r.threads, r.rays.primary, r.rays.shadow, r.rays.diffuse
+        r.triangles,
+        r.threads,
+        r.rays.primary,
+        r.rays.shadow,
+        r.rays.diffuse
     );
-    println!(
+    arbor::outln!(
         "{:<26} {:>10} {:>12} {:>10} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9}",
-        "builder", "build ms", "optimize ms", "SAH leaf1", "SAH", "nodes", "leaves", "primary", "shadow", "diffuse"
+        "builder",
+        "build ms",
+        "optimize ms",
+        "SAH leaf1",
+        "SAH",
+        "nodes",
+        "leaves",
+        "primary",
+        "shadow",
+        "diffuse"
     );
     for b in &r.builders {
-        println!(
+        arbor::outln!(
             "{:<26} {:>10.1} {:>12.1} {:>10.2} {:>8.2} {:>9} {:>9} {:>9.2} {:>9.2} {:>9.2}",
             b.name,
             b.build_ms,
@@ -775,7 +858,7 @@ fn print_table(r: &Report) {
             b.diffuse_mrays
         );
     }
-    println!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
+    arbor::outln!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
 }
 
 fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {

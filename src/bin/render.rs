@@ -102,7 +102,7 @@ fn run() -> Result<()> {
     let args = Args::parse();
     let builder_name = args.builder.as_deref().unwrap_or("lbvh+prbvh");
     let builder: Option<Builder> =
-        if builder_name == "auto" { None } else { Some(builder_name.parse().context("--builder")?) };
+        if builder_name == "auto" { None } else { Some(builder_name.parse().context("--builder (or auto)")?) };
     if let Some(n) = args.threads {
         if n == 0 {
             bail!("--threads must be at least 1");
@@ -110,6 +110,16 @@ fn run() -> Result<()> {
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
     }
     let scene = Scene::load(&args.scene)?;
+    // The film's sums, the tiles' and the image written: about three times a pixel's sums.
+    let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
+    let film_bytes = pixels * 3.0 * std::mem::size_of::<arbor::render::film::PixelAccum>() as f64;
+    let what = format!(
+        "{}: camera.resolution {}x{}: the image",
+        args.scene.display(),
+        scene.camera.width,
+        scene.camera.height
+    );
+    arbor::memory::check_fits(&what, film_bytes).map_err(anyhow::Error::msg)?;
     let spp = args.spp.unwrap_or(scene.render.spp);
     let max_depth = args.max_depth.unwrap_or(scene.render.max_depth);
     let seed = args.seed.unwrap_or(scene.render.seed);
@@ -133,6 +143,14 @@ fn run() -> Result<()> {
         }
         (None, None) => None,
     };
+    // Fail on an output that cannot be written before spending time rendering: the first frame's
+    // file is tried (its folder made where missing), and a name with two frame patterns, of
+    // which only the first would be replaced, is refused.
+    let first = frames.as_ref().map_or_else(|| args.output.clone(), |r| frame_path(&args.output, r.start));
+    if frames.is_some() && has_frame_pattern(&first) {
+        bail!("-o {}: more than one frame pattern (%d or %0Nd) in the name", args.output.display());
+    }
+    arbor::atomic_file::prepare(&first).with_context(|| format!("cannot write {}", first.display()))?;
     if frames.as_ref().is_some_and(|f| f.len() > 1) && !has_frame_pattern(&args.output) {
         bail!(
             "{} frames would all go to {}: put a frame pattern such as %04d in the output name",
@@ -183,20 +201,20 @@ fn gpu_context(device: Device, quiet: bool) -> Result<Option<&'static GpuContext
             Ok(ctx) => Box::leak(Box::new(ctx)),
             Err(e) => {
                 if !quiet {
-                    println!("no hardware GPU ({e}): rendering on the CPU");
+                    arbor::outln!("no hardware GPU ({e}): rendering on the CPU");
                 }
                 return Ok(None);
             }
         },
     };
     if !quiet {
-        println!("GPU: {}", ctx.describe());
+        arbor::outln!("GPU: {}", ctx.describe());
     }
     Ok(Some(ctx))
 }
 
 fn print_build(scene: &Path, build: &BuildReport) {
-    println!(
+    arbor::outln!(
         "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}",
         scene.display(),
         build.triangles,
@@ -224,7 +242,7 @@ fn run_gpu(
         let t = Instant::now();
         trace::compile(ctx, &gpu_scene).context("compiling the GPU kernel")?;
         if report && !args.quiet {
-            println!(
+            arbor::outln!(
                 "GPU kernel {} ready in {:.2} s, BVH depth {}",
                 gpu_scene.features.key(),
                 t.elapsed().as_secs_f64(),
@@ -372,7 +390,7 @@ fn finish_frame(
     }
     write_image(output, &film.mean())?;
     if !s.quiet {
-        println!(
+        arbor::outln!(
             "{}: {}render {:.2} s, {:.2} Mrays/s, {done} spp{}{}",
             output.display(),
             update_ms.map_or(String::new(), |ms| format!("BVH update {ms:.2} ms, ")),
