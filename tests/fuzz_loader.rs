@@ -6,8 +6,9 @@
 //! - random bytes, random text and a soup of TOML tokens as the scene file;
 //! - random bytes, random OBJ/MTL lines (numbers with nan, inf, huge and negative values; faces
 //!   with valid, zero, out-of-range and relative indices, `vt`/`vn` references, too few
-//!   vertices; unknown `usemtl` names, `o`/`g` lines, garbage), and mostly valid files with a
-//!   few such lines mixed in, as the OBJ and the MTL of an otherwise valid scene;
+//!   vertices; unknown `usemtl` names, `o`/`g` lines, comments, vertex colours, garbage), and
+//!   mostly valid files with a few such lines mixed in, as the OBJ and the MTL of an otherwise
+//!   valid scene;
 //! - every `scenes/*.toml`, mutated: lines deleted, duplicated, swapped; numbers replaced (nan,
 //!   inf, -1, 0, 1e30, 4294967296, a string, an array); keys and table names replaced; the file
 //!   truncated; random bytes inserted;
@@ -32,7 +33,8 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use arbor::scene::{Animation, Scene, SceneError};
+use arbor::scene::{Animation, Scattering, Scene, SceneError};
+use glam::Vec3;
 use proptest::prelude::*;
 use proptest::sample::{Index, select};
 use proptest::test_runner::Config;
@@ -340,12 +342,15 @@ fn material_name() -> impl Strategy<Value = String> {
     select(vec!["red", "glass", "lamp", "nope", "", "red glass", "\u{e9}"]).prop_map(str::to_owned)
 }
 
+/// Lines of OBJ and MTL keywords without their values, and of what tobj reads its own way.
+#[rustfmt::skip]
+const GARBAGE_LINES: &[&str] = &[
+    "s 1", "#", "p 1", "vp 1", "\t", "f", "v", "o", "usemtl", "mtllib", "newmtl", "Kd", "  v 1 2 3",
+    "l 1 2 3", "f 1 2 3 # c", "v 1 2 3 # c", "v 1 2 3 0 1 1", "v 1 2 3 a b c", "\u{feff}v 1 2 3", "#x",
+];
+
 fn garbage_line() -> impl Strategy<Value = String> {
-    prop_oneof![
-        "(?s).{0,20}",
-        select(vec!["s 1", "#", "p 1", "vp 1", "\t", "f", "v", "o", "usemtl", "mtllib", "newmtl", "Kd", "  v 1 2 3"])
-            .prop_map(str::to_owned),
-    ]
+    prop_oneof!["(?s).{0,20}", select(GARBAGE_LINES).prop_map(str::to_owned)]
 }
 
 fn obj_line() -> impl Strategy<Value = String> {
@@ -847,8 +852,8 @@ proptest! {
 // ---------------------------------------------------------------------------------------------
 // Regression tests: one per bug. The properties above found the first five (the OBJ index
 // overflow only once mostly valid OBJ files were generated); the next two were found reading
-// the loader while writing `usable` and the size limits, the last two reading the errors the
-// fuzzer's inputs get.
+// the loader while writing `usable` and the size limits, the next two reading the errors the
+// fuzzer's inputs get; the OBJ/MTL ones at the end, a black-box QA pass.
 
 /// Loads `scene` (with `files` beside it) and returns the error, which must be in
 /// `file:line: key: message` form for the scene file, with `line` and `key` as given.
@@ -1036,4 +1041,132 @@ fn obj_without_faces_is_an_error_that_says_so() {
         let err = error_at(&obj_scene(true), &[("m.obj", obj)], 12, "objects[0].mesh");
         assert!(err.ends_with("m.obj: no faces (`f` lines)"), "{err}");
     }
+}
+
+/// Loads `scene` (with `files` beside it), which must load.
+fn loaded(scene: &str, files: &[(&str, &str)]) -> Scene {
+    let mut all: Vec<(&str, &[u8])> = vec![("scene.toml", scene.as_bytes())];
+    all.extend(files.iter().map(|(name, text)| (*name, text.as_bytes())));
+    match load(&all).0 {
+        Outcome::Loaded(scene) => *scene,
+        Outcome::Failed(e) => panic!("{e}\n{}", show(&all)),
+        Outcome::Panicked(msg) => panic!("panicked: {msg}\n{}", show(&all)),
+    }
+}
+
+/// `TriangleMesh::load_obj` of `obj`, the error as text.
+fn obj_mesh(obj: &str) -> Result<arbor::geometry::TriangleMesh, String> {
+    let dir = CaseDir::new();
+    arbor::geometry::TriangleMesh::load_obj(dir.write("m.obj", obj.as_bytes())).map_err(|e| e.to_string())
+}
+
+/// The corners of each triangle of `obj`, which must load.
+fn corners(obj: &str) -> Vec<[[f32; 3]; 3]> {
+    let mesh = obj_mesh(obj).unwrap_or_else(|e| panic!("{e}\n{obj}"));
+    mesh.triangles().iter().map(|t| [t.v0.to_array(), t.v1.to_array(), t.v2.to_array()]).collect()
+}
+
+/// tobj read a UTF-8 byte-order mark as part of the first line's keyword: a first `v` line was
+/// dropped (every index after it shifted by one), a first `newmtl` line too.
+#[test]
+fn byte_order_mark_is_skipped() {
+    let bom = "\u{feff}";
+    let obj = format!("{bom}v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 2 3 4\n");
+    assert_eq!(corners(&obj), [[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]]);
+    // Line numbers are unchanged.
+    let err = obj_mesh(&format!("{bom}v 0 0 0\nv 1 nan 0\n")).unwrap_err();
+    assert!(err.ends_with("m.obj:2: vertex 2: position [1.0, NaN, 0.0] is not finite"), "{err}");
+    let obj = format!("{bom}mtllib m.mtl\n{TRIANGLE}usemtl red\nf 1 2 3\n");
+    let mtl = format!("{bom}newmtl red\nKd 1 0 0\n");
+    let scene = loaded(&obj_scene(false), &[("m.obj", &obj), ("m.mtl", &mtl)]);
+    assert_eq!(scene.materials.last().unwrap().scattering, Scattering::Diffuse { albedo: Vec3::X });
+    let mtl = format!("{bom}newmtl red\nKd 1 0 -1\n");
+    let err = error_at(&obj_scene(false), &[("m.obj", &obj), ("m.mtl", &mtl)], 12, "objects[0].mesh");
+    assert!(err.contains("m.mtl:2: `Kd`: "), "{err}");
+}
+
+/// tobj made triangles of line (`l`) and point (`p`) elements: `l 1 2 3` rendered as a face,
+/// `l 1 2` and `f 1 2` added degenerate ones. Arbor renders faces only.
+#[test]
+fn line_and_point_elements_make_no_triangles_and_short_faces_are_errors() {
+    let obj = format!("{TRIANGLE}v 0 0 1\nl 1 2 3\nl 1 4\nl 1 2 3 4 1\np 1\np 1 2 3\nf 1 2 4\n");
+    assert_eq!(corners(&obj), [[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]]);
+    // Only lines and points: no faces, and the scene says so.
+    let err = error_at(&obj_scene(true), &[("m.obj", &format!("{TRIANGLE}l 1 2 3\n"))], 12, "objects[0].mesh");
+    assert!(err.ends_with("m.obj: no faces (`f` lines)"), "{err}");
+    for (face, n) in [("f", 0), ("f 1", 1), ("f 1 2", 2), ("f 1/1 -1", 2)] {
+        let err = obj_mesh(&format!("vt 0 0\n{TRIANGLE}{face}\n")).unwrap_err();
+        let noun = if n == 1 { "vertex" } else { "vertices" };
+        assert!(err.ends_with(&format!("m.obj:5: `f` has {n} {noun}; a face needs at least 3")), "{err}");
+    }
+}
+
+/// `f 1 2 3 # comment` was a face parse error (tobj reads `#` as an index) and `v 0 0 0 # c`
+/// a position parse error; exporters write such comments.
+#[test]
+fn trailing_comments_are_ignored() {
+    let obj = "# a triangle\nmtllib m.mtl # materials\nv 0 0 0 # origin\nv 1 0 0#x\nv 0 1 0 1 # w\n\
+               o tri # name\nusemtl red # red\nf 1 2 3 # face\n";
+    let mtl = "newmtl red # comment\nKd 1 0 0 # red\nNs 10 #\n";
+    assert_eq!(corners(obj), [[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]]);
+    let scene = loaded(&obj_scene(false), &[("m.obj", obj), ("m.mtl", mtl)]);
+    let material = &scene.materials[scene.meshes[0].material_ids[0] as usize];
+    assert_eq!(material.scattering, Scattering::Diffuse { albedo: Vec3::X });
+}
+
+/// A vertex colour on some vertices but not all: tobj failed with "face vertex color index out
+/// of bounds", without a line. Arbor does not use vertex colours.
+#[test]
+fn vertex_colours_on_some_vertices_are_ignored() {
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0 0 0 1\nf 1 2 3\n";
+    assert_eq!(corners(obj), [[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]]);
+    let obj = "v 0 0 0 1 1 1\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+    assert_eq!(corners(obj), [[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]]);
+    // A colour that is not 3 numbers is still an error at its line.
+    let err = obj_mesh("v 0 0 0\nv 1 0 0 a b c\n").unwrap_err();
+    assert!(err.ends_with("m.obj:2: vertex 2: colour `a b c` is not 3 numbers"), "{err}");
+    let err = obj_mesh("v 0 0 0\nv 1 0 0 1 1\n").unwrap_err();
+    assert!(err.contains("m.obj:2: "), "{err}");
+}
+
+/// MTL values Arbor reads were not checked (the scene format rejects the same values): a NaN
+/// or infinite `Kd` rendered black, a negative one loaded, a non-finite or negative `Ke` was
+/// dropped, a NaN `Ni` or a negative `Ns` fell back to a default.
+#[test]
+fn mtl_values_arbor_cannot_use_are_errors_at_their_line_and_key() {
+    let obj = format!("mtllib m.mtl\n{TRIANGLE}usemtl red\nf 1 2 3\n");
+    for (value, says) in [
+        ("Kd 1 0 nan", "`Kd`: 1 0 NaN is not finite"),
+        ("Kd 1 0 inf", "`Kd`: 1 0 inf is not finite"),
+        ("Kd 1 0 1e39", "`Kd`: `1e39` overflows f32"),
+        ("Kd -1 0 0", "`Kd`: -1 0 0 has a negative component"),
+        ("Ke -5 1 1", "`Ke`: -5 1 1 has a negative component"),
+        ("Ke nan 1 1", "`Ke`: NaN 1 1 is not finite"),
+        ("Ke inf 1 1", "`Ke`: inf 1 1 is not finite"),
+        ("Ks nan 1 1", "`Ks`: NaN 1 1 is not finite"),
+        ("Ns -5", "`Ns`: -5 is not an exponent >= 0"),
+        ("Ns inf", "`Ns`: inf is not finite"),
+        ("Ni nan", "`Ni`: NaN is not finite"),
+        ("Ni 0", "`Ni`: 0 is not an index of refraction > 0"),
+        ("d 1.5", "`d`: 1.5 is not in [0, 1]"),
+        ("d -0.5", "`d`: -0.5 is not in [0, 1]"),
+        ("illum 11", "`illum`: 11 is not an illumination model (0 to 10)"),
+    ] {
+        let mtl = format!("newmtl red\nKd 0.5 0.5 0.5\n{value}\n");
+        let err = error_at(&obj_scene(false), &[("m.obj", &obj), ("m.mtl", &mtl)], 12, "objects[0].mesh");
+        assert!(err.contains("m.obj: cannot load its MTL materials: ") && err.contains("m.mtl:3: "), "{err}");
+        assert!(err.ends_with(says), "{err}");
+    }
+    // Values at the ends of their ranges load.
+    let mtl = "newmtl red\nKd 0 0 0\nKs 0 0 0\nKe 0 0 0\nNs 0\nNi 1e-3\nd 0\nillum 10\n";
+    loaded(&obj_scene(false), &[("m.obj", &obj), ("m.mtl", mtl)]);
+}
+
+/// `v 1e39 0 0` said "position [inf, 0.0, 0.0] is not finite", though no infinity was written.
+#[test]
+fn vertex_position_past_f32_says_it_overflows() {
+    let err = obj_mesh("v 0 0 0\nv 1e39 0 0\n").unwrap_err();
+    assert!(err.ends_with("m.obj:2: vertex 2: `1e39` overflows f32"), "{err}");
+    let err = obj_mesh("v inf 0 0\n").unwrap_err();
+    assert!(err.ends_with("m.obj:1: vertex 1: position [inf, 0.0, 0.0] is not finite"), "{err}");
 }

@@ -7,6 +7,10 @@
 //! some bad input (an MTL colour with fewer than 3 numbers; a `vt` or `vn` index out of range,
 //! whose offset overflows), and most of its errors do not say where. Every error here names the
 //! file and, where the fault is one line, the line.
+//!
+//! tobj is handed the files rewritten line for line, so that its line numbers stay the file's:
+//! without a leading byte-order mark or comments ([`without_comments`]), and for OBJ files
+//! without line and point elements or vertex colours ([`for_tobj`]).
 
 use std::cell::RefCell;
 use std::collections::HashSet;
@@ -252,7 +256,8 @@ impl TriangleMesh {
 pub(crate) struct ObjFile {
     /// One per object and material; every position finite.
     pub models: Vec<tobj::Model>,
-    /// The materials of the MTL files that loaded, which `material_id` indexes.
+    /// The materials of the MTL files that loaded, which `material_id` indexes; every value
+    /// Arbor reads is in range ([`check_mtl`]).
     pub materials: Vec<tobj::Material>,
     /// The MTL files named, each relative to the OBJ file's folder.
     pub mtl_files: Vec<PathBuf>,
@@ -265,8 +270,10 @@ pub(crate) struct ObjFile {
 /// Reads the OBJ file at `path`, triangulated, and with `materials` the MTL files it names
 /// (a broken MTL file is no error here: see [`ObjFile::mtl_error`]).
 pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshError> {
-    let text = std::fs::read(path).map_err(|error| MeshError::Read { path: path.to_owned(), error })?;
+    let file = std::fs::read(path).map_err(|error| MeshError::Read { path: path.to_owned(), error })?;
+    let text = without_comments(&file);
     let usemtl = check_obj(path, &text)?;
+    let text = for_tobj(&text);
     let (mtl_files, mtl_error) = (RefCell::new(Vec::new()), RefCell::new(None));
     let load_mtl = |name: &Path| {
         if !materials {
@@ -291,17 +298,55 @@ pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshErro
     Ok(ObjFile { models, materials, mtl_files, mtl_error, unknown_material })
 }
 
-/// The MTL file at `path`, for tobj's OBJ loader, checked first where tobj would panic
-/// ([`check_mtl`]). The first failure is kept in `error`: tobj keeps only its kind.
+/// The MTL file at `path`, for tobj's OBJ loader, checked first ([`check_mtl`]). The first
+/// failure is kept in `error`: tobj keeps only its kind.
 fn load_mtl(path: &Path, error: &RefCell<Option<MeshError>>) -> tobj::MTLLoadResult {
     let fail = |e: MeshError| {
         error.borrow_mut().get_or_insert(e);
         tobj::LoadError::GenericFailure
     };
-    let text = std::fs::read(path).map_err(|error| fail(MeshError::Read { path: path.to_owned(), error }))?;
+    let file = std::fs::read(path).map_err(|error| fail(MeshError::Read { path: path.to_owned(), error }))?;
+    let text = without_comments(&file);
     check_mtl(path, &text).map_err(fail)?;
     let mut reader = Cursor::new(&text[..]);
     tobj::load_mtl_buf(&mut reader).map_err(|e| fail(tobj_error(path, &text, reader.position(), e)))
+}
+
+/// `text` (an OBJ or MTL file) without a leading UTF-8 byte-order mark, which tobj would read
+/// as part of the first line's keyword, and without comments (`#` to the end of a line), which
+/// tobj skips only as a line's first word: exporters write them after a face or a value. Line for
+/// line, so that line numbers stay the file's.
+fn without_comments(text: &[u8]) -> Vec<u8> {
+    let text = text.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(text);
+    let mut out = Vec::with_capacity(text.len());
+    for (k, line) in text.split(|&b| b == b'\n').enumerate() {
+        if k > 0 {
+            out.push(b'\n');
+        }
+        out.extend_from_slice(line.split(|&b| b == b'#').next().unwrap_or_default());
+    }
+    out
+}
+
+/// An OBJ file's `text` (after [`without_comments`] and [`check_obj`]) as tobj is to read it,
+/// line for line. Line (`l`) and point (`p`) elements are blanked: tobj makes triangles of them
+/// (`l 1 2 3` is a face, `l 1 2` a degenerate one), and Arbor renders faces only. A vertex colour
+/// (`v x y z r g b`) is dropped: tobj needs one on every vertex or on none, and Arbor does not
+/// use them. Lines that are not UTF-8 are kept, for tobj's error.
+fn for_tobj(text: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(text.len());
+    for (k, line) in text.split(|&b| b == b'\n').enumerate() {
+        if k > 0 {
+            out.push(b'\n');
+        }
+        let words: Vec<&str> = std::str::from_utf8(line).map_or(Vec::new(), |l| l.split_whitespace().collect());
+        match words[..] {
+            ["l" | "p", ..] => {}
+            ["v", x, y, z, _, _, _] => out.extend_from_slice(format!("v {x} {y} {z}").as_bytes()),
+            _ => out.extend_from_slice(line),
+        }
+    }
+    out
 }
 
 /// The lines of `text` up to the first that is not UTF-8, where tobj stops with an error.
@@ -309,12 +354,14 @@ fn utf8_lines(text: &[u8]) -> impl Iterator<Item = (usize, &str)> {
     text.split(|&b| b == b'\n').map_while(|l| std::str::from_utf8(l).ok()).enumerate().map(|(k, l)| (k + 1, l))
 }
 
-/// What tobj 4 misses or panics on in an OBJ file, with its line: a face index of 0, past the
-/// end of its list, or (relative) before its start; a face without vertices, or a vertex
-/// without a position index; a vertex position that is not finite. A `vt` or `vn` index out of range is the panic: tobj multiplies it by 2
+/// What tobj 4 misses or panics on in an OBJ file (after [`without_comments`]), with its line:
+/// a face index of 0, past the end of its list, or (relative) before its start; a face of fewer
+/// than 3 vertices, or a vertex without a position index; a vertex position that is not finite
+/// ([`check_vertex`]). A `vt` or `vn` index out of range is the panic: tobj multiplies it by 2
 /// or 3 unchecked, which overflows. Indices are resolved as tobj does: relative ones against
 /// the elements so far, absolute ones against the whole file; a `vt` or `vn` reference (or one
-/// of 0) is ignored when the file has none of them. Lines that tobj rejects itself (a number
+/// of 0) is ignored when the file has none of them. Line and point elements (`l`, `p`) are not
+/// checked: tobj does not see them ([`for_tobj`]). Lines that tobj rejects itself (a number
 /// that does not parse) are left to it. Returns each `usemtl` line's number and name.
 fn check_obj(path: &Path, text: &[u8]) -> Result<Vec<(usize, String)>, MeshError> {
     const KINDS: [&str; 3] = ["v", "vt", "vn"];
@@ -332,13 +379,12 @@ fn check_obj(path: &Path, text: &[u8]) -> Result<Vec<(usize, String)>, MeshError
         match words.next() {
             Some("v") => {
                 seen[0] += 1;
-                if let Some(p) = obj_position(words).filter(|p| !p.iter().all(|c| c.is_finite())) {
-                    return Err(at(format!("vertex {}: position {p:?} is not finite", seen[0])));
-                }
+                let words: Vec<&str> = words.collect();
+                check_vertex(&words).map_err(|m| at(format!("vertex {}: {m}", seen[0])))?;
             }
             Some("vt") => seen[1] += 1,
             Some("vn") => seen[2] += 1,
-            Some(kind @ ("f" | "l")) => check_face(kind, words, seen, total).map_err(at)?,
+            Some("f") => check_face(words, seen, total).map_err(at)?,
             Some("usemtl") => usemtl.push((line, l.split_once(' ').unwrap_or_default().1.trim().to_owned())),
             _ => {}
         }
@@ -346,15 +392,43 @@ fn check_obj(path: &Path, text: &[u8]) -> Result<Vec<(usize, String)>, MeshError
     Ok(usemtl)
 }
 
-/// A `v` line's position as tobj computes it (divided by w when a fourth number is given), or
-/// `None` where tobj rejects the line itself.
-fn obj_position(mut words: SplitWhitespace) -> Option<[f32; 3]> {
-    let mut p = [0f32; 3];
-    for c in &mut p {
-        *c = words.next()?.parse().ok()?;
+/// The words of a `v` line after the keyword: a position within f32 and finite, and a colour,
+/// if given, of 3 numbers (it is dropped unchecked otherwise: Arbor does not use it). A line
+/// tobj rejects itself is left to it.
+fn check_vertex(words: &[&str]) -> Result<(), String> {
+    let Some(p) = obj_position(words) else { return Ok(()) };
+    // The numbers the position is made of: x y z, and w when it is the one number more.
+    let used = if words.len() == 4 { 4 } else { 3 };
+    if let Some(w) = words[..used].iter().find(|w| overflows(w)) {
+        return Err(format!("`{w}` overflows f32"));
     }
-    match (words.next(), words.next()) {
-        (Some(w), None) => {
+    if let [_, _, _, r, g, b] = words {
+        if [r, g, b].iter().any(|c| c.parse::<f32>().is_err()) {
+            return Err(format!("colour `{r} {g} {b}` is not 3 numbers"));
+        }
+    }
+    if !p.iter().all(|c| c.is_finite()) {
+        return Err(format!("position {p:?} is not finite"));
+    }
+    Ok(())
+}
+
+/// Whether `word` is a number past f32's range, which parses as an infinity, rather than an
+/// infinity written as one (`inf`, `-Infinity`).
+fn overflows(word: &str) -> bool {
+    word.parse::<f32>().is_ok_and(f32::is_infinite) && !word.to_ascii_lowercase().contains("inf")
+}
+
+/// A `v` line's position as tobj computes it (divided by w when a fourth number is given), from
+/// the words after the keyword, or `None` where tobj rejects the line itself.
+fn obj_position(words: &[&str]) -> Option<[f32; 3]> {
+    let [x, y, z, rest @ ..] = words else { return None };
+    let mut p = [0f32; 3];
+    for (c, word) in p.iter_mut().zip([x, y, z]) {
+        *c = word.parse().ok()?;
+    }
+    match rest {
+        [w] => {
             let w: f32 = w.parse().ok()?;
             (w != 0.0).then(|| p.map(|c| c / w))
         }
@@ -362,9 +436,9 @@ fn obj_position(mut words: SplitWhitespace) -> Option<[f32; 3]> {
     }
 }
 
-/// The indices of an `f` or `l` line, checked as [`check_obj`] says; `seen` counts the
-/// vertices, texture coordinates and normals before the line, `total` those in the file.
-fn check_face(kind: &str, words: SplitWhitespace, seen: [usize; 3], total: [usize; 3]) -> Result<(), String> {
+/// The indices of an `f` line, checked as [`check_obj`] says; `seen` counts the vertices,
+/// texture coordinates and normals before the line, `total` those in the file.
+fn check_face(words: SplitWhitespace, seen: [usize; 3], total: [usize; 3]) -> Result<(), String> {
     const NAMES: [(&str, &str); 3] =
         [("vertex", "vertices"), ("texture coordinate", "texture coordinates"), ("normal", "normals")];
     let mut refs = Vec::new();
@@ -380,11 +454,13 @@ fn check_face(kind: &str, words: SplitWhitespace, seen: [usize; 3], total: [usiz
             refs.push((slot, x));
         }
         if word.split('/').next().is_none_or(str::is_empty) {
-            return Err(format!("`{kind}` vertex `{word}` has no position index"));
+            return Err(format!("`f` vertex `{word}` has no position index"));
         }
     }
-    if vertices == 0 {
-        return Err(format!("`{kind}` without vertices"));
+    // tobj makes a degenerate triangle of 1 or 2.
+    if vertices < 3 {
+        let noun = if vertices == 1 { "vertex" } else { "vertices" };
+        return Err(format!("`f` has {vertices} {noun}; a face needs at least 3"));
     }
     for (slot, x) in refs {
         let (one, many) = NAMES[slot];
@@ -392,30 +468,71 @@ fn check_face(kind: &str, words: SplitWhitespace, seen: [usize; 3], total: [usiz
             continue;
         }
         if x == 0 {
-            return Err(format!("`{kind}` refers to {one} 0; OBJ indices start at 1"));
+            return Err(format!("`f` refers to {one} 0; OBJ indices start at 1"));
         }
         if x > 0 && x.unsigned_abs() > total[slot] {
-            return Err(format!("`{kind}` refers to {one} {x}, but the file has {} {many}", total[slot]));
+            return Err(format!("`f` refers to {one} {x}, but the file has {} {many}", total[slot]));
         }
         if x < 0 && x.unsigned_abs() > seen[slot] {
-            return Err(format!("`{kind}` refers to {one} {x} (relative), but {} {many} come before it", seen[slot]));
+            return Err(format!("`f` refers to {one} {x} (relative), but {} {many} come before it", seen[slot]));
         }
     }
     Ok(())
 }
 
-/// What tobj 4 panics on in an MTL file: a colour (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than 3
-/// numbers.
+/// What tobj 4 panics on in an MTL file (after [`without_comments`]), with its line: a colour
+/// (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than 3 numbers. And the values Arbor reads (see
+/// `from_mtl` in `scene/load.rs`) where it cannot use them, in the ranges the scene format
+/// gives the same quantities: colours finite and >= 0, the exponent `Ns` finite and >= 0, the
+/// index of refraction `Ni` finite and > 0, the dissolve `d` in [0, 1], `illum` a model of the
+/// MTL format (0 to 10). A number that does not parse is left to tobj.
 fn check_mtl(path: &Path, text: &[u8]) -> Result<(), MeshError> {
     for (line, l) in utf8_lines(text) {
         let mut words = l.split_whitespace();
-        if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next() {
-            let n = words.take(3).count();
-            if n < 3 {
-                let message = format!("`{key}` needs 3 numbers (r g b), not {n}");
-                return Err(MeshError::Invalid { path: path.to_owned(), line, message });
-            }
+        if let Some(key) = words.next() {
+            check_mtl_value(key, words).map_err(|message| MeshError::Invalid {
+                path: path.to_owned(),
+                line,
+                message,
+            })?;
         }
+    }
+    Ok(())
+}
+
+/// The numbers after `key` on an MTL line, checked as [`check_mtl`] says.
+fn check_mtl_value(key: &str, mut words: SplitWhitespace) -> Result<(), String> {
+    let (count, in_range, fault): (usize, fn(f32) -> bool, &str) = match key {
+        "Ka" | "Kd" | "Ks" | "Ke" => (3, |x| x >= 0.0, "has a negative component"),
+        "Ns" => (1, |x| x >= 0.0, "is not an exponent >= 0"),
+        "Ni" => (1, |x| x > 0.0, "is not an index of refraction > 0"),
+        "d" => (1, |x| (0.0..=1.0).contains(&x), "is not in [0, 1]"),
+        "illum" => {
+            return match words.next().map(str::parse::<u8>) {
+                Some(Ok(n)) if n > 10 => Err(format!("`illum`: {n} is not an illumination model (0 to 10)")),
+                _ => Ok(()),
+            };
+        }
+        _ => return Ok(()),
+    };
+    let words: Vec<&str> = words.take(count).collect();
+    if count == 3 && words.len() < 3 {
+        return Err(format!("`{key}` needs 3 numbers (r g b), not {}", words.len()));
+    }
+    // A missing number, or one that does not parse, is tobj's error; Arbor does not read `Ka`.
+    let Ok(values) = words.iter().map(|w| w.parse::<f32>()).collect::<Result<Vec<_>, _>>() else { return Ok(()) };
+    if values.is_empty() || key == "Ka" {
+        return Ok(());
+    }
+    if let Some(w) = words.iter().find(|w| overflows(w)) {
+        return Err(format!("`{key}`: `{w}` overflows f32"));
+    }
+    let shown = values.iter().map(f32::to_string).collect::<Vec<_>>().join(" ");
+    if !values.iter().all(|x| x.is_finite()) {
+        return Err(format!("`{key}`: {shown} is not finite"));
+    }
+    if !values.iter().all(|&x| in_range(x)) {
+        return Err(format!("`{key}`: {shown} {fault}"));
     }
     Ok(())
 }
@@ -502,6 +619,23 @@ mod tests {
         let q = TriangleMesh::quad();
         assert!(q.triangles().iter().all(|t| t.normal().z > 0.0));
         assert!((q.triangles().iter().map(|t| t.area()).sum::<f32>() - 4.0).abs() < 1e-6);
+    }
+
+    /// tobj's line numbers are the file's only if every rewrite keeps every line.
+    #[test]
+    fn rewrites_for_tobj_keep_every_line() {
+        let file = b"\xEF\xBB\xBFv 0 0 0 # a\r\nl 1 2\nv 1 0 0 1 1 1\np 1\n#\nf 1 2 3#x\n\xff # \xfe";
+        let text = without_comments(file);
+        assert_eq!(text, b"v 0 0 0 \nl 1 2\nv 1 0 0 1 1 1\np 1\n\nf 1 2 3\n\xff ");
+        assert_eq!(for_tobj(&text), b"v 0 0 0 \n\nv 1 0 0\n\n\nf 1 2 3\n\xff ");
+        // A mark only at the start of the file is one.
+        assert_eq!(without_comments(b"v\n\xEF\xBB\xBFv"), b"v\n\xEF\xBB\xBFv");
+    }
+
+    #[test]
+    fn only_numbers_past_f32_overflow() {
+        assert!(overflows("1e39") && overflows("-3.5e38") && overflows("1e400"));
+        assert!(!overflows("inf") && !overflows("-Infinity") && !overflows("3.4e38") && !overflows("x"));
     }
 
     #[test]
