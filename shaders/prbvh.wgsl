@@ -52,18 +52,21 @@ fn find_best_output(input: u32) -> vec2<u32> {
     var out_best = out;
     var pivot = parent;
     var down = true;
+    // The CPU search's bound on visits (src/bvh/prbvh.rs, MAX_VISITS).
+    var visits_left = SEARCH_MAX_VISITS;
     loop {
         let out_lo = nodes[out].aabb_min;
         let out_hi = nodes[out].aabb_max;
         let merged = area(min(in_lo, out_lo), max(in_hi, out_hi));
         if (down) {
+            visits_left = visits_left - min(visits_left, 1u);
             let d_direct = a_parent - merged;
             if (d_best < d_direct + d) {
                 d_best = d_direct + d;
                 out_best = out;
             }
             d = d + (area(out_lo, out_hi) - merged);
-            if (is_leaf(out) || d_bound + d <= d_best) {
+            if (is_leaf(out) || d_bound + d <= d_best || visits_left == 0u) {
                 down = false;
             } else {
                 out = nodes[out].first;

@@ -41,6 +41,10 @@
 //! - The search reads the areas of the nodes it passes from an array kept beside the tree
 //!   (`NodeAreas`), updated for the slots a reinsertion writes and the boxes the refit changes,
 //!   instead of computing them: the same values, fewer instructions.
+//! - A search visits at most [`MAX_VISITS`] nodes, then prunes every node it reaches: the
+//!   paper's search has no bound, and where boxes overlap so that none prunes another (a pile
+//!   of triangles in one square) each search walks the whole tree. Searches on meshes stay far
+//!   below the bound, so their trees are the paper's.
 //! - The search multiplies coordinates by a power of two where the scene's extent is beyond
 //!   2^±32 (`search_scale`), so that f32 areas neither overflow nor underflow. Exact, so it
 //!   changes no comparison; without it a scene of extent 1e20 has infinite areas and nothing is
@@ -645,16 +649,21 @@ pub(crate) fn search_scale(root: Option<&BvhNode>) -> f32 {
 fn search_scaled(bvh: &Bvh, input: u32, scale: f32, areas: Option<&[f32]>) -> (u32, f32) {
     // Unscaled (nearly every scene), the boxes are used as loaded.
     match (scale == 1.0, areas) {
-        (true, Some(areas)) => search_with::<false, true>(bvh, input, scale, areas),
-        (true, None) => search_with::<false, false>(bvh, input, scale, &[]),
-        (false, _) => search_with::<true, false>(bvh, input, scale, &[]),
+        (true, Some(areas)) => search_with::<false, true>(bvh, input, scale, areas).0,
+        (true, None) => search_with::<false, false>(bvh, input, scale, &[]).0,
+        (false, _) => search_with::<true, false>(bvh, input, scale, &[]).0,
     }
 }
 
 /// [`search_scaled`], multiplying coordinates by `scale` only where `SCALED`, and reading node
-/// areas from `areas` where `CACHED`.
+/// areas from `areas` where `CACHED`; also returns the nodes visited.
 #[inline(always)]
-fn search_with<const SCALED: bool, const CACHED: bool>(bvh: &Bvh, input: u32, scale: f32, areas: &[f32]) -> (u32, f32) {
+fn search_with<const SCALED: bool, const CACHED: bool>(
+    bvh: &Bvh,
+    input: u32,
+    scale: f32,
+    areas: &[f32],
+) -> ((u32, f32), u32) {
     let scale = Vec3A::splat(scale);
     let mut s = Search::<SCALED, CACHED> {
         nodes: &bvh.nodes,
@@ -668,6 +677,7 @@ fn search_with<const SCALED: bool, const CACHED: bool>(bvh: &Bvh, input: u32, sc
         d_best: 0.0,
         out_best: input ^ 1,
         growth: [0.0; KEPT],
+        visits: 0,
     };
     let b_in = s.bbox(input);
     let parent = s.parents[input as usize];
@@ -693,7 +703,7 @@ fn search_with<const SCALED: bool, const CACHED: bool>(bvh: &Bvh, input: u32, sc
         // Once the rest of the pivot encloses the input, removing the input shrinks no higher
         // ancestor, so no output further up can beat `d_bound + d`.
         if pivot == 0 || (s.d_bound + s.d <= s.d_best && b_pivot.contains(b_in)) {
-            return (s.out_best, s.d_best);
+            return ((s.out_best, s.d_best), s.visits);
         }
         child = pivot;
         pivot = s.parents[pivot as usize];
@@ -718,7 +728,17 @@ struct Search<'a, const SCALED: bool, const CACHED: bool> {
     /// up without reloading the node (the paper recomputes it; the values are the same bits).
     /// Deeper than the array, it is recomputed.
     growth: [f32; KEPT],
+    /// Nodes visited so far; from [`MAX_VISITS`] on, the walk prunes every node.
+    visits: u32,
 }
+
+/// Most nodes one search visits as outputs: past them, the walk prunes every node it reaches.
+/// Searches on meshes visited at most 283 (dragon 133, bunny 115, city:1M 270, hairball:200k
+/// 283, hairball:1M 246), so this changes no tree there; on a pile of 20,000 triangles
+/// overlapping in one square, where no box prunes another, searches visited up to 24,515 nodes
+/// and the optimisation took 8.4 s, against 1.8 s with this bound, at a leaf-1 SAH 0.09% higher.
+/// Shared with the GPU search through the WGSL prelude.
+pub const MAX_VISITS: u32 = 1024;
 
 /// Levels of growth a [`Search`] keeps.
 const KEPT: usize = 64;
@@ -788,6 +808,7 @@ impl<const SCALED: bool, const CACHED: bool> Search<'_, SCALED, CACHED> {
     /// growth to `d`; returns whether the walk goes back up from it.
     #[inline(always)]
     fn visit_at(&mut self, n: u32, b: Box4, depth: usize) -> bool {
+        self.visits += 1;
         let a_merged = self.b_in.union(b).area();
         let d_direct = self.a_parent - a_merged;
         if self.d_best < d_direct + self.d {
@@ -799,7 +820,7 @@ impl<const SCALED: bool, const CACHED: bool> Search<'_, SCALED, CACHED> {
             self.growth[depth] = g;
         }
         self.d += g;
-        self.nodes[n as usize].is_leaf() || self.d_bound + self.d <= self.d_best
+        self.nodes[n as usize].is_leaf() || self.d_bound + self.d <= self.d_best || self.visits >= MAX_VISITS
     }
 }
 
@@ -952,6 +973,45 @@ mod tests {
             let config = PrbvhConfig { max_iterations: 4, collapse: None, ..Default::default() };
             optimize(&mut bvh, &config);
         }
+    }
+
+    /// A search visits at most [`MAX_VISITS`] nodes where no box prunes another (a pile of
+    /// triangles over one square, where searches would otherwise walk most of the tree), and a
+    /// search that the bound stops still returns the true decrease of the output it names.
+    #[test]
+    fn searches_are_bounded_on_a_pile() {
+        // Boxes of triangles with corners at random in the unit square (a xorshift stream).
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut random = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let boxes: Vec<Aabb> = (0..4000)
+            .map(|_| {
+                let corners = [0; 3].map(|_| glam::Vec3::new(random(), random(), 0.0));
+                Aabb::new(corners[0].min(corners[1]).min(corners[2]), corners[0].max(corners[1]).max(corners[2]))
+            })
+            .collect();
+        let bvh = crate::bvh::lbvh::build(&boxes);
+        let mut bounded = 0;
+        for input in 2..bvh.nodes.len() as u32 {
+            let ((out, d), visits) = search_with::<false, false>(&bvh, input, 1.0, &[]);
+            // Past the bound, the walk's way back up and the climb visit a few nodes more.
+            assert!(visits < 2 * MAX_VISITS, "node {input}: {visits} visits");
+            bounded += usize::from(visits >= MAX_VISITS);
+            if d > 0.0 {
+                let mut moved = bvh.clone();
+                let before = crate::bvh::sah_cost_with(&moved, &SahCosts { traversal: 1.0, intersection: 0.0 });
+                reinsert(&mut moved, input, out);
+                crate::bvh::refit_sequential(&mut moved, &boxes);
+                let after = crate::bvh::sah_cost_with(&moved, &SahCosts { traversal: 1.0, intersection: 0.0 });
+                let root = bvh.nodes[0].aabb().half_area();
+                assert!(((before - after) * root as f64 - f64::from(d)).abs() <= 1e-3 * f64::from(d).max(1.0));
+            }
+        }
+        assert!(bounded > 0, "the pile must need the bound, or the test shows nothing");
     }
 
     /// The SIMD box arithmetic of the search gives the scalar `(x y + y z) + z x` bit for bit,

@@ -79,8 +79,10 @@ pub fn prelude() -> String {
          const WORKGROUP_SIZE: u32 = {WORKGROUP_SIZE}u;\n\
          const INVALID_INDEX: u32 = {INVALID_INDEX}u;\n\
          const REFIT_BOX_WORDS: u32 = {REFIT_BOX_WORDS}u;\n\
-         const MORTON_BITS: u32 = {}u;\n{}\n{}",
+         const MORTON_BITS: u32 = {}u;\n\
+         const SEARCH_MAX_VISITS: u32 = {}u;\n{}\n{}",
         crate::geometry::morton::MORTON_BITS,
+        crate::bvh::prbvh::MAX_VISITS,
         trace_constants(),
         include_str!("../../shaders/prelude.wgsl")
     )
