@@ -8,9 +8,10 @@
 //! process killed mid-write can leave a temporary behind.
 //!
 //! Where the target is a symbolic link, the file it points to is replaced (the link stays a
-//! link). Where it is an existing file that is not a regular one (`/dev/stdout`, a FIFO, a
-//! device), the content is written into it as a stream: renaming over it would put a plain file
-//! where the device was. A stream cannot be atomic.
+//! link). Where it is an existing file that is not a regular one (a FIFO, a device), or any
+//! existing path under `/dev` or `/proc` (`/dev/stdout` sent to a file), the content is written
+//! into it as a stream: renaming over it would put a plain file where the device was, or
+//! replace the file a shell redirected to. A stream cannot be atomic.
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, BufWriter};
@@ -36,6 +37,12 @@ pub enum Destination {
 
 /// Where a write to `path` lands; an error for a directory.
 pub fn destination(path: &Path) -> io::Result<Destination> {
+    // `/dev/stdout` leads through `/proc/self/fd/1` to wherever the shell sent the output, a
+    // regular file too (`> log`): written in place, as the shell's redirection expects, not
+    // replaced by a rename.
+    if (path.starts_with("/dev") || path.starts_with("/proc")) && path.exists() {
+        return Ok(Destination::Stream(path.to_owned()));
+    }
     match fs::metadata(path) {
         Ok(m) if m.is_dir() => Err(io::Error::new(io::ErrorKind::IsADirectory, "it is a directory")),
         Ok(m) if m.is_file() => Ok(Destination::File(follow_links(path)?)),
@@ -105,7 +112,10 @@ fn write_to<E>(
         Ok(Destination::Stream(stream)) => return write(&stream, true),
         Err(source) => return Err(AtomicWriteError::Io { what: "cannot write", source }),
     };
-    let tmp = temp_path(&target);
+    // The temporary keeps the extension asked for, which writers may choose a format by, even
+    // where a link leads to a name without it.
+    let named = path.extension().map_or_else(|| target.clone(), |e| target.with_extension(e));
+    let tmp = temp_path(&named);
     let result = write(&tmp, false).and_then(|()| {
         fs::rename(&tmp, &target)
             .map_err(|source| AtomicWriteError::Io { what: "cannot rename the temporary file over", source })
@@ -117,6 +127,23 @@ fn write_to<E>(
     result
 }
 
+/// A stream to write into: the process's own stdout or stderr shared (so a `> log` keeps what
+/// was printed before, where opening `/dev/stdout` anew would write from the file's start),
+/// else the path opened for writing.
+fn open_stream(path: &Path) -> io::Result<File> {
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsFd;
+        if path == Path::new("/dev/stdout") {
+            return Ok(File::from(io::stdout().as_fd().try_clone_to_owned()?));
+        }
+        if path == Path::new("/dev/stderr") {
+            return Ok(File::from(io::stderr().as_fd().try_clone_to_owned()?));
+        }
+    }
+    OpenOptions::new().write(true).open(path)
+}
+
 /// Writes `path` through `write`, which gets a buffered, exclusively created temporary file;
 /// the data is flushed and synced before the rename publishes it.
 pub fn write_atomic<E>(
@@ -126,7 +153,7 @@ pub fn write_atomic<E>(
     write_to(path, |to, stream| {
         let io = |what| move |source| AtomicWriteError::Io { what, source };
         let file = if stream {
-            OpenOptions::new().write(true).open(to).map_err(io("cannot open"))?
+            open_stream(to).map_err(io("cannot open"))?
         } else {
             OpenOptions::new()
                 .write(true)
@@ -209,6 +236,20 @@ mod tests {
         write_atomic::<io::Error>(&null, |f| f.write_all(b"gone")).unwrap();
         assert!(fs::symlink_metadata(&null).unwrap().file_type().is_symlink());
         assert!(fs::metadata("/dev/null").unwrap().file_type().is_char_device());
+        // A link to a name without the extension: the temporary keeps the one asked for.
+        let plain = d.join("plot-v2");
+        fs::write(&plain, b"old").unwrap();
+        let png = d.join("plot.png");
+        let _ = fs::remove_file(&png);
+        symlink("plot-v2", &png).unwrap();
+        replace_via_temp::<io::Error>(&png, |tmp| {
+            assert_eq!(tmp.extension(), Some("png".as_ref()));
+            fs::write(tmp, b"png").map_err(|source| AtomicWriteError::Io { what: "test", source })
+        })
+        .unwrap();
+        assert_eq!(fs::read(&plain).unwrap(), b"png");
+        // Paths under /dev are streams, whatever they lead to.
+        assert_eq!(destination(Path::new("/dev/stdout")).unwrap(), Destination::Stream("/dev/stdout".into()));
         assert!(leftovers(&d).is_empty(), "{:?}", leftovers(&d));
     }
 

@@ -190,7 +190,12 @@ fn encode_exr(out: &mut BufWriter<File>, image: &Image) -> Result<(), exr::error
     // ZIP is lossless for f32 (unlike PXR24 or B44), so a round trip is bit-exact.
     let exr_image =
         exr::prelude::Image::from_encoded_channels((width, image.height as usize), Encoding::SMALL_LOSSLESS, channels);
-    exr_image.write().to_buffered(out)
+    // Encoded in memory: the encoder seeks back to write its offset tables, which a FIFO or a
+    // device (an output written in place, see `atomic_file`) cannot do.
+    let mut encoded = std::io::Cursor::new(Vec::new());
+    exr_image.write().to_buffered(&mut encoded)?;
+    std::io::Write::write_all(out, encoded.get_ref())?;
+    Ok(())
 }
 
 fn encode_png(out: &mut BufWriter<File>, image: &Image) -> Result<(), image::ImageError> {

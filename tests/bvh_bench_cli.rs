@@ -173,6 +173,8 @@ fn bad_input_is_a_clear_error() {
         assert!(!out.status.success(), "{args:?} should fail");
         assert!(stderr.contains(expected), "{args:?}: expected `{expected}` in: {stderr}");
         assert!(!json.exists(), "{args:?} wrote output");
+        // Options and outputs are checked before the mesh is even loaded.
+        assert!(!stderr.contains(" triangles, "), "{args:?}: work started before the error: {stderr}");
         // The reason once, not once per level of the error chain.
         let reason = "(os error 2)";
         assert!(stderr.matches(reason).count() <= 1, "{args:?}: repeated reason in: {stderr}");

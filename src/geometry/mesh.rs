@@ -313,9 +313,10 @@ fn load_mtl(path: &Path, error: &RefCell<Option<MeshError>>) -> tobj::MTLLoadRes
 }
 
 /// `text` (an OBJ or MTL file) without a leading UTF-8 byte-order mark, which tobj would read
-/// as part of the first line's keyword, and without comments (`#` to the end of a line), which
-/// tobj skips only as a line's first word: exporters write them after a face or a value. Line for
-/// line, so that line numbers stay the file's.
+/// as part of the first line's keyword, and without comments after numbers (`#` to the end of
+/// a line whose keyword takes numbers, [`NUMBER_KEYWORDS`]), which tobj skips only as a line's
+/// first word: exporters write them after a face or a value. Line for line, so that line
+/// numbers stay the file's.
 fn without_comments(text: &[u8]) -> Vec<u8> {
     let text = text.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(text);
     let mut out = Vec::with_capacity(text.len());
@@ -323,10 +324,22 @@ fn without_comments(text: &[u8]) -> Vec<u8> {
         if k > 0 {
             out.push(b'\n');
         }
-        out.extend_from_slice(line.split(|&b| b == b'#').next().unwrap_or_default());
+        // Only lines of numbers lose a trailing comment: a name or a path may hold `#`
+        // (`newmtl Material #25`, `map_Kd #1.png`), and cutting it would merge two names.
+        let numbers = std::str::from_utf8(line)
+            .ok()
+            .and_then(|l| l.split_whitespace().next())
+            .is_some_and(|w| NUMBER_KEYWORDS.contains(&w));
+        let kept = if numbers { line.split(|&b| b == b'#').next().unwrap_or_default() } else { line };
+        out.extend_from_slice(kept);
     }
     out
 }
+
+/// The OBJ and MTL keywords whose values are numbers (or indices), after which a `#` starts a
+/// comment.
+const NUMBER_KEYWORDS: [&str; 17] =
+    ["v", "vt", "vn", "vp", "f", "l", "p", "s", "Ka", "Kd", "Ks", "Ke", "Tf", "Ns", "Ni", "d", "Tr"];
 
 /// An OBJ file's `text` (after [`without_comments`] and [`check_obj`]) as tobj is to read it,
 /// line for line. Line (`l`) and point (`p`) elements are blanked: tobj makes triangles of them
@@ -482,10 +495,9 @@ fn check_face(words: SplitWhitespace, seen: [usize; 3], total: [usize; 3]) -> Re
 
 /// What tobj 4 panics on in an MTL file (after [`without_comments`]), with its line: a colour
 /// (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than 3 numbers. And the values Arbor reads (see
-/// `from_mtl` in `scene/load.rs`) where it cannot use them, in the ranges the scene format
-/// gives the same quantities: colours finite and >= 0, the exponent `Ns` finite and >= 0, the
-/// index of refraction `Ni` finite and > 0, the dissolve `d` in [0, 1], `illum` a model of the
-/// MTL format (0 to 10). A number that does not parse is left to tobj.
+/// `from_mtl` in `scene/load.rs`) where they would silently break a material: colours, `Ns` and
+/// `Ni` not finite, the dissolve `d` outside [0, 1]. Negative colours, `Ns` < 0, `Ni` <= 0 and
+/// any `illum` load, with `from_mtl`'s fallbacks. A number that does not parse is left to tobj.
 fn check_mtl(path: &Path, text: &[u8]) -> Result<(), MeshError> {
     for (line, l) in utf8_lines(text) {
         let mut words = l.split_whitespace();
@@ -501,18 +513,15 @@ fn check_mtl(path: &Path, text: &[u8]) -> Result<(), MeshError> {
 }
 
 /// The numbers after `key` on an MTL line, checked as [`check_mtl`] says.
-fn check_mtl_value(key: &str, mut words: SplitWhitespace) -> Result<(), String> {
+fn check_mtl_value(key: &str, words: SplitWhitespace) -> Result<(), String> {
+    // Negative colours, `Ns` < 0 and `Ni` <= 0 are common in downloaded assets (`Ni 0.000000`
+    // on opaque materials) and have fallbacks in `from_mtl` (clamped to 0, the default
+    // roughness, an index of 1.5): only values that would silently break a material are errors.
+    let any: fn(f32) -> bool = |_| true;
     let (count, in_range, fault): (usize, fn(f32) -> bool, &str) = match key {
-        "Ka" | "Kd" | "Ks" | "Ke" => (3, |x| x >= 0.0, "has a negative component"),
-        "Ns" => (1, |x| x >= 0.0, "is not an exponent >= 0"),
-        "Ni" => (1, |x| x > 0.0, "is not an index of refraction > 0"),
+        "Ka" | "Kd" | "Ks" | "Ke" => (3, any, ""),
+        "Ns" | "Ni" => (1, any, ""),
         "d" => (1, |x| (0.0..=1.0).contains(&x), "is not in [0, 1]"),
-        "illum" => {
-            return match words.next().map(str::parse::<u8>) {
-                Some(Ok(n)) if n > 10 => Err(format!("`illum`: {n} is not an illumination model (0 to 10)")),
-                _ => Ok(()),
-            };
-        }
         _ => return Ok(()),
     };
     let words: Vec<&str> = words.take(count).collect();
@@ -626,8 +635,10 @@ mod tests {
     fn rewrites_for_tobj_keep_every_line() {
         let file = b"\xEF\xBB\xBFv 0 0 0 # a\r\nl 1 2\nv 1 0 0 1 1 1\np 1\n#\nf 1 2 3#x\n\xff # \xfe";
         let text = without_comments(file);
-        assert_eq!(text, b"v 0 0 0 \nl 1 2\nv 1 0 0 1 1 1\np 1\n\nf 1 2 3\n\xff ");
-        assert_eq!(for_tobj(&text), b"v 0 0 0 \n\nv 1 0 0\n\n\nf 1 2 3\n\xff ");
+        assert_eq!(text, b"v 0 0 0 \nl 1 2\nv 1 0 0 1 1 1\np 1\n#\nf 1 2 3\n\xff # \xfe");
+        assert_eq!(for_tobj(&text), b"v 0 0 0 \n\nv 1 0 0\n\n#\nf 1 2 3\n\xff # \xfe");
+        // Names keep their `#`.
+        assert_eq!(without_comments(b"newmtl Material #25\nKd 1 0 0 # red"), b"newmtl Material #25\nKd 1 0 0 ");
         // A mark only at the start of the file is one.
         assert_eq!(without_comments(b"v\n\xEF\xBB\xBFv"), b"v\n\xEF\xBB\xBFv");
     }
