@@ -70,16 +70,27 @@ fn follow_links(path: &Path) -> io::Result<PathBuf> {
     Err(io::Error::other("too many levels of symbolic links"))
 }
 
-/// Checks before any work is spent that `path` can be written: not a directory, its folder
-/// created where missing, and a file creatable there (a temporary, removed again).
+/// Checks before any work is spent that `path` can be written: not a directory, and a file
+/// creatable (a temporary, removed again) in its folder or, where that is missing, in the
+/// nearest folder that exists. It makes nothing: the write makes the missing folders, so a
+/// run that fails after this check leaves none behind.
 pub fn prepare(path: &Path) -> io::Result<()> {
     let Destination::File(target) = destination(path)? else { return Ok(()) };
-    if let Some(dir) = target.parent().filter(|d| !d.as_os_str().is_empty()) {
-        fs::create_dir_all(dir)?;
+    let mut dir = folder_of(&target).to_path_buf();
+    while !dir.exists() {
+        dir = folder_of(&dir).to_path_buf();
     }
-    let tmp = temp_path(&target);
+    if !dir.is_dir() {
+        return Err(io::Error::new(io::ErrorKind::NotADirectory, format!("{} is not a folder", dir.display())));
+    }
+    let tmp = temp_path(&dir.join(target.file_name().unwrap_or_default()));
     OpenOptions::new().write(true).create_new(true).open(&tmp)?;
     fs::remove_file(&tmp)
+}
+
+/// The folder `path` is in: `.` for a bare name.
+fn folder_of(path: &Path) -> &Path {
+    path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."))
 }
 
 /// The temporary path for `path`.
@@ -116,6 +127,8 @@ fn write_to<E>(
     // where a link leads to a name without it.
     let named = path.extension().map_or_else(|| target.clone(), |e| target.with_extension(e));
     let tmp = temp_path(&named);
+    fs::create_dir_all(folder_of(&target))
+        .map_err(|source| AtomicWriteError::Io { what: "cannot make the folder of", source })?;
     let result = write(&tmp, false).and_then(|()| {
         fs::rename(&tmp, &target)
             .map_err(|source| AtomicWriteError::Io { what: "cannot rename the temporary file over", source })
@@ -204,8 +217,11 @@ mod tests {
         assert!(matches!(failed, Err(AtomicWriteError::Write("encoder failed"))));
         assert_eq!(fs::read(&target).unwrap(), b"two");
         assert!(leftovers(&d).is_empty(), "{:?}", leftovers(&d));
-        let missing = write_atomic::<io::Error>(&d.join("no/such/dir.txt"), |_| Ok(()));
-        assert!(matches!(missing, Err(AtomicWriteError::Io { what: "cannot create a temporary file beside", .. })));
+        // Missing folders are made by the write.
+        write_atomic::<io::Error>(&d.join("no/such/dir.txt"), |f| f.write_all(b"deep")).unwrap();
+        assert_eq!(fs::read(d.join("no/such/dir.txt")).unwrap(), b"deep");
+        let blocked = write_atomic::<io::Error>(&d.join("out.json/x.txt"), |_| Ok(()));
+        assert!(matches!(blocked, Err(AtomicWriteError::Io { .. })), "a file in the way of a folder");
     }
 
     #[cfg(unix)]
@@ -254,12 +270,16 @@ mod tests {
     }
 
     #[test]
-    fn prepare_makes_folders_and_refuses_directories() {
+    fn prepare_makes_nothing_and_refuses_directories() {
         let d = dir("prepare");
+        let _ = fs::remove_dir_all(d.join("a"));
         let nested = d.join("a/b/out.png");
         prepare(&nested).unwrap();
-        assert!(d.join("a/b").is_dir());
-        assert!(!nested.exists() && leftovers(&d.join("a/b")).is_empty());
+        assert!(!d.join("a").exists(), "prepare made a folder");
+        assert!(leftovers(&d).is_empty());
+        prepare(Path::new("bare-name.png")).unwrap();
+        fs::write(d.join("file"), b"").unwrap();
+        assert_eq!(prepare(&d.join("file/out.png")).unwrap_err().kind(), io::ErrorKind::NotADirectory);
         let err = prepare(&d).unwrap_err();
         assert_eq!(err.kind(), io::ErrorKind::IsADirectory);
         assert!(matches!(

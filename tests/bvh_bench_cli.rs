@@ -179,6 +179,10 @@ fn bad_input_is_a_clear_error() {
         let reason = "(os error 2)";
         assert!(stderr.matches(reason).count() <= 1, "{args:?}: repeated reason in: {stderr}");
     }
+    // A run that fails leaves no folder made for its outputs.
+    let _ = std::fs::remove_dir_all(dir.join("made"));
+    let out = bench().arg(dir.join("missing.obj")).arg("--json").arg(dir.join("made/r.json")).output().unwrap();
+    assert!(!out.status.success() && !dir.join("made").exists());
 }
 
 /// Outputs go where a user points them: through a symbolic link (which stays a link), into

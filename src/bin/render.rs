@@ -144,7 +144,7 @@ fn run() -> Result<()> {
         (None, None) => None,
     };
     // Fail on an output that cannot be written before spending time rendering: the first frame's
-    // file is tried (its folder made where missing), and a name with two frame patterns, of
+    // file is tried (in the nearest folder that exists), and a name with two frame patterns, of
     // which only the first would be replaced, is refused.
     let first = frames.as_ref().map_or_else(|| args.output.clone(), |r| frame_path(&args.output, r.start));
     if frames.is_some() && has_frame_pattern(&first) {
@@ -385,9 +385,7 @@ fn finish_frame(
     render_secs: f64,
     done: u32,
 ) -> Result<()> {
-    if let Some(dir) = output.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
+    // Missing folders are made by the write (each frame's, where the pattern names folders).
     write_image(output, &film.mean())?;
     if !s.quiet {
         arbor::outln!(
