@@ -77,7 +77,8 @@ fn follow_links(path: &Path) -> io::Result<PathBuf> {
 pub fn prepare(path: &Path) -> io::Result<()> {
     let Destination::File(target) = destination(path)? else { return Ok(()) };
     let mut dir = folder_of(&target).to_path_buf();
-    while !dir.exists() {
+    // Up to a folder that exists, or to `.` or `/` (which fail below if they are gone).
+    while !dir.exists() && folder_of(&dir) != dir {
         dir = folder_of(&dir).to_path_buf();
     }
     if !dir.is_dir() {
