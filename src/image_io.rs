@@ -382,15 +382,18 @@ mod tests {
     }
 
     #[test]
-    fn missing_directory_is_an_error_and_leaves_nothing() {
+    fn missing_folders_are_made_and_a_file_in_the_way_is_an_error() {
         let dir = scratch_dir("missing_dir");
+        fs::write(dir.join("blocker"), b"").unwrap();
         for name in ["e.exr", "e.png"] {
-            let path = dir.join("no-such-dir").join(name);
+            let path = dir.join("blocker").join(name);
             let err = write_image(&path, &test_image()).unwrap_err();
             assert!(matches!(err, ImageError::Io { .. }), "{err}");
             assert!(err.to_string().contains(&*path.to_string_lossy()), "{err}");
+            write_image(dir.join("new/sub").join(name), &test_image()).unwrap();
         }
-        assert!(dir_entries(&dir).is_empty());
+        assert_eq!(dir_entries(&dir), ["blocker", "new"]);
+        assert_eq!(dir_entries(&dir.join("new/sub")), ["e.exr", "e.png"]);
         fs::remove_dir_all(&dir).unwrap();
     }
 
