@@ -200,19 +200,14 @@ fn outputs_follow_links_make_folders_and_survive_a_closed_stdout() {
     std::os::unix::fs::symlink(&real, &link).unwrap();
     let csv = dir.join("new/folder/r.csv");
     let _ = std::fs::remove_dir_all(dir.join("new"));
-    let mut child = bench()
-        .arg(&obj)
-        .args(["--builders", "lbvh", "--runs", "1", "--resolution", "16", "--json"])
-        .arg(&link)
-        .arg("--csv")
-        .arg(&csv)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Close the reading end before the table is printed.
-    drop(child.stdout.take());
-    let out = child.wait_with_output().unwrap();
+    let out = common::output_with_stdout_closed(
+        bench()
+            .arg(&obj)
+            .args(["--builders", "lbvh", "--runs", "1", "--resolution", "16", "--json"])
+            .arg(&link)
+            .arg("--csv")
+            .arg(&csv),
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");

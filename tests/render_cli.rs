@@ -275,17 +275,18 @@ fn frames_render_numbered_sequences() {
     assert!(!dir.join("nopattern.exr").exists());
 
     // A closed standard output (`render ... | head -1`) stops neither the sequence nor its files.
-    let mut child = render()
-        .arg(scene("cornell-animated.toml"))
-        .arg("-o")
-        .arg(dir.join("piped/p_%d.png"))
-        .args(["--device", "cpu", "--spp", "1", "--max-depth", "2", "--frames", "0..3"])
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    drop(child.stdout.take());
-    let o = child.wait_with_output().unwrap();
+    let o = common::output_with_stdout_closed(
+        render().arg(scene("cornell-animated.toml")).arg("-o").arg(dir.join("piped/p_%d.png")).args([
+            "--device",
+            "cpu",
+            "--spp",
+            "1",
+            "--max-depth",
+            "2",
+            "--frames",
+            "0..3",
+        ]),
+    );
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!((0..3).all(|f| dir.join(format!("piped/p_{f}.png")).exists()));
 }

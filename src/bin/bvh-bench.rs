@@ -196,7 +196,7 @@ const MAX_RUNS: usize = 10_000;
 const MAX_RESOLUTION: u32 = 8192;
 
 /// Checks of the options all modes share, before any work: numbers in range, builders listed
-/// once, and the output files writable (their folders made where missing).
+/// once, and the output files writable (`atomic_file::prepare`).
 fn check_options(args: &Args) -> Result<()> {
     if !(1..=MAX_RUNS).contains(&args.runs) {
         bail!("--runs must be from 1 to {MAX_RUNS}, not {}", args.runs);

@@ -980,17 +980,11 @@ mod tests {
     /// search that the bound stops still returns the true decrease of the output it names.
     #[test]
     fn searches_are_bounded_on_a_pile() {
-        // Boxes of triangles with corners at random in the unit square (a xorshift stream).
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut random = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32
-        };
+        // Boxes of triangles with corners at random in the unit square.
+        let mut rng = crate::render::rng::Rng::for_sample(1, 0, 0);
         let boxes: Vec<Aabb> = (0..4000)
             .map(|_| {
-                let corners = [0; 3].map(|_| glam::Vec3::new(random(), random(), 0.0));
+                let corners = [0; 3].map(|_| rng.next_vec2().extend(0.0));
                 Aabb::new(corners[0].min(corners[1]).min(corners[2]), corners[0].max(corners[1]).max(corners[2]))
             })
             .collect();

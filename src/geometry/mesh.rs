@@ -352,10 +352,14 @@ fn for_tobj(text: &[u8]) -> Vec<u8> {
         if k > 0 {
             out.push(b'\n');
         }
-        let words: Vec<&str> = std::str::from_utf8(line).map_or(Vec::new(), |l| l.split_whitespace().collect());
-        match words[..] {
-            ["l" | "p", ..] => {}
-            ["v", x, y, z, _, _, _] => out.extend_from_slice(format!("v {x} {y} {z}").as_bytes()),
+        // Words are collected only on `v` lines: a face line (most of a mesh) is copied as is.
+        let mut words = std::str::from_utf8(line).map(str::split_whitespace).ok();
+        match words.as_mut().and_then(Iterator::next) {
+            Some("l" | "p") => {}
+            Some("v") => match words.map(Iterator::collect::<Vec<_>>).as_deref() {
+                Some(&[x, y, z, _, _, _]) => out.extend_from_slice(format!("v {x} {y} {z}").as_bytes()),
+                _ => out.extend_from_slice(line),
+            },
             _ => out.extend_from_slice(line),
         }
     }
@@ -517,11 +521,9 @@ fn check_mtl_value(key: &str, words: SplitWhitespace) -> Result<(), String> {
     // Negative colours, `Ns` < 0 and `Ni` <= 0 are common in downloaded assets (`Ni 0.000000`
     // on opaque materials) and have fallbacks in `from_mtl` (clamped to 0, the default
     // roughness, an index of 1.5): only values that would silently break a material are errors.
-    let any: fn(f32) -> bool = |_| true;
-    let (count, in_range, fault): (usize, fn(f32) -> bool, &str) = match key {
-        "Ka" | "Kd" | "Ks" | "Ke" => (3, any, ""),
-        "Ns" | "Ni" => (1, any, ""),
-        "d" => (1, |x| (0.0..=1.0).contains(&x), "is not in [0, 1]"),
+    let count = match key {
+        "Ka" | "Kd" | "Ks" | "Ke" => 3,
+        "Ns" | "Ni" | "d" => 1,
         _ => return Ok(()),
     };
     let words: Vec<&str> = words.take(count).collect();
@@ -540,8 +542,8 @@ fn check_mtl_value(key: &str, words: SplitWhitespace) -> Result<(), String> {
     if !values.iter().all(|x| x.is_finite()) {
         return Err(format!("`{key}`: {shown} is not finite"));
     }
-    if !values.iter().all(|&x| in_range(x)) {
-        return Err(format!("`{key}`: {shown} {fault}"));
+    if key == "d" && !(0.0..=1.0).contains(&values[0]) {
+        return Err(format!("`d`: {shown} is not in [0, 1]"));
     }
     Ok(())
 }

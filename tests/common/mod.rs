@@ -13,6 +13,15 @@ use rand_pcg::Pcg64Mcg;
 
 pub type Rng = Pcg64Mcg;
 
+/// Runs `cmd` with its standard output closed before it writes (as `| head` does once it has
+/// read enough): the tools must neither panic nor stop their work and files.
+pub fn output_with_stdout_closed(cmd: &mut std::process::Command) -> std::process::Output {
+    use std::process::Stdio;
+    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    drop(child.stdout.take());
+    child.wait_with_output().unwrap()
+}
+
 pub fn rng(seed: u64) -> Rng {
     Pcg64Mcg::seed_from_u64(seed)
 }
