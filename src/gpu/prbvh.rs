@@ -188,6 +188,60 @@ pub fn optimize_on_device(
     Ok(stats)
 }
 
+/// Algorithm 1 alone, on the device: every node's best output and decrease in `bvh` as it is
+/// (one `find_best` pass, every node searching), read back; `(sibling, 0.0)` where nothing
+/// decreases the area, and for the root and the padding node. The decreases are half areas at
+/// the search's scale ([`crate::bvh::prbvh::find_best_output`] divides the scale out). For
+/// comparing the device's search with the CPU's node by node.
+pub fn search_on_device(ctx: &GpuContext, bvh: &Bvh) -> Result<Vec<(u32, f32)>, GpuError> {
+    let node_count = bvh.nodes.len() as u32;
+    if bvh.prim_ids.len() <= 1 {
+        return Ok(vec![(0, 0.0); node_count as usize]);
+    }
+    let gpu = upload(ctx, bvh)?;
+    let u32s = |what: &str| ctx.storage_buffer_zeroed(what, u64::from(node_count) * 4);
+    let (best_out, best_d, winners) = (u32s("PRBVH outputs")?, u32s("PRBVH decreases")?, u32s("PRBVH winners")?);
+    let params = PrbvhParams {
+        node_count,
+        mu: 1,
+        phase: 0,
+        area_scale: crate::bvh::prbvh::search_scale(bvh.nodes.first()),
+        ..Default::default()
+    };
+    let params_buf = ctx.uniform_buffer("PRBVH parameters", &params);
+    let pipeline = ctx.pipeline("prbvh32", || source(false), "find_best");
+    let bindings = [(0, &params_buf), (1, &gpu.nodes), (2, &gpu.parents), (3, &best_out), (4, &best_d), (7, &winners)];
+    let bind_group = ctx.bind_group(&pipeline, &bindings);
+    let mut encoder = ctx.device.create_command_encoder(&Default::default());
+    {
+        let mut p = encoder
+            .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("find_best"), timestamp_writes: None });
+        p.set_pipeline(&pipeline);
+        p.set_bind_group(0, &bind_group, &[]);
+        let grid = ctx.dispatch_size(node_count);
+        p.dispatch_workgroups(grid.0, grid.1, 1);
+    }
+    ctx.queue.submit([encoder.finish()]);
+    let outs = ctx.read_buffer::<u32>("PRBVH outputs", &best_out, node_count as usize)?;
+    let ds = ctx.read_buffer::<f32>("PRBVH decreases", &best_d, node_count as usize)?;
+    Ok((0..node_count as usize).map(|i| if ds[i] > 0.0 { (outs[i], ds[i]) } else { (i as u32 ^ 1, 0.0) }).collect())
+}
+
+/// `bvh`'s nodes, parents and primitive ids in device buffers (no Morton codes or primitive
+/// boxes: the optimiser does not read them).
+fn upload(ctx: &GpuContext, bvh: &Bvh) -> Result<GpuBvh, GpuError> {
+    let nodes: Vec<BvhNode> = bvh.nodes.to_vec();
+    Ok(GpuBvh {
+        prim_count: bvh.prim_ids.len() as u32,
+        code_hi: ctx.storage_buffer_zeroed("unused", 4)?,
+        code_lo: ctx.storage_buffer_zeroed("unused", 4)?,
+        nodes: ctx.storage_buffer("BVH nodes", &nodes)?,
+        parents: ctx.storage_buffer("BVH parents", &bvh.parents)?,
+        prim_ids: ctx.storage_buffer("BVH primitive ids", &bvh.prim_ids)?,
+        prim_aabbs: ctx.storage_buffer_zeroed("unused", 4)?,
+    })
+}
+
 /// Uploads `bvh` (one primitive per leaf, e.g. the CPU LBVH), optimises it on the GPU, reads it
 /// back, and applies the leaf collapse of `config` on the CPU.
 pub fn optimize(
@@ -200,16 +254,7 @@ pub fn optimize(
     if n <= 1 {
         return Ok((bvh.clone(), PrbvhStats::default()));
     }
-    let nodes: Vec<BvhNode> = bvh.nodes.to_vec();
-    let gpu = GpuBvh {
-        prim_count: n as u32,
-        code_hi: ctx.storage_buffer_zeroed("unused", 4)?,
-        code_lo: ctx.storage_buffer_zeroed("unused", 4)?,
-        nodes: ctx.storage_buffer("BVH nodes", &nodes)?,
-        parents: ctx.storage_buffer("BVH parents", &bvh.parents)?,
-        prim_ids: ctx.storage_buffer("BVH primitive ids", &bvh.prim_ids)?,
-        prim_aabbs: ctx.storage_buffer_zeroed("unused", 4)?,
-    };
+    let gpu = upload(ctx, bvh)?;
     let mut stats = optimize_on_device(ctx, &gpu, config, scheme)?;
     let mut out = gpu.read(ctx)?;
     if let Some(collapse) = &config.collapse {
