@@ -217,6 +217,30 @@ fn outputs_follow_links_make_folders_and_survive_a_closed_stdout() {
     assert!(std::fs::read_to_string(&csv).unwrap().starts_with("name,"));
 }
 
+/// A standard output that fails other than by closing (`> /dev/full`) is an error, not a report
+/// lost with exit 0; the files are written first.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_failing_stdout_is_an_error_after_the_files() {
+    let dir = temp_dir("full");
+    let obj = dir.join("torus.obj");
+    write_obj(&obj);
+    let json = dir.join("r.json");
+    let _ = std::fs::remove_file(&json);
+    let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+    let out = bench()
+        .arg(&obj)
+        .args(["--builders", "lbvh", "--runs", "1", "--resolution", "16", "--json"])
+        .arg(&json)
+        .stdout(full)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("writing to standard output: No space left on device"), "{stderr}");
+    assert!(std::fs::read_to_string(&json).unwrap().contains("\"builders\""));
+}
+
 /// `--procedural-animated` and `--animated`: every strategy reported with the documented JSON
 /// fields, the two-level strategies agreeing on every hit, refit drifting while rebuild stays at
 /// the fresh build, and clear errors.

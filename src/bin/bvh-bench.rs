@@ -123,6 +123,10 @@ fn main() {
         eprintln!("bvh-bench: error: {e:#}");
         std::process::exit(1);
     }
+    if let Some(e) = arbor::stdout_error() {
+        eprintln!("bvh-bench: error: writing to standard output: {e}");
+        std::process::exit(1);
+    }
 }
 
 fn run() -> Result<()> {

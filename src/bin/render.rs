@@ -96,6 +96,10 @@ fn main() {
         eprintln!("render: error: {e:#}");
         std::process::exit(1);
     }
+    if let Some(e) = arbor::stdout_error() {
+        eprintln!("render: error: writing to standard output: {e}");
+        std::process::exit(1);
+    }
 }
 
 fn run() -> Result<()> {
