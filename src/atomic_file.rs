@@ -37,6 +37,10 @@ pub enum Destination {
 
 /// Where a write to `path` lands; an error for a directory.
 pub fn destination(path: &Path) -> io::Result<Destination> {
+    // `out/b.exr/` names a folder; the rename would fail only after the work.
+    if path.as_os_str().as_encoded_bytes().ends_with(b"/") {
+        return Err(io::Error::new(io::ErrorKind::IsADirectory, "it ends in /, so it names a folder"));
+    }
     // `/dev/stdout` leads through `/proc/self/fd/1` to wherever the shell sent the output, a
     // regular file too (`> log`): written in place, as the shell's redirection expects, not
     // replaced by a rename.
@@ -283,6 +287,11 @@ mod tests {
         assert_eq!(prepare(&d.join("file/out.png")).unwrap_err().kind(), io::ErrorKind::NotADirectory);
         let err = prepare(&d).unwrap_err();
         assert_eq!(err.kind(), io::ErrorKind::IsADirectory);
+        // A name ending in / is a folder, whether or not it exists.
+        let slash = PathBuf::from(format!("{}/", d.join("new.exr").display()));
+        assert_eq!(prepare(&slash).unwrap_err().kind(), io::ErrorKind::IsADirectory);
+        assert!(write_atomic::<io::Error>(&slash, |_| Ok(())).is_err());
+        assert!(!d.join("new.exr").exists() && leftovers(&d).is_empty());
         assert!(matches!(
             write_atomic::<io::Error>(&d, |_| Ok(())),
             Err(AtomicWriteError::Io { what: "cannot write", .. })

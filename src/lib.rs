@@ -48,3 +48,16 @@ pub fn write_stdout_line(line: std::fmt::Arguments) {
 pub fn stdout_error() -> Option<&'static std::io::Error> {
     STDOUT_ERROR.get()
 }
+
+/// Most worker threads `--threads` takes: far past any core count, and below the thousands at
+/// which the pool's start-up alone takes seconds (2000 threads: 16 s on 2 cores).
+pub const MAX_THREADS: usize = 1024;
+
+/// Sizes rayon's global pool from the tools' `--threads` (all cores when `None`).
+pub fn init_threads(threads: Option<usize>) -> Result<(), String> {
+    let Some(n) = threads else { return Ok(()) };
+    if !(1..=MAX_THREADS).contains(&n) {
+        return Err(format!("--threads must be 1 to {MAX_THREADS}, not {n}"));
+    }
+    rayon::ThreadPoolBuilder::new().num_threads(n).build_global().map_err(|e| format!("--threads: {e}"))
+}

@@ -144,6 +144,12 @@ fn bad_input_is_a_clear_error() {
     let obj = dir.join("torus.obj");
     write_obj(&obj);
     let json = dir.join("never.json");
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, SCATTER_SCENE.replace("COUNT", "2")).unwrap();
+    // 10^4 spheres of 1.3 million triangles: the CPU renders them as instances; flattened, they
+    // are more triangles than a BVH indexes.
+    let huge = dir.join("huge.toml");
+    std::fs::write(&huge, SCATTER_SCENE.replace("COUNT", "10000")).unwrap();
     let cases: Vec<(Vec<String>, &str)> = vec![
         (
             vec![obj.display().to_string(), "--builders".into(), "lbvh,fastest-ever".into()],
@@ -166,6 +172,18 @@ fn bad_input_is_a_clear_error() {
         (vec!["--procedural-animated".into(), "1e11".into()], "GB of memory"),
         (vec![obj.display().to_string(), "--csv".into(), dir.display().to_string()], "it is a directory"),
         (vec![], "give a mesh"),
+        (vec![obj.display().to_string(), "--threads".into(), "5000".into()], "--threads must be 1 to"),
+        (vec![obj.display().to_string(), "--builders".into(), "lbvh+prbvh,prbvh".into()], "are the same builder"),
+        (vec![obj.display().to_string(), "--frames".into(), "10".into()], "--frames applies to"),
+        (vec![obj.display().to_string(), "--max-spp".into(), "8".into()], "--max-spp applies to --converge"),
+        (vec![obj.display().to_string(), "--memory".into(), "--plot".into(), "m.svg".into()], "--memory has no plot"),
+        (vec![obj.display().to_string(), "--gpu".into(), "--builders".into(), "lbvh".into()], "--builders applies"),
+        (vec!["--converge".into(), obj.display().to_string()], "renders a scene (.toml), not a mesh"),
+        (
+            vec!["--converge".into(), scene.display().to_string(), "--devices".into(), "cpu,cpu".into()],
+            "`cpu` is listed twice",
+        ),
+        (vec![huge.display().to_string()], "more than one BVH holds"),
     ];
     for (args, expected) in cases {
         let out = bench().args(&args).arg("--json").arg(&json).output().unwrap();
@@ -216,6 +234,30 @@ fn outputs_follow_links_make_folders_and_survive_a_closed_stdout() {
     assert_eq!(report["builders"][0]["name"], "lbvh");
     assert!(std::fs::read_to_string(&csv).unwrap().starts_with("name,"));
 }
+
+/// A sky and `COUNT` spheres of the finest subdivision, scattered.
+const SCATTER_SCENE: &str = "[camera]
+position = [0, 28, 70]
+look_at = [0, 0, 5]
+fov = 38
+resolution = [16, 16]
+[render]
+spp = 1
+[environment]
+radiance = [1, 1, 1]
+[materials.m]
+type = \"diffuse\"
+albedo = [0.5, 0.5, 0.5]
+[[objects]]
+shape = \"sphere\"
+subdivisions = 8
+material = \"m\"
+scale = 0.3
+[objects.scatter]
+count = COUNT
+min = [-50, 0, -50]
+max = [50, 1, 50]
+";
 
 /// A standard output that fails other than by closing (`> /dev/full`) is an error, not a report
 /// lost with exit 0; the files are written first.

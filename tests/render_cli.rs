@@ -66,6 +66,9 @@ fn errors_are_clear_and_leave_nothing_behind() {
         (vec![dir.join("missing.toml").display().to_string()], "missing.toml: cannot read"),
         (vec![scene("furnace.toml").display().to_string(), "--spp".into(), "0".into()], "at least 1"),
         (vec![scene("furnace.toml").display().to_string(), "--time".into(), "-3".into()], "--time"),
+        (vec![scene("furnace.toml").display().to_string(), "--threads".into(), "5000".into()], "--threads must be 1 to"),
+        // The last frame a range can hold is 2^32 - 2; 2^32 - 1 used to render nothing, with exit 0.
+        (vec![scene("furnace.toml").display().to_string(), "--frame".into(), "4294967295".into()], "--frame"),
     ];
     for (args, expected) in cases {
         let o = render().args(&args).arg("-o").arg(&out).output().unwrap();
@@ -83,6 +86,12 @@ fn errors_are_clear_and_leave_nothing_behind() {
     let o = render().arg(scene("furnace.toml")).arg("-o").arg(&folder).args(["--spp", "1000000"]).output().unwrap();
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && stderr.contains("it is a directory"), "{stderr}");
+    // So does a name ending in /, which used to fail at the rename after the render.
+    let slash = format!("{}/", dir.join("slash.exr").display());
+    let o = render().arg(scene("furnace.toml")).args(["-o", &slash, "--spp", "1000000"]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && stderr.contains("names a folder"), "{stderr}");
+    assert!(!dir.join("slash.exr").exists());
 }
 
 #[test]

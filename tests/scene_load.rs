@@ -208,6 +208,11 @@ fn orbit_leaves_and_returns_to_rest() {
     assert!(close(offset(half_pi, period / 4.0), Vec3::new(-radius, 0.0, -radius)));
     assert!(close(offset(half_pi, period / 2.0), Vec3::new(0.0, 0.0, -2.0 * radius)));
     assert!(close(offset(half_pi, period), Vec3::ZERO));
+    // A period too short for f32 (`t / period` overflows) still gives a finite place on the orbit.
+    for period in [1e-40, f32::from_bits(1)] {
+        let p = Animation::Orbit { radius, period, phase: 0.0 }.transform_at(1.0).transform_point3(Vec3::ZERO);
+        assert!(p.is_finite() && p.length() <= 2.0 * radius + 1e-6, "period {period:e}: {p}");
+    }
 }
 
 fn scatter_scene(seed: u64, count: u32, extra: &str) -> Scene {
@@ -465,7 +470,7 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
             BASE.replace("type = \"diffuse\"", "type = \"diffuse\"\nior = 1.5"),
             9,
             "materials.white.ior",
-            "not a key of a diffuse",
+            "not a key of the `diffuse` material type",
         ),
         (BASE.replace("type = \"diffuse\"", "type = \"plastic\""), 8, "materials.white.type", "plastic"),
         (

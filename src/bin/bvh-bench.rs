@@ -70,9 +70,9 @@ struct Args {
     /// Animation benchmark on N procedural instances (spheres and tori on a field); k/M suffixes.
     #[arg(long, value_name = "N", conflicts_with_all = ["input", "procedural"])]
     procedural_animated: Option<String>,
-    /// Frames of the animation benchmark.
-    #[arg(long, default_value_t = 300)]
-    frames: u32,
+    /// Frames of the animation benchmark [default: 300].
+    #[arg(long)]
+    frames: Option<u32>,
     /// Percentage of the procedural instances that move.
     #[arg(long, value_name = "PERCENT")]
     moving: Option<f64>,
@@ -80,9 +80,9 @@ struct Args {
     /// measure the error against a reference, counting the BVH build in the time.
     #[arg(long, value_name = "SCENE.toml", conflicts_with_all = ["input", "procedural", "animated", "procedural_animated"])]
     converge: Option<PathBuf>,
-    /// Devices to render on with --converge, comma-separated: cpu, gpu.
-    #[arg(long, value_delimiter = ',', default_value = "cpu")]
-    devices: Vec<String>,
+    /// Devices to render on with --converge, comma-separated: cpu, gpu [default: cpu].
+    #[arg(long, value_delimiter = ',')]
+    devices: Option<Vec<String>>,
     /// --converge: the reference image (.exr, linear), e.g. an independent renderer's; without
     /// it, the scene is rendered at --reference-spp with another seed.
     #[arg(long, value_name = "REF.exr")]
@@ -90,9 +90,9 @@ struct Args {
     /// --converge: samples per pixel of the rendered reference [default: 8 x --max-spp].
     #[arg(long)]
     reference_spp: Option<u32>,
-    /// --converge: the largest sample count; curves run 1, 2, 4, ... up to it.
-    #[arg(long, default_value_t = 64)]
-    max_spp: u32,
+    /// --converge: the largest sample count; curves run 1, 2, 4, ... up to it [default: 64].
+    #[arg(long)]
+    max_spp: Option<u32>,
     /// Peak memory instead of speed: each builder builds in a fresh process, and the table gives
     /// the bytes per triangle it keeps to trace (triangles included) and the process's peak.
     #[arg(long, conflicts_with_all = ["converge", "animated", "procedural_animated"])]
@@ -131,12 +131,7 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = Args::parse();
-    if let Some(n) = args.threads {
-        if n == 0 {
-            bail!("--threads must be at least 1");
-        }
-        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
-    }
+    arbor::init_threads(args.threads).map_err(anyhow::Error::msg)?;
     if let Some(builder) = &args.memory_child {
         return memory_child(&args, builder);
     }
@@ -153,9 +148,6 @@ fn run() -> Result<()> {
     if args.animated.is_some() || args.procedural_animated.is_some() {
         return run_animated(&args);
     }
-    if args.moving.is_some() {
-        bail!("--moving applies to --procedural-animated");
-    }
     let builders = args
         .builders
         .clone()
@@ -166,7 +158,7 @@ fn run() -> Result<()> {
         .context("--builders")?;
     let (name, mesh) = load_input(&args)?;
     if mesh.indices.is_empty() {
-        bail!("{name}: no triangles");
+        bail!("{}: no triangles", args.input.as_ref().map_or(name, |p| p.display().to_string()));
     }
     let triangles = mesh.triangles();
     eprintln!("{name}: {} triangles, {} threads", triangles.len(), rayon::current_num_threads());
@@ -215,16 +207,68 @@ fn check_options(args: &Args) -> Result<()> {
         bail!("--epsilon must be a finite number >= 0, not {}", args.epsilon);
     }
     if let Some(names) = &args.builders {
-        let mut seen = std::collections::HashSet::new();
-        if let Some(twice) = names.iter().map(|n| n.trim()).find(|n| !seen.insert(*n)) {
-            bail!("--builders: `{twice}` is listed twice");
+        // By the name each builds as: `prbvh` is `lbvh+prbvh`.
+        let mut seen = std::collections::HashMap::new();
+        for name in names.iter().map(|n| n.trim()) {
+            let canonical = name.parse::<Builder>().map_or(name.to_string(), |b| b.to_string());
+            if let Some(first) = seen.insert(canonical.clone(), name) {
+                if first == name {
+                    bail!("--builders: `{name}` is listed twice");
+                }
+                bail!("--builders: `{first}` and `{name}` are the same builder, `{canonical}`");
+            }
         }
     }
+    if let Some(devices) = &args.devices {
+        let mut seen = std::collections::HashSet::new();
+        if let Some(twice) = devices.iter().map(|d| d.trim()).find(|d| !seen.insert(*d)) {
+            bail!("--devices: `{twice}` is listed twice");
+        }
+    }
+    check_mode_options(args)?;
     if let Some(plot) = &args.plot {
         plot_format(plot)?;
     }
     for path in [&args.json, &args.csv, &args.plot].into_iter().flatten() {
         atomic_file::prepare(path).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// Options that belong to another mode than the one run are errors, not silently ignored.
+fn check_mode_options(args: &Args) -> Result<()> {
+    let converge = args.converge.is_some();
+    let animation = args.animated.is_some() || args.procedural_animated.is_some();
+    let mode_only: [(bool, &str, bool, &str); 8] = [
+        (args.devices.is_some(), "--devices", converge, "--converge"),
+        (args.reference.is_some(), "--reference", converge, "--converge"),
+        (args.reference_spp.is_some(), "--reference-spp", converge, "--converge"),
+        (args.max_spp.is_some(), "--max-spp", converge, "--converge"),
+        (args.image_size.is_some(), "--image-size", converge, "--converge"),
+        (args.frames.is_some(), "--frames", animation, "--animated and --procedural-animated"),
+        (args.moving.is_some(), "--moving", args.procedural_animated.is_some(), "--procedural-animated"),
+        (
+            args.builders.is_some(),
+            "--builders",
+            !args.gpu && !animation,
+            "the builder comparison, --converge and --memory",
+        ),
+    ];
+    for (given, option, applies, mode) in mode_only {
+        if given && !applies {
+            bail!("{option} applies to {mode}");
+        }
+    }
+    if args.memory && args.plot.is_some() {
+        bail!("--memory has no plot");
+    }
+    if args.gpu && (args.plot.is_some() || args.csv.is_some()) {
+        bail!("--gpu writes a table and --json only (no --csv or --plot)");
+    }
+    if let Some(path) = &args.converge {
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj")) {
+            bail!("--converge {}: renders a scene (.toml), not a mesh", path.display());
+        }
     }
     Ok(())
 }
@@ -252,14 +296,12 @@ fn write_outputs(
 
 /// `--animated` / `--procedural-animated`.
 fn run_animated(args: &Args) -> Result<()> {
-    if args.frames == 0 {
+    let frames = args.frames.unwrap_or(300);
+    if frames == 0 {
         bail!("--frames must be at least 1");
     }
     let (name, anim) = match (&args.animated, &args.procedural_animated) {
         (Some(path), _) => {
-            if args.moving.is_some() {
-                bail!("--moving applies to --procedural-animated; a scene's own animation decides what moves");
-            }
             let scene = arbor::scene::Scene::load(path)?;
             if !scene.is_animated() {
                 bail!("{}: nothing in the scene moves (no keyframes or orbiting scatter)", path.display());
@@ -285,10 +327,10 @@ fn run_animated(args: &Args) -> Result<()> {
         anim.instances.len(),
         anim.moving.len(),
         anim.world_triangle_count(),
-        args.frames,
+        frames,
         rayon::current_num_threads()
     );
-    let config = AnimBenchConfig { frames: args.frames, resolution: args.resolution.min(256), ..Default::default() };
+    let config = AnimBenchConfig { frames, resolution: args.resolution.min(256), ..Default::default() };
     let report = anim_bench::run(&anim, &config);
     arbor::outln!(
         "{} instances, {} moving, {} triangles, {} frames, {} threads",
@@ -391,7 +433,7 @@ fn run_converge(args: &Args) -> Result<()> {
     use arbor::render::converge::{self, BuilderChoice, ConvergeConfig};
     let path = args.converge.as_ref().expect("checked by the caller");
     let mut devices = Vec::new();
-    for d in &args.devices {
+    for d in args.devices.as_deref().unwrap_or(&["cpu".to_string()]) {
         devices.push(match d.trim() {
             "cpu" => converge::ConvergeDevice::Cpu,
             "gpu" => converge::ConvergeDevice::Gpu(arbor::gpu::GpuContext::shared().context("--devices gpu")?),
@@ -404,19 +446,16 @@ fn run_converge(args: &Args) -> Result<()> {
         .unwrap_or_else(|| ["lbvh", "lbvh+prbvh", "binned-sah", "auto"].map(String::from).to_vec());
     let choices =
         names.iter().map(|b| b.trim().parse::<BuilderChoice>()).collect::<Result<Vec<_>, _>>().context("--builders")?;
-    if args.max_spp == 0 {
+    let max_spp = args.max_spp.unwrap_or(64);
+    if max_spp == 0 {
         bail!("--max-spp must be at least 1");
     }
     let mut scene = arbor::scene::Scene::load(path)?;
     if let Some((w, h)) = args.image_size {
         (scene.camera.width, scene.camera.height) = (w, h);
     }
-    let config = ConvergeConfig {
-        max_spp: args.max_spp,
-        max_depth: scene.render.max_depth,
-        seed: scene.render.seed,
-        ..Default::default()
-    };
+    let config =
+        ConvergeConfig { max_spp, max_depth: scene.render.max_depth, seed: scene.render.seed, ..Default::default() };
     let (w, h) = (scene.camera.width, scene.camera.height);
     let (reference, reference_info) = match &args.reference {
         Some(file) => {
@@ -432,7 +471,7 @@ fn run_converge(args: &Args) -> Result<()> {
             (image, serde_json::json!({"source": "file", "path": file.display().to_string()}))
         }
         None => {
-            let spp = args.reference_spp.unwrap_or(args.max_spp.saturating_mul(8));
+            let spp = args.reference_spp.unwrap_or(max_spp.saturating_mul(8));
             if spp == 0 {
                 bail!("--reference-spp must be at least 1");
             }
@@ -709,9 +748,6 @@ fn run_memory(args: &Args) -> Result<()> {
         }
         Ok(())
     };
-    if args.plot.is_some() {
-        bail!("--memory has no plot");
-    }
     write_outputs(args, &report, csv, (String::new(), ("", "")), &[], false)
 }
 
@@ -720,7 +756,10 @@ fn run_memory(args: &Args) -> Result<()> {
 /// obvhs: its `Bvh2` and triangles, built exactly as its preset ships.
 fn memory_child(args: &Args, name: &str) -> Result<()> {
     let builder: Builder = name.parse().context("--memory-child")?;
-    let (_, mesh) = load_input(args)?;
+    let (name, mesh) = load_input(args)?;
+    if mesh.indices.is_empty() {
+        bail!("{name}: no triangles");
+    }
     let triangles = mesh.triangles();
     drop(mesh);
     let t = std::time::Instant::now();
@@ -767,6 +806,7 @@ fn load_input(args: &Args) -> Result<(String, TriangleMesh)> {
         Some(path) if path.extension().is_some_and(|e| e == "toml") => {
             // A scene: every object's triangles in world space, as the renderer builds over them.
             let scene = arbor::scene::Scene::load(path)?;
+            scene.check_flat_fits(path, arbor::memory::BENCH_BYTES_PER_TRIANGLE).map_err(anyhow::Error::msg)?;
             let (triangles, _) = scene.world_triangles();
             let mesh = TriangleMesh {
                 positions: triangles.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect(),
@@ -785,9 +825,8 @@ fn load_input(args: &Args) -> Result<(String, TriangleMesh)> {
     };
     let (kind, count) = spec.split_once(':').context("--procedural: expected KIND:N, e.g. city:1M")?;
     let n = parse_count(count).with_context(|| format!("--procedural: bad triangle count `{count}`"))?;
-    // About 460 bytes per triangle at the peak (hairball:1M, three builders), with room for
-    // the builders that keep more.
-    arbor::memory::check_fits(&format!("--procedural {spec}"), n as f64 * 600.0).map_err(anyhow::Error::msg)?;
+    arbor::memory::check_fits(&format!("--procedural {spec}"), n as f64 * arbor::memory::BENCH_BYTES_PER_TRIANGLE)
+        .map_err(anyhow::Error::msg)?;
     let mesh = match kind {
         "hairball" => procedural::hairball(n, args.seed),
         "city" => procedural::city(n, args.seed),

@@ -40,8 +40,8 @@ struct Args {
     /// its `animation.fps`).
     #[arg(long, value_parser = parse_frames, conflicts_with = "frame")]
     frames: Option<Range<u32>>,
-    /// One frame to render.
-    #[arg(long)]
+    /// One frame to render (at most 4294967294, the last a `--frames` range can hold).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(..i64::from(u32::MAX)))]
     frame: Option<u32>,
     /// Samples per pixel (overrides the scene's render.spp).
     #[arg(long)]
@@ -107,12 +107,7 @@ fn run() -> Result<()> {
     let builder_name = args.builder.as_deref().unwrap_or("lbvh+prbvh");
     let builder: Option<Builder> =
         if builder_name == "auto" { None } else { Some(builder_name.parse().context("--builder (or auto)")?) };
-    if let Some(n) = args.threads {
-        if n == 0 {
-            bail!("--threads must be at least 1");
-        }
-        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
-    }
+    arbor::init_threads(args.threads).map_err(anyhow::Error::msg)?;
     let scene = Scene::load(&args.scene)?;
     // The film's sums, the tiles' and the image written: about three times a pixel's sums.
     let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
@@ -164,7 +159,12 @@ fn run() -> Result<()> {
     }
 
     let settings = FrameSettings { spp, max_depth, seed, time, quiet: args.quiet };
-    if let Some(ctx) = gpu_context(args.device, args.quiet)? {
+    let gpu = gpu_context(args.device, args.quiet)?;
+    // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
+    if gpu.is_some() || !wants_instancing(&scene) {
+        scene.check_flat_fits(&args.scene, arbor::memory::RENDER_BYTES_PER_TRIANGLE).map_err(anyhow::Error::msg)?;
+    }
+    if let Some(ctx) = gpu {
         return run_gpu(ctx, &scene, &args, builder.as_ref(), &settings, frames);
     }
     let (mut render_scene, build) = match &builder {

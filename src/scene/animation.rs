@@ -6,7 +6,6 @@
 //! quaternion slerp (Shoemake 1985, "Animating rotation with quaternion curves"), which takes
 //! the shorter arc, so two keys 180° or more apart need a key between them.
 
-use std::f32::consts::TAU;
 use std::ops::Range;
 
 use glam::{Mat4, Quat, Vec3};
@@ -75,7 +74,10 @@ impl Animation {
                 }
             }
             &Animation::Orbit { radius, period, phase } => {
-                let theta = phase + TAU * time / period;
+                // Whole turns dropped in f64: `time / period` overflows f32 for tiny periods
+                // (1e-40 s gave NaN, and the instances vanished).
+                let turns = (f64::from(time) / f64::from(period)).rem_euclid(1.0);
+                let theta = phase + (std::f64::consts::TAU * turns) as f32;
                 let offset = radius * Vec3::new(theta.cos() - phase.cos(), 0.0, theta.sin() - phase.sin());
                 Mat4::from_translation(offset)
             }

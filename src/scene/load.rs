@@ -24,9 +24,14 @@ use crate::geometry::{TriangleMesh, procedural};
 
 /// Most subdivisions of a built-in sphere: 20 · 4^8 ≈ 1.3 M triangles.
 const MAX_SUBDIVISIONS: u32 = 8;
-/// Most triangles of a procedural shape (`city`, `hairball`): about 4.4 GB as a flat scene with
-/// its BVH, the most a 24 GiB machine renders with room to spare.
+/// Most triangles of a procedural shape (`city`, `hairball`), and of all of them in a scene.
+/// Whether they fit is checked against the memory available: when they are made
+/// ([`PROCEDURAL_MESH_BYTES_PER_TRIANGLE`]), and before the scene is flattened for a BVH
+/// ([`Scene::check_flat_fits`]: about 300 bytes per triangle, so 10^8 need about 32 GB).
 const MAX_PROCEDURAL_TRIANGLES: u64 = 100_000_000;
+/// Bytes per triangle of a procedural mesh as made: positions and indices (about 20 for a city),
+/// with room to spare.
+const PROCEDURAL_MESH_BYTES_PER_TRIANGLE: f64 = 64.0;
 /// Largest image side.
 const MAX_RESOLUTION: u32 = 65_536;
 /// Most instances one `scatter` makes (each object is about 100 bytes).
@@ -269,7 +274,7 @@ fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, Scen
             return Err(ctx.err(
                 span,
                 key(k),
-                format!("not a key of a {kind} material (it takes {})", allowed.join(", ")),
+                format!("not a key of the `{kind}` material type (it takes {})", allowed.join(", ")),
             ));
         }
     }
@@ -280,7 +285,7 @@ fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, Scen
         key: String,
     ) -> Result<&'a S<[f32; 3]>, SceneError> {
         let (kind, k) = (m.get_ref().kind.get_ref(), key.rsplit('.').next().unwrap_or_default().to_owned());
-        v.as_ref().ok_or_else(|| ctx.err(m.span(), key, format!("a {kind} material needs `{k}`")))
+        v.as_ref().ok_or_else(|| ctx.err(m.span(), key, format!("the `{kind}` material type needs `{k}`")))
     }
     let roughness = match &f.roughness {
         Some(r) => ctx.number(r, &key("roughness"), |x| (0.0..=1.0).contains(&x), "in [0, 1]")?,
@@ -410,6 +415,10 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
                     );
                     return Err(ctx.err(n.span(), key("triangles"), msg));
                 }
+                // The meshes themselves, before any BVH (positions and indices, with room).
+                let what = format!("{} triangles of procedural shapes", out.procedural_triangles);
+                crate::memory::check_fits(&what, out.procedural_triangles as f64 * PROCEDURAL_MESH_BYTES_PER_TRIANGLE)
+                    .map_err(|msg| ctx.err(n.span(), key("triangles"), msg))?;
             }
             let meshes = &mut out.meshes;
             let known = out.known.entry(MeshKey::Shape(spec)).or_insert_with(|| {

@@ -140,6 +140,30 @@ impl Scene {
         load::parse(text, path.into())
     }
 
+    /// How many triangles [`Scene::world_triangles`] gives: every object's mesh, counted once
+    /// per object that places it.
+    pub fn world_triangle_count(&self) -> u64 {
+        self.objects.iter().map(|o| self.meshes[o.mesh].mesh.indices.len() as u64).sum()
+    }
+
+    /// An error where the scene flattened to world-space triangles ([`Scene::world_triangles`])
+    /// would not fit: more triangles than one BVH indexes (2^31), or more memory than is
+    /// available at `bytes_per_triangle` (the flat scene, its BVH and what is built beside it).
+    /// `file` names the scene in the message. Checked before flattening, which otherwise aborts
+    /// when an allocation fails (a city of 10^8 triangles, or 10^4 instances of a 1.3M-triangle
+    /// sphere, which the CPU renders as instances but the GPU and `bvh-bench` flatten).
+    pub fn check_flat_fits(&self, file: &std::path::Path, bytes_per_triangle: f64) -> Result<(), String> {
+        let n = self.world_triangle_count();
+        if n >= 1 << 31 {
+            return Err(format!(
+                "{}: the scene flattened ({n} triangles) is more than one BVH holds (2^31 triangles)",
+                file.display()
+            ));
+        }
+        let what = format!("{}: the scene flattened ({n} triangles)", file.display());
+        crate::memory::check_fits(&what, n as f64 * bytes_per_triangle)
+    }
+
     /// Every object's triangles in world space at time 0, with their material ids: the same as
     /// `world_triangles_at(0.0)`.
     pub fn world_triangles(&self) -> (Vec<Triangle>, Vec<u32>) {
