@@ -282,6 +282,14 @@ fn sah_final(@builtin(local_invocation_index) lid: u32) {
     wg_sum[lid] = v;
     reduce_sum(lid);
     if (lid == 0u) {
-        sah_sums[0] = wg_sum[0] / node_area(0u);
+        let root = node_area(0u);
+        if (root > 0.0) {
+            sah_sums[0] = wg_sum[0] / root;
+        } else {
+            // Every box is a point: each node counts its weight alone, as on the CPU (the tree
+            // has one primitive per leaf: n leaves, n - 1 internal nodes, node_count = 2n).
+            let n = f32(params.node_count / 2u);
+            sah_sums[0] = params.cost_traversal * (n - 1.0) + params.cost_intersection * n;
+        }
     }
 }

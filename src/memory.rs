@@ -45,6 +45,26 @@ pub const RENDER_BYTES_PER_TRIANGLE: f64 = 320.0;
 /// three builders), with room for the builders that keep more.
 pub const BENCH_BYTES_PER_TRIANGLE: f64 = 600.0;
 
+/// The whole file at `path`, refusing one longer than `limit` bytes: a path that never ends
+/// (`/dev/zero`, a FIFO fed without end) is an error once past it, not a read until memory runs
+/// out.
+pub fn read_at_most(path: &std::path::Path, limit: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read as _;
+    let mut file = std::fs::File::open(path)?;
+    let mut bytes = Vec::new();
+    file.by_ref().take(limit.saturating_add(1)).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > limit {
+        return Err(std::io::Error::other(format!("longer than {:.1} GB", limit as f64 / 1e9)));
+    }
+    Ok(bytes)
+}
+
+/// The longest text file worth reading whole: a quarter of the memory available (parsing keeps
+/// copies of the text beside what it makes), and no limit where that is unknown.
+pub fn text_file_limit() -> u64 {
+    available_bytes().map_or(u64::MAX, |a| a / 4)
+}
+
 fn status_kib(field: &str) -> Option<u64> {
     kib_field(&std::fs::read_to_string("/proc/self/status").ok()?, field)
 }
@@ -58,6 +78,18 @@ fn kib_field(text: &str, field: &str) -> Option<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn reads_stop_at_the_limit() {
+        let path = std::env::temp_dir().join(format!("arbor-memory-read-{}", std::process::id()));
+        std::fs::write(&path, b"0123456789").unwrap();
+        assert_eq!(read_at_most(&path, 10).unwrap(), b"0123456789");
+        assert!(read_at_most(&path, 9).unwrap_err().to_string().starts_with("longer than"));
+        std::fs::remove_file(&path).unwrap();
+        if std::path::Path::new("/dev/zero").exists() {
+            assert!(read_at_most(std::path::Path::new("/dev/zero"), 1 << 20).is_err());
+        }
+    }
 
     #[test]
     fn more_than_the_machine_has_does_not_fit() {

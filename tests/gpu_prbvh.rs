@@ -99,3 +99,20 @@ fn search_matches_the_cpu_node_by_node_on_a_pile() {
     assert!(worst <= 1e-4, "{name}: a device search found a decrease {worst:e} away from the CPU's");
     assert!(other_output * 1000 <= bvh.nodes.len(), "{name}: {other_output} searches found another output");
 }
+
+/// Where every box is a point, the SAH is the nodes' weights alone, on the device as on the CPU
+/// (the device divided by the root's zero area: NaN).
+#[test]
+fn a_point_sized_scene_has_the_cpus_sah() {
+    let name = "five triangles at one point";
+    let Some(ctx) = gpu_or_skip(name) else { return };
+    let prims = vec![Aabb::from_point(glam::Vec3::ONE); 5];
+    let input = lbvh::build(&prims);
+    let config = PrbvhConfig { collapse: None, ..Default::default() };
+    let (gpu, stats) =
+        gpu_prbvh::optimize(ctx, &input, &config, LockScheme::Portable32).unwrap_or_else(|e| panic!("{name}: {e}"));
+    validate(&gpu, &prims).unwrap_or_else(|e| panic!("{name}: invalid tree: {e}"));
+    assert_eq!(sah_cost(&input), 3.0 * 4.0 + 2.0 * 5.0);
+    assert_eq!(stats.initial_sah, sah_cost(&input), "{name}");
+    assert_eq!(stats.final_sah, sah_cost(&gpu), "{name}");
+}

@@ -66,7 +66,10 @@ fn errors_are_clear_and_leave_nothing_behind() {
         (vec![dir.join("missing.toml").display().to_string()], "missing.toml: cannot read"),
         (vec![scene("furnace.toml").display().to_string(), "--spp".into(), "0".into()], "at least 1"),
         (vec![scene("furnace.toml").display().to_string(), "--time".into(), "-3".into()], "--time"),
-        (vec![scene("furnace.toml").display().to_string(), "--threads".into(), "5000".into()], "--threads must be 1 to"),
+        (
+            vec![scene("furnace.toml").display().to_string(), "--threads".into(), "5000".into()],
+            "--threads must be 1 to",
+        ),
         // The last frame a range can hold is 2^32 - 2; 2^32 - 1 used to render nothing, with exit 0.
         (vec![scene("furnace.toml").display().to_string(), "--frame".into(), "4294967295".into()], "--frame"),
     ];

@@ -486,6 +486,12 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
             "base_color",
         ),
         (
+            format!("{BASE}\n[materials.m]\ntype = \"conductor\"\neta = [1, 1, 1]\nk = [1e10, 1, 1]\n"),
+            14,
+            "materials.m.k",
+            "real metals",
+        ),
+        (
             format!("{BASE}{obj}matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 0], [0, 0, 0, 1]]\n"),
             14,
             "objects[0].matrix",

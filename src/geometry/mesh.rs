@@ -270,7 +270,8 @@ pub(crate) struct ObjFile {
 /// Reads the OBJ file at `path`, triangulated, and with `materials` the MTL files it names
 /// (a broken MTL file is no error here: see [`ObjFile::mtl_error`]).
 pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshError> {
-    let file = std::fs::read(path).map_err(|error| MeshError::Read { path: path.to_owned(), error })?;
+    let file = crate::memory::read_at_most(path, crate::memory::text_file_limit())
+        .map_err(|error| MeshError::Read { path: path.to_owned(), error })?;
     let text = without_comments(&file);
     let usemtl = check_obj(path, &text)?;
     let text = for_tobj(&text);
@@ -305,7 +306,8 @@ fn load_mtl(path: &Path, error: &RefCell<Option<MeshError>>) -> tobj::MTLLoadRes
         error.borrow_mut().get_or_insert(e);
         tobj::LoadError::GenericFailure
     };
-    let file = std::fs::read(path).map_err(|error| fail(MeshError::Read { path: path.to_owned(), error }))?;
+    let file = crate::memory::read_at_most(path, crate::memory::text_file_limit())
+        .map_err(|error| fail(MeshError::Read { path: path.to_owned(), error }))?;
     let text = without_comments(&file);
     check_mtl(path, &text).map_err(fail)?;
     let mut reader = Cursor::new(&text[..]);

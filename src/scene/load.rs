@@ -32,6 +32,8 @@ const MAX_PROCEDURAL_TRIANGLES: u64 = 100_000_000;
 /// Bytes per triangle of a procedural mesh as made: positions and indices (about 20 for a city),
 /// with room to spare.
 const PROCEDURAL_MESH_BYTES_PER_TRIANGLE: f64 = 64.0;
+/// Largest conductor `eta` or `k` (see the conductor material).
+const MAX_CONDUCTOR_INDEX: f32 = 1e6;
 /// Largest image side.
 const MAX_RESOLUTION: u32 = 65_536;
 /// Most instances one `scatter` makes (each object is about 100 bytes).
@@ -43,7 +45,8 @@ const MAX_OBJECTS: u64 = MAX_SCATTER;
 const DEFAULT_PERIOD: f32 = 4.0;
 
 pub(super) fn load(path: PathBuf) -> Result<Scene, SceneError> {
-    let bytes = std::fs::read(&path).map_err(|error| SceneError::Read { file: path.clone(), error })?;
+    let bytes = crate::memory::read_at_most(&path, crate::memory::text_file_limit())
+        .map_err(|error| SceneError::Read { file: path.clone(), error })?;
     match String::from_utf8(bytes) {
         Ok(text) => parse(&text, path),
         Err(e) => {
@@ -307,7 +310,20 @@ fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, Scen
         "conductor" => {
             let fresnel = match (&f.eta, &f.k, &f.base_color) {
                 (Some(eta), Some(k), None) => {
-                    ConductorFresnel::Complex { eta: ctx.color(eta, &key("eta"))?, k: ctx.color(k, &key("k"))? }
+                    // Real metals are below 100; past about 4e9 the Fresnel terms overflow f32 and
+                    // the metal rendered black. 1e6 is already a perfect mirror.
+                    let bounded = |v: &S<[f32; 3]>, name: &str| {
+                        let c = ctx.color(v, &key(name))?;
+                        if c.max_element() > MAX_CONDUCTOR_INDEX {
+                            let msg = format!(
+                                "{:?} is over {MAX_CONDUCTOR_INDEX:e} (real metals are below 100)",
+                                v.get_ref()
+                            );
+                            return Err(ctx.err(v.span(), key(name), msg));
+                        }
+                        Ok(c)
+                    };
+                    ConductorFresnel::Complex { eta: bounded(eta, "eta")?, k: bounded(k, "k")? }
                 }
                 (None, None, Some(c)) => ConductorFresnel::BaseColor(ctx.color(c, &key("base_color"))?),
                 _ => {
