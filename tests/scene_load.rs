@@ -498,6 +498,12 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
             "invertible",
         ),
         (
+            format!("{BASE}{obj}matrix = [[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n"),
+            14,
+            "objects[0].matrix",
+            "mirrors",
+        ),
+        (
             format!(
                 "{BASE}{obj}translate = [1, 2, 3]\nmatrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n"
             ),

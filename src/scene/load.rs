@@ -651,6 +651,11 @@ fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError
         if mat.row(3) != glam::Vec4::W || mat.determinant().abs() < 1e-12 {
             return Err(ctx.err(m.span(), key("matrix"), "must be affine (last row 0 0 0 1) and invertible"));
         }
+        // As for a negative `scale`: a mirror turns the mesh inside out (its faces' winding
+        // flips, and which side of a surface is its front with it).
+        if mat.determinant() < 0.0 {
+            return Err(ctx.err(m.span(), key("matrix"), "mirrors (determinant < 0); mirror the mesh itself instead"));
+        }
         return Ok(mat);
     }
     let (scale, rotation, translation) = trs(ctx, &key, &f.scale, &f.rotate, &f.translate)?;
