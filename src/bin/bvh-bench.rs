@@ -119,6 +119,8 @@ fn default_builders() -> Vec<String> {
 }
 
 fn main() {
+    // SAFETY: first thing in `main`, before any other thread exists.
+    unsafe { arbor::gpu::quiet_device_select_layer() };
     if let Err(e) = run() {
         eprintln!("bvh-bench: error: {e:#}");
         std::process::exit(1);

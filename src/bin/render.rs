@@ -84,14 +84,8 @@ enum Device {
 }
 
 fn main() {
-    // Mesa's Vulkan device-select layer prints "XDG_RUNTIME_DIR is invalid" on stderr whenever
-    // that variable is unset (as in CI), even for `--quiet` renders that only probe for a GPU
-    // (`--device auto`). The layer only reorders adapters, which `GpuContext` sorts itself.
-    if std::env::var_os("XDG_RUNTIME_DIR").is_none() && std::env::var_os("NODEVICE_SELECT").is_none() {
-        // SAFETY: first thing in `main`, before any other thread exists, so nothing reads the
-        // environment concurrently.
-        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
-    }
+    // SAFETY: first thing in `main`, before any other thread exists.
+    unsafe { arbor::gpu::quiet_device_select_layer() };
     if let Err(e) = run() {
         eprintln!("render: error: {e:#}");
         std::process::exit(1);

@@ -53,3 +53,17 @@ pub fn build_render_scene(
     }
     Ok(Some(RenderScene::assemble(scene, triangles, material_of, &tree, start + compiled, label)))
 }
+
+/// Turns off Mesa's Vulkan device-select layer where `XDG_RUNTIME_DIR` is unset (as in CI): the
+/// layer then prints "XDG_RUNTIME_DIR is invalid" on stderr for every instance, even for a
+/// `--quiet` render that only probes for a GPU. It only reorders adapters, which [`GpuContext`]
+/// sorts itself.
+///
+/// # Safety
+/// Sets an environment variable: call it first thing in `main`, before any other thread exists.
+pub unsafe fn quiet_device_select_layer() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() && std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: the caller's promise (no other thread reads the environment).
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
+}
