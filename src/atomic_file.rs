@@ -44,12 +44,10 @@ pub fn destination(path: &Path) -> io::Result<Destination> {
     // `/dev/stdout` leads through `/proc/self/fd/1` to wherever the shell sent the output, a
     // regular file too (`> log`): written in place, as the shell's redirection expects, not
     // replaced by a rename.
-    if (path.starts_with("/dev") || path.starts_with("/proc")) && path.exists() {
-        return Ok(Destination::Stream(path.to_owned()));
-    }
+    let kernel_path = path.starts_with("/dev") || path.starts_with("/proc");
     match fs::metadata(path) {
         Ok(m) if m.is_dir() => Err(io::Error::new(io::ErrorKind::IsADirectory, "it is a directory")),
-        Ok(m) if m.is_file() => Ok(Destination::File(follow_links(path)?)),
+        Ok(m) if m.is_file() && !kernel_path => Ok(Destination::File(follow_links(path)?)),
         Ok(_) => Ok(Destination::Stream(path.to_owned())),
         Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(Destination::File(follow_links(path)?)),
         Err(e) => Err(e),
@@ -271,6 +269,7 @@ mod tests {
         assert_eq!(fs::read(&plain).unwrap(), b"png");
         // Paths under /dev are streams, whatever they lead to.
         assert_eq!(destination(Path::new("/dev/stdout")).unwrap(), Destination::Stream("/dev/stdout".into()));
+        assert_eq!(destination(Path::new("/dev")).unwrap_err().kind(), io::ErrorKind::IsADirectory);
         assert!(leftovers(&d).is_empty(), "{:?}", leftovers(&d));
     }
 

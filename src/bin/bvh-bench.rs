@@ -159,9 +159,6 @@ fn run() -> Result<()> {
         .collect::<Result<Vec<_>, _>>()
         .context("--builders")?;
     let (name, mesh) = load_input(&args)?;
-    if mesh.indices.is_empty() {
-        bail!("{}: no triangles", args.input.as_ref().map_or(name, |p| p.display().to_string()));
-    }
     let triangles = mesh.triangles();
     eprintln!("{name}: {} triangles, {} threads", triangles.len(), rayon::current_num_threads());
     let config = BenchConfig {
@@ -758,10 +755,7 @@ fn run_memory(args: &Args) -> Result<()> {
 /// obvhs: its `Bvh2` and triangles, built exactly as its preset ships.
 fn memory_child(args: &Args, name: &str) -> Result<()> {
     let builder: Builder = name.parse().context("--memory-child")?;
-    let (name, mesh) = load_input(args)?;
-    if mesh.indices.is_empty() {
-        bail!("{name}: no triangles");
-    }
+    let (_, mesh) = load_input(args)?;
     let triangles = mesh.triangles();
     drop(mesh);
     let t = std::time::Instant::now();
@@ -802,8 +796,17 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((w, h))
 }
 
-/// The mesh and a name for it.
+/// The mesh and a name for it; an error where it has no triangles, which no mode can measure.
 fn load_input(args: &Args) -> Result<(String, TriangleMesh)> {
+    let (name, mesh) = load_any_input(args)?;
+    if mesh.indices.is_empty() {
+        bail!("{}: no triangles", args.input.as_ref().map_or(name, |p| p.display().to_string()));
+    }
+    Ok((name, mesh))
+}
+
+/// [`load_input`], empty meshes included.
+fn load_any_input(args: &Args) -> Result<(String, TriangleMesh)> {
     let input = match &args.input {
         Some(path) if path.extension().is_some_and(|e| e == "toml") => {
             // A scene: every object's triangles in world space, as the renderer builds over them.

@@ -270,11 +270,13 @@ pub(crate) struct ObjFile {
 /// Reads the OBJ file at `path`, triangulated, and with `materials` the MTL files it names
 /// (a broken MTL file is no error here: see [`ObjFile::mtl_error`]).
 pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshError> {
-    let file = crate::memory::read_at_most(path, crate::memory::text_file_limit())
-        .map_err(|error| MeshError::Read { path: path.to_owned(), error })?;
-    let text = without_comments(&file);
+    // One rewrite of the text alive at a time beside the next (the file read is dropped here).
+    let text = without_comments(
+        &crate::memory::read_at_most(path, crate::memory::text_file_limit())
+            .map_err(|error| MeshError::Read { path: path.to_owned(), error })?,
+    );
     let usemtl = check_obj(path, &text)?;
-    let text = for_tobj(&text);
+    let text = for_tobj(text);
     let (mtl_files, mtl_error) = (RefCell::new(Vec::new()), RefCell::new(None));
     let load_mtl = |name: &Path| {
         if !materials {
@@ -348,7 +350,7 @@ const NUMBER_KEYWORDS: [&str; 17] =
 /// (`l 1 2 3` is a face, `l 1 2` a degenerate one), and Arbor renders faces only. A vertex colour
 /// (`v x y z r g b`) is dropped: tobj needs one on every vertex or on none, and Arbor does not
 /// use them. Lines that are not UTF-8 are kept, for tobj's error.
-fn for_tobj(text: &[u8]) -> Vec<u8> {
+fn for_tobj(text: Vec<u8>) -> Vec<u8> {
     let mut out = Vec::with_capacity(text.len());
     for (k, line) in text.split(|&b| b == b'\n').enumerate() {
         if k > 0 {
@@ -640,7 +642,7 @@ mod tests {
         let file = b"\xEF\xBB\xBFv 0 0 0 # a\r\nl 1 2\nv 1 0 0 1 1 1\np 1\n#\nf 1 2 3#x\n\xff # \xfe";
         let text = without_comments(file);
         assert_eq!(text, b"v 0 0 0 \nl 1 2\nv 1 0 0 1 1 1\np 1\n#\nf 1 2 3\n\xff # \xfe");
-        assert_eq!(for_tobj(&text), b"v 0 0 0 \n\nv 1 0 0\n\n#\nf 1 2 3\n\xff # \xfe");
+        assert_eq!(for_tobj(text), b"v 0 0 0 \n\nv 1 0 0\n\n#\nf 1 2 3\n\xff # \xfe");
         // Names keep their `#`.
         assert_eq!(without_comments(b"newmtl Material #25\nKd 1 0 0 # red"), b"newmtl Material #25\nKd 1 0 0 ");
         // A mark only at the start of the file is one.

@@ -119,14 +119,8 @@ pub fn optimize_on_device(
     ];
     // Each kernel gets the bindings its entry point uses (the layouts are derived per entry).
     let pass = |encoder: &mut wgpu::CommandEncoder, entry: &str, bindings: &[u32], groups: (u32, u32)| {
-        let pipeline = ctx.pipeline(key, || source(int64), entry);
         let chosen: Vec<(u32, &wgpu::Buffer)> = all.iter().filter(|(b, _)| bindings.contains(b)).copied().collect();
-        let bind_group = ctx.bind_group(&pipeline, &chosen);
-        let mut p =
-            encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(entry), timestamp_writes: None });
-        p.set_pipeline(&pipeline);
-        p.set_bind_group(0, &bind_group, &[]);
-        p.dispatch_workgroups(groups.0, groups.1, 1);
+        encode_pass(ctx, encoder, (key, int64), entry, &chosen, groups);
     };
     let sah = |encoder: &mut wgpu::CommandEncoder| {
         pass(encoder, "sah_partial", &[0, 1, 9], grid);
@@ -209,22 +203,31 @@ pub fn search_on_device(ctx: &GpuContext, bvh: &Bvh) -> Result<Vec<(u32, f32)>, 
         ..Default::default()
     };
     let params_buf = ctx.uniform_buffer("PRBVH parameters", &params);
-    let pipeline = ctx.pipeline("prbvh32", || source(false), "find_best");
     let bindings = [(0, &params_buf), (1, &gpu.nodes), (2, &gpu.parents), (3, &best_out), (4, &best_d), (7, &winners)];
-    let bind_group = ctx.bind_group(&pipeline, &bindings);
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
-    {
-        let mut p = encoder
-            .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("find_best"), timestamp_writes: None });
-        p.set_pipeline(&pipeline);
-        p.set_bind_group(0, &bind_group, &[]);
-        let grid = ctx.dispatch_size(node_count);
-        p.dispatch_workgroups(grid.0, grid.1, 1);
-    }
+    encode_pass(ctx, &mut encoder, ("prbvh32", false), "find_best", &bindings, ctx.dispatch_size(node_count));
     ctx.queue.submit([encoder.finish()]);
     let outs = ctx.read_buffer::<u32>("PRBVH outputs", &best_out, node_count as usize)?;
     let ds = ctx.read_buffer::<f32>("PRBVH decreases", &best_d, node_count as usize)?;
     Ok((0..node_count as usize).map(|i| if ds[i] > 0.0 { (outs[i], ds[i]) } else { (i as u32 ^ 1, 0.0) }).collect())
+}
+
+/// Records one dispatch of the PRBVH shader's `entry` (the shader's pipeline cache key, and
+/// whether it has the 64-bit lock kernels) over `groups` workgroups, with `bindings`.
+fn encode_pass(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    (key, int64): (&str, bool),
+    entry: &str,
+    bindings: &[(u32, &wgpu::Buffer)],
+    groups: (u32, u32),
+) {
+    let pipeline = ctx.pipeline(key, || source(int64), entry);
+    let bind_group = ctx.bind_group(&pipeline, bindings);
+    let mut p = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(entry), timestamp_writes: None });
+    p.set_pipeline(&pipeline);
+    p.set_bind_group(0, &bind_group, &[]);
+    p.dispatch_workgroups(groups.0, groups.1, 1);
 }
 
 /// `bvh`'s nodes, parents and primitive ids in device buffers (no Morton codes or primitive
