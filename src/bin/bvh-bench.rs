@@ -999,6 +999,58 @@ fn write_plot(path: &Path, title: &str, labels: (&str, &str), series: &[Series],
     .with_context(|| format!("writing {}", path.display()))
 }
 
+/// A logarithmic axis's range around `lo..=hi` (both positive), with a fifth of a decade of
+/// margin. plotters labels a logarithmic axis from the powers of ten inside it (then their
+/// multiples), so a range that holds none is widened to the nearer one, with a margin so that
+/// its label is not on the edge.
+fn log_range(lo: f64, hi: f64) -> std::ops::Range<f64> {
+    let (lo, hi) = (lo * 0.8, hi * 1.25);
+    // The first power of ten clear of the bottom, and the last one clear of it from below.
+    let above = 10f64.powf((lo * 1.1).log10().ceil());
+    let below = 10f64.powf((lo / 1.1).log10().floor());
+    if above * 1.1 <= hi {
+        return lo..hi;
+    }
+    if lo / below <= above / hi { below * 0.8..hi } else { lo..above * 1.25 }
+}
+
+/// A linear axis's range around `lo..=hi` with 3% of margin; a single value (a zero error, a
+/// constant SAH) gets a range around it instead of an empty one.
+fn linear_range(lo: f64, hi: f64) -> (f64, f64) {
+    if !(lo.is_finite() && hi.is_finite()) {
+        return (0.0, 1.0);
+    }
+    if hi > lo {
+        let pad = (hi - lo) * 0.03;
+        // An axis of values that are all positive starts at zero or above, never below it.
+        let bottom = if lo >= 0.0 { (lo - pad).max(0.0) } else { lo - pad };
+        return (bottom, hi + pad);
+    }
+    let pad = if lo == 0.0 { 1.0 } else { lo.abs() * 0.05 };
+    (if lo >= 0.0 { (lo - pad).max(0.0) } else { lo - pad }, hi + pad)
+}
+
+/// A tick label with at most four significant digits and no binary-to-decimal noise
+/// (0.30000000000000004 is written 0.3), in scientific notation outside 1e-3..1e6.
+fn tick_label(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let magnitude = v.abs().log10().floor() as i32;
+    if !(-3..6).contains(&magnitude) {
+        let s = format!("{v:.3e}");
+        let (mantissa, exponent) = s.split_once('e').unwrap_or((&s, "0"));
+        return format!("{}e{exponent}", trim_zeros(mantissa));
+    }
+    let decimals = (3 - magnitude).max(0) as usize;
+    trim_zeros(&format!("{v:.decimals$}")).to_string()
+}
+
+/// "1.500" -> "1.5", "2.000" -> "2"; text without a decimal point is kept.
+fn trim_zeros(s: &str) -> &str {
+    if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.') } else { s }
+}
+
 /// One curve per series, with points marked; log-log axes when every value is positive and
 /// `log` is asked for, otherwise a logarithmic x axis when it spans more than a factor of 30.
 fn draw_chart<DB: plotters::prelude::DrawingBackend>(
@@ -1021,7 +1073,14 @@ where
     macro_rules! draw {
         ($chart:expr) => {{
             let mut chart = $chart.map_err(|e| err(&e))?;
-            chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).draw().map_err(|e| err(&e))?;
+            chart
+                .configure_mesh()
+                .x_desc(x_desc)
+                .y_desc(y_desc)
+                .x_label_formatter(&|v| tick_label(*v))
+                .y_label_formatter(&|v| tick_label(*v))
+                .draw()
+                .map_err(|e| err(&e))?;
             for (k, (name, pts)) in series.iter().enumerate() {
                 let color = Palette99::pick(k).to_rgba();
                 // Markers only where the curve is sparse enough to show them.
@@ -1035,6 +1094,8 @@ where
             }
             chart
                 .configure_series_labels()
+                // Error and SAH fall with time, so the upper right is where curves are least.
+                .position(SeriesLabelPosition::UpperRight)
                 .background_style(WHITE.mix(0.8))
                 .border_style(BLACK)
                 .draw()
@@ -1044,15 +1105,15 @@ where
     if log && points.iter().all(|p| p.0 > 0.0 && p.1 > 0.0) && !points.is_empty() {
         let (x_min, x_max) = points.iter().fold((f64::INFINITY, 0.0f64), |a, p| (a.0.min(p.0), a.1.max(p.0)));
         let (y_min, y_max) = points.iter().fold((f64::INFINITY, 0.0f64), |a, p| (a.0.min(p.1), a.1.max(p.1)));
-        draw!(
-            builder
-                .build_cartesian_2d((x_min * 0.8..x_max * 1.25).log_scale(), (y_min * 0.8..y_max * 1.25).log_scale())
-        );
+        draw!(builder.build_cartesian_2d(log_range(x_min, x_max).log_scale(), log_range(y_min, y_max).log_scale()));
     } else {
         let x_min = points.iter().map(|p| p.0).fold(f64::INFINITY, f64::min);
-        let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max);
-        let y_min = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min) * 0.97;
-        let y_max = points.iter().map(|p| p.1).fold(0.0, f64::max) * 1.03;
+        let x_max = points.iter().map(|p| p.0).fold(f64::NEG_INFINITY, f64::max);
+        let x_max = if x_max > 0.0 { x_max } else { 1.0 };
+        let (y_min, y_max) = linear_range(
+            points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min),
+            points.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max),
+        );
         if x_min > 0.0 && x_max > 30.0 * x_min {
             // Times spanning orders of magnitude (a sequential optimiser beside a parallel one).
             draw!(builder.build_cartesian_2d((x_min * 0.8..x_max * 1.25).log_scale(), y_min..y_max));
@@ -1062,4 +1123,48 @@ where
     }
     root.present().map_err(|e| err(&e))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tick_labels_are_short_and_exact_looking() {
+        assert_eq!(tick_label(0.1 + 0.2), "0.3");
+        assert_eq!(tick_label(0.30000000000000004), "0.3");
+        assert_eq!(tick_label(2.0), "2");
+        assert_eq!(tick_label(1.5), "1.5");
+        assert_eq!(tick_label(130.87), "130.9");
+        assert_eq!(tick_label(0.0125), "0.0125");
+        assert_eq!(tick_label(0.00012346), "1.235e-4");
+        assert_eq!(tick_label(2.5e7), "2.5e7");
+        assert_eq!(tick_label(-0.25), "-0.25");
+        assert_eq!(tick_label(0.0), "0");
+    }
+
+    #[test]
+    fn a_log_axis_always_holds_a_power_of_ten_away_from_its_ends() {
+        let powers = |r: std::ops::Range<f64>| {
+            (-20..20).filter(|&k| r.start < 10f64.powi(k) * 0.9 && 10f64.powi(k) * 1.1 < r.end).count()
+        };
+        for (lo, hi) in [(0.3, 0.5), (0.011, 0.019), (2.0, 3.0), (70.0, 95.0), (1e-6, 1e-3), (5.0, 5.0)] {
+            let r = log_range(lo, hi);
+            assert!(r.start <= lo && r.end >= hi, "{lo}..{hi} -> {r:?}");
+            assert!(powers(r.clone()) >= 1, "{lo}..{hi} -> {r:?}");
+            assert!(r.end / r.start < hi / lo * 20.0, "{lo}..{hi} -> {r:?} squeezes the curve");
+        }
+    }
+
+    #[test]
+    fn a_linear_axis_is_never_empty() {
+        for (lo, hi) in [(0.0, 0.0), (5.0, 5.0), (-2.0, -2.0), (1.0, 3.0), (f64::INFINITY, f64::NEG_INFINITY)] {
+            let (a, b) = linear_range(lo, hi);
+            assert!(a < b, "{lo}..{hi} -> {a}..{b}");
+            if lo.is_finite() {
+                assert!(a <= lo && b >= hi, "{lo}..{hi} -> {a}..{b}");
+            }
+        }
+        assert_eq!(linear_range(0.0, 0.0).0, 0.0, "zero errors stay on an axis that starts at zero");
+    }
 }
