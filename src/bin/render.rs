@@ -349,9 +349,10 @@ fn render_frame(render_scene: &RenderScene, s: &FrameSettings, output: &Path, up
     let bar = progress_bar(show_progress, s.spp as u64 * render_scene.height as u64);
     let rays = AtomicU64::new(0);
     let start = Instant::now();
-    // Passes of a few samples each, so that a time budget can stop between passes; the image
-    // depends only on the samples taken, not on where the passes fall.
-    let pass = if s.time.is_some() { 4.min(s.spp) } else { s.spp };
+    // Passes of a few samples each, so that a time budget can stop between passes and the
+    // progress bar moves even when one pixel's samples take long (a row reports when it has
+    // done the pass). The image depends only on the samples taken, not on where passes fall.
+    let pass = if s.time.is_some() { 4 } else { 16 }.min(s.spp);
     let mut done = 0;
     while done < s.spp {
         let n = pass.min(s.spp - done);
