@@ -1033,6 +1033,24 @@ fn tables_given_as_something_else_say_a_table_is_expected() {
     }
 }
 
+/// toml hands a datetime to serde as a map: `fov = 1979-05-27` said "invalid type: map".
+#[test]
+fn a_datetime_is_called_a_datetime() {
+    let no_objects = OBJ_SCENE.split("[[objects]]").next().unwrap();
+    let fov = no_objects.lines().position(|l| l.starts_with("fov")).expect("the scene sets fov") + 1;
+    for (value, says) in [
+        ("1979-05-27", "invalid type: datetime, expected f32"),
+        ("07:32:00", "invalid type: datetime, expected f32"),
+        ("1979-05-27T07:32:00Z", "invalid type: datetime, expected f32"),
+        ("{ a = 1 }", "invalid type: map, expected f32"),
+    ] {
+        let scene =
+            no_objects.lines().map(|l| if l.starts_with("fov") { format!("fov = {value}") } else { l.to_string() });
+        let err = error_at(&scene.collect::<Vec<_>>().join("\n"), &[], fov, "camera.fov");
+        assert!(err.ends_with(says), "{value}: {err}");
+    }
+}
+
 /// tobj reads a file of no OBJ lines (random bytes, say) as one object of no faces: the error
 /// was that object `unnamed_object` has no MTL material.
 #[test]

@@ -120,7 +120,14 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
             .replace(".$__serde_spanned_private_value", "")
             .replace("$__serde_spanned_private_value", "");
         let inner = e.into_inner();
-        ctx.err(inner.span().unwrap_or(0..0), if key == "." { "scene".into() } else { key }, inner.message().trim())
+        let span = inner.span().unwrap_or(0..0);
+        let mut message = inner.message().trim().to_string();
+        // toml hands a datetime to serde as a one-entry map, and serde says "map".
+        let is_datetime = text.get(span.clone()).is_some_and(|v| v.trim().parse::<toml::value::Datetime>().is_ok());
+        if is_datetime && message.starts_with("invalid type: map") {
+            message = message.replacen("invalid type: map", "invalid type: datetime", 1);
+        }
+        ctx.err(span, if key == "." { "scene".into() } else { key }, message)
     })?;
     let camera = camera(&ctx, &parsed)?;
     let render = render(&ctx, &parsed)?;
