@@ -407,11 +407,12 @@ fn finish_frame(
 fn peak_memory(triangles: usize) -> String {
     match arbor::memory::peak_rss_bytes() {
         Some(b) if triangles < 100_000 => format!(", peak memory {:.1} MB", b as f64 / 1e6),
-        Some(b) => format!(
-            ", peak memory {:.1} MB ({:.0} bytes per triangle)",
-            b as f64 / 1e6,
-            b as f64 / triangles.max(1) as f64
-        ),
+        Some(b) => {
+            let per = b as f64 / triangles.max(1) as f64;
+            // Instancing can put far more triangles in the world than bytes in memory.
+            let per = if per >= 10.0 { format!("{per:.0}") } else { format!("{per:.2}") };
+            format!(", peak memory {:.1} MB ({per} bytes per triangle)", b as f64 / 1e6)
+        }
         None => String::new(),
     }
 }
