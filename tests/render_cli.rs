@@ -56,6 +56,16 @@ fn errors_are_clear_and_leave_nothing_behind() {
     let dir = temp_dir("errors");
     let bad_scene = dir.join("bad.toml");
     std::fs::write(&bad_scene, "[camera]\nposition = [0, 0, 1]\n").unwrap();
+    // 65536² pixels need about 800 GB of film: more than any machine this runs on.
+    let huge = dir.join("huge.toml");
+    let furnace = std::fs::read_to_string(scene("furnace.toml")).unwrap();
+    let line = furnace.lines().position(|l| l.starts_with("resolution")).expect("furnace sets resolution") + 1;
+    let huge_text: Vec<String> = furnace
+        .lines()
+        .map(|l| if l.starts_with("resolution") { "resolution = [65536, 65536]".into() } else { l.to_string() })
+        .collect();
+    std::fs::write(&huge, huge_text.join("\n")).unwrap();
+    let huge_says = format!("huge.toml:{line}: camera.resolution 65536x65536: the image needs about");
     let out = dir.join("never.exr");
     let cases: Vec<(Vec<String>, &str)> = vec![
         (
@@ -63,6 +73,7 @@ fn errors_are_clear_and_leave_nothing_behind() {
             "unknown builder `octree`",
         ),
         (vec![bad_scene.display().to_string()], "bad.toml:1: camera"),
+        (vec![huge.display().to_string()], &huge_says),
         (vec![dir.join("missing.toml").display().to_string()], "missing.toml: cannot read"),
         (vec![scene("furnace.toml").display().to_string(), "--spp".into(), "0".into()], "at least 1"),
         (vec![scene("furnace.toml").display().to_string(), "--time".into(), "-3".into()], "--time"),

@@ -107,8 +107,9 @@ fn run() -> Result<()> {
     let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
     let film_bytes = pixels * 3.0 * std::mem::size_of::<arbor::render::film::PixelAccum>() as f64;
     let what = format!(
-        "{}: camera.resolution {}x{}: the image",
+        "{}:{}: camera.resolution {}x{}: the image",
         args.scene.display(),
+        scene.camera.resolution_line,
         scene.camera.width,
         scene.camera.height
     );

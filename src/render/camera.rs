@@ -105,6 +105,7 @@ mod tests {
             height: 256,
             aperture: 0.0,
             focus_distance: 3.9,
+            resolution_line: 0,
         }
     }
 

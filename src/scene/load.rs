@@ -215,7 +215,8 @@ fn camera(ctx: &Ctx, f: &SceneFile) -> Result<Camera, SceneError> {
         Some(d) => ctx.number(d, "camera.focus_distance", |x| x > 0.0, "a distance > 0")?,
         None => view.length(),
     };
-    Ok(Camera { position, look_at, up, fov_y_degrees: fov, width, height, aperture, focus_distance })
+    let resolution_line = ctx.line(c.resolution.span());
+    Ok(Camera { position, look_at, up, fov_y_degrees: fov, width, height, aperture, focus_distance, resolution_line })
 }
 
 fn render(ctx: &Ctx, f: &SceneFile) -> Result<RenderSettings, SceneError> {

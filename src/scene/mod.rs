@@ -31,6 +31,9 @@ pub struct Camera {
     pub aperture: f32,
     /// Distance to the plane in focus; defaults to `|look_at - position|`.
     pub focus_distance: f32,
+    /// The scene file's line that sets `resolution`, for errors found after loading (the
+    /// image's memory); 0 where the camera was not read from a file.
+    pub resolution_line: usize,
 }
 
 /// How to render: the `[render]` table; command-line flags override it.
