@@ -188,6 +188,49 @@ fn specialized_and_general_variants_agree() {
     assert_eq!(specialized.rays, general.rays);
 }
 
+/// `auto` on the GPU times the render's own first samples and hands them over: a render that
+/// carries them on gives the film of one render from scratch, bit for bit; samples of another
+/// render (another seed, clamp or depth) are dropped, not mixed in.
+#[test]
+fn auto_hands_its_timed_samples_to_the_render() {
+    let Some(ctx) = gpu_or_skip("auto_hands_its_timed_samples_to_the_render") else { return };
+    let mut scene = Scene::load(scene_path("cornell-box.toml")).unwrap();
+    scene.camera.width = 24;
+    scene.camera.height = 16;
+    let (seed, max_depth, spp) = (5, 6, 16 * trace::MEASURE_SPP);
+    let job = arbor::render::AutoRender { spp, max_depth, frames: 1, seed, time: None };
+    let (rs, _, timed) = trace::build_auto(ctx, &scene, &job, Some(4.0));
+    let timed = timed.expect("a render of 16 x MEASURE_SPP samples is timed");
+    assert_eq!(timed.samples(), trace::MEASURE_SPP);
+    let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
+    gpu.set_clamp(Some(4.0));
+    let mut reported = Vec::new();
+    let carried = trace::render_from(ctx, &gpu, seed, max_depth, spp, Some(timed), &mut |done| {
+        reported.push(done);
+        true
+    })
+    .unwrap();
+    assert_eq!(carried.carried.0, trace::MEASURE_SPP);
+    assert_eq!(reported.first(), Some(&(trace::MEASURE_SPP + trace::PASS_SPP)), "passes: {reported:?}");
+    let fresh = trace::render(ctx, &gpu, seed, max_depth, spp, &mut |_| true).unwrap();
+    assert_eq!(fresh.carried, (0, 0.0));
+    assert_eq!((carried.samples, carried.rays), (fresh.samples, fresh.rays));
+    assert_eq!(carried.film.mean().pixels, fresh.film.mean().pixels);
+    assert_eq!(carried.film.stderr().pixels, fresh.film.stderr().pixels);
+    // Timed under another seed, clamp or path depth: not this render's samples.
+    for (other_seed, clamp, other_depth) in [(6, Some(4.0), max_depth), (seed, None, max_depth), (seed, Some(4.0), 5)] {
+        let (_, _, other) = trace::build_auto(
+            ctx,
+            &scene,
+            &arbor::render::AutoRender { seed: other_seed, max_depth: other_depth, ..job },
+            clamp,
+        );
+        let out = trace::render_from(ctx, &gpu, seed, max_depth, spp, other, &mut |_| true).unwrap();
+        assert_eq!(out.carried.0, 0, "seed {other_seed}, clamp {clamp:?}, depth {other_depth}");
+        assert_eq!(out.film.mean().pixels, fresh.film.mean().pixels);
+    }
+}
+
 /// A tree deeper than the traversal stack is refused before upload, with a clear error.
 #[test]
 fn a_tree_deeper_than_the_stack_is_refused() {

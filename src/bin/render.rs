@@ -262,6 +262,8 @@ fn run_gpu(
             }
             None => None,
         };
+        // `auto`'s timed samples, which the first frame carries on.
+        let mut timed = None;
         let (mut rs, build) = match (built_on_gpu, builder) {
             (Some(built), _) => built,
             (None, Some(b)) => RenderScene::build(scene, b),
@@ -274,7 +276,9 @@ fn run_gpu(
                     seed: settings.seed,
                     time: settings.time,
                 };
-                trace::build_auto(ctx, scene, &job)
+                let (rs, report, partial) = trace::build_auto(ctx, scene, &job, args.clamp);
+                timed = partial;
+                (rs, report)
             }
         };
         if !args.quiet {
@@ -282,10 +286,11 @@ fn run_gpu(
         }
         let gpu_scene = upload(&mut rs, true)?;
         match frames {
-            None => render_frame_gpu(ctx, &gpu_scene, &rs, settings, &args.output, None)?,
+            None => render_frame_gpu(ctx, &gpu_scene, &rs, settings, &args.output, None, timed)?,
             Some(frames) => {
                 for f in frames {
-                    render_frame_gpu(ctx, &gpu_scene, &rs, settings, &frame_path(&args.output, f), None)?;
+                    let output = frame_path(&args.output, f);
+                    render_frame_gpu(ctx, &gpu_scene, &rs, settings, &output, None, timed.take())?;
                 }
             }
         }
@@ -308,12 +313,14 @@ fn run_gpu(
         let gpu_scene = upload(&mut rs, k == 0)?;
         let output = frame.map_or_else(|| args.output.clone(), |f| frame_path(&args.output, f));
         let update_ms = (k > 0).then_some(build.build_ms);
-        render_frame_gpu(ctx, &gpu_scene, &rs, settings, &output, update_ms)?;
+        render_frame_gpu(ctx, &gpu_scene, &rs, settings, &output, update_ms, None)?;
     }
     Ok(())
 }
 
-/// Renders `gpu_scene` to `output` on the GPU, in passes of `trace::PASS_SPP` samples.
+/// Renders `gpu_scene` to `output` on the GPU, in passes of `trace::PASS_SPP` samples,
+/// carrying on from `timed` (the samples `auto` timed) where given. The render's time includes
+/// the device's time for those samples, as its ray count does.
 fn render_frame_gpu(
     ctx: &GpuContext,
     gpu_scene: &GpuScene,
@@ -321,17 +328,19 @@ fn render_frame_gpu(
     s: &FrameSettings,
     output: &Path,
     update_ms: Option<f64>,
+    timed: Option<trace::PartialFilm>,
 ) -> Result<()> {
     let bar = progress_bar(!s.quiet && std::io::stderr().is_terminal(), s.spp as u64);
     let start = Instant::now();
     let budget = s.time.map(Duration::from_secs_f64);
-    let out = trace::render(ctx, gpu_scene, s.seed, s.max_depth, s.spp, &mut |done| {
+    let before = timed.as_ref().map_or(Duration::ZERO, |t| Duration::from_secs_f64(t.seconds()));
+    let out = trace::render_from(ctx, gpu_scene, s.seed, s.max_depth, s.spp, timed, &mut |done| {
         bar.set_position(done as u64);
-        budget.is_none_or(|b| start.elapsed() < b)
+        budget.is_none_or(|b| before + start.elapsed() < b)
     })
     .context("rendering on the GPU")?;
     bar.finish_and_clear();
-    let render_secs = start.elapsed().as_secs_f64();
+    let render_secs = out.carried.1 + start.elapsed().as_secs_f64();
     finish_frame(rs, s, output, update_ms, &out.film, out.rays as f64, render_secs, out.samples)
 }
 

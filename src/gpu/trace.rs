@@ -393,10 +393,38 @@ pub fn compile(ctx: &GpuContext, scene: &GpuScene) -> Result<(), GpuError> {
 pub struct GpuRender {
     /// Every sample taken, with per-pixel standard errors, as the CPU's film.
     pub film: Film,
-    /// Rays traced (camera, bounce and shadow rays).
+    /// Rays traced (camera, bounce and shadow rays), those of a carried-on [`PartialFilm`]
+    /// included.
     pub rays: u64,
-    /// Samples per pixel taken.
+    /// Samples per pixel taken, those of a carried-on [`PartialFilm`] included.
     pub samples: u32,
+    /// Samples per pixel that came from the [`PartialFilm`] carried on, and the device's seconds
+    /// for them (0 and 0.0 for a render from scratch).
+    pub carried: (u32, f64),
+}
+
+/// Samples already taken on the device: the film of a render stopped after its first
+/// `samples` samples per pixel, for [`render_from`] to carry on. `auto` keeps the passes it timed
+/// ([`measure_speed`]), which are the render's own first samples, so that they are not thrown
+/// away.
+pub struct PartialFilm {
+    buffer: wgpu::Buffer,
+    samples: u32,
+    /// What the samples depend on, checked by [`render_from`].
+    key: (u64, u32, u32, u32, u32),
+    seconds: f64,
+}
+
+impl PartialFilm {
+    /// Samples per pixel taken.
+    pub fn samples(&self) -> u32 {
+        self.samples
+    }
+
+    /// The device's seconds for them.
+    pub fn seconds(&self) -> f64 {
+        self.seconds
+    }
 }
 
 /// Renders `spp` samples per pixel (samples `0..spp` of each pixel's streams under `seed`) with
@@ -411,6 +439,51 @@ pub fn render(
     spp: u32,
     after_pass: &mut dyn FnMut(u32) -> bool,
 ) -> Result<GpuRender, GpuError> {
+    render_from(ctx, scene, seed, max_depth, spp, None, after_pass)
+}
+
+/// [`render`], carrying on from `start` where it holds samples of this very render: the same
+/// image size, seed, path depth and clamp, and at most `spp` samples. The film is then the one
+/// an uninterrupted render gives, bit for bit (the passes add to the same device sums in the
+/// same order). The tree may differ: every tree finds the same closest hits, but for exact
+/// ties (a path through an edge shared by two triangles). A `start` of another render is
+/// dropped and the render starts from scratch.
+pub fn render_from(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    seed: u64,
+    max_depth: u32,
+    spp: u32,
+    start: Option<PartialFilm>,
+    after_pass: &mut dyn FnMut(u32) -> bool,
+) -> Result<GpuRender, GpuError> {
+    let key = (seed, max_depth, scene.params.clamp.to_bits(), scene.width, scene.height);
+    let start = start.filter(|s| s.key == key && s.samples <= spp);
+    let carried = start.as_ref().map_or((0, 0.0), |s| (s.samples, s.seconds));
+    let film = passes(ctx, scene, seed, max_depth, spp, start, after_pass)?;
+    let (width, height) = (scene.width, scene.height);
+    let pixels = width as usize * height as usize;
+    let sums: Vec<GpuPixel> = ctx.read_buffer("film", &film.buffer, pixels)?;
+    let mut out = Film::new(width, height);
+    out.rows_mut().for_each(|(y, row)| {
+        for (x, px) in row.iter_mut().enumerate() {
+            *px = pixel_accum(&sums[y as usize * width as usize + x]);
+        }
+    });
+    let rays = sums.iter().map(|p| u64::from(p.rays)).sum();
+    Ok(GpuRender { film: out, rays, samples: film.samples, carried })
+}
+
+/// The passes of [`render_from`], the film left on the device.
+fn passes(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    seed: u64,
+    max_depth: u32,
+    spp: u32,
+    start: Option<PartialFilm>,
+    after_pass: &mut dyn FnMut(u32) -> bool,
+) -> Result<PartialFilm, GpuError> {
     let (width, height) = (scene.width, scene.height);
     let pixels = width as usize * height as usize;
     let groups = (width.div_ceil(TRACE_WORKGROUP), height.div_ceil(TRACE_WORKGROUP));
@@ -420,14 +493,18 @@ pub fn render(
             "a {width}x{height} image needs {groups:?} workgroups, over the adapter's {max_groups} per dimension"
         )));
     }
-    let film_buffer = ctx.storage_buffer_zeroed("film", (pixels * size_of::<GpuPixel>()) as u64)?;
+    let key = (seed, max_depth, scene.params.clamp.to_bits(), width, height);
+    let (film_buffer, mut done, mut seconds) = match start {
+        Some(s) => (s.buffer, s.samples, s.seconds),
+        None => (ctx.storage_buffer_zeroed("film", (pixels * size_of::<GpuPixel>()) as u64)?, 0, 0.0),
+    };
     let mut params = TraceParams { seed_lo: seed as u32, seed_hi: (seed >> 32) as u32, max_depth, ..scene.params };
     // A storage buffer, not a uniform one: lavapipe (Mesa 22) inlines uniform values into the
     // shader at every dispatch, which cost 5 ms and leaked 0.6 MB per pass of this kernel.
     let params_buffer = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
     let pipeline = pipeline(ctx, scene);
     let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, &film_buffer);
-    let mut done = 0;
+    let started = std::time::Instant::now();
     while done < spp && pixels > 0 {
         params.sample_start = done;
         params.sample_count = PASS_SPP.min(spp - done);
@@ -447,15 +524,8 @@ pub fn render(
             break;
         }
     }
-    let sums: Vec<GpuPixel> = ctx.read_buffer("film", &film_buffer, pixels)?;
-    let mut film = Film::new(width, height);
-    film.rows_mut().for_each(|(y, row)| {
-        for (x, px) in row.iter_mut().enumerate() {
-            *px = pixel_accum(&sums[y as usize * width as usize + x]);
-        }
-    });
-    let rays = sums.iter().map(|p| u64::from(p.rays)).sum();
-    Ok(GpuRender { film, rays, samples: done })
+    seconds += started.elapsed().as_secs_f64();
+    Ok(PartialFilm { buffer: film_buffer, samples: done, key, seconds })
 }
 
 /// Samples per pixel [`measure_speed`] renders: two passes.
@@ -465,25 +535,29 @@ pub const MEASURE_SPP: u32 = 2 * PASS_SPP;
 /// what `auto` needs to judge a GPU render's length ([`crate::render::AutoDevice::Measured`]).
 /// Two passes of [`PASS_SPP`] samples are rendered and the second is timed: on an H100 the
 /// first ran at a quarter of the render's speed (110 against 450 Mrays/s on the dragon scene).
+/// The passes are the render's first samples under `seed` and `max_depth`, with the firefly
+/// clamp `clamp`, and are returned for the render to carry on ([`render_from`]).
 /// `None` if the scene cannot go to the GPU.
 pub fn measure_speed(
     ctx: &GpuContext,
     scene: &RenderScene,
     seed: u64,
     max_depth: u32,
-) -> Option<(f64, std::time::Duration)> {
-    let gpu_scene = GpuScene::upload(ctx, scene).ok()?;
+    clamp: Option<f32>,
+) -> Option<(f64, std::time::Duration, PartialFilm)> {
+    let mut gpu_scene = GpuScene::upload(ctx, scene).ok()?;
+    gpu_scene.set_clamp(clamp);
     let t = std::time::Instant::now();
     compile(ctx, &gpu_scene).ok()?;
     let compiled = t.elapsed();
     let mut ends = Vec::with_capacity(2);
-    render(ctx, &gpu_scene, seed, max_depth, MEASURE_SPP, &mut |_| {
+    let film = passes(ctx, &gpu_scene, seed, max_depth, MEASURE_SPP, None, &mut |_| {
         ends.push(std::time::Instant::now());
         true
     })
     .ok()?;
     let second = ends.get(1)?.duration_since(ends[0]).as_secs_f64();
-    Some((second / f64::from(PASS_SPP), compiled))
+    Some((second / f64::from(PASS_SPP), compiled, film))
 }
 
 /// `auto`'s build for a GPU render ([`RenderScene::build_auto_for`]): the GPU is timed by
@@ -492,20 +566,28 @@ pub fn measure_speed(
 /// no optimisation is tried blind: unrepaid optimisation can cost several times the render,
 /// while the most a skipped one could have saved is the render's trace-speed gain (20% on the
 /// dragon scene on an H100). The sixteenth is of the samples, not of a time limit: the GPU's
-/// speed is not known before it is timed.
+/// speed is not known before it is timed. The timed samples are returned with the tree, for the
+/// render's first frame to carry on ([`render_from`]; `clamp` is the render's firefly clamp).
 pub fn build_auto(
     ctx: &GpuContext,
     scene: &crate::scene::Scene,
     job: &crate::render::AutoRender,
-) -> (RenderScene, crate::render::BuildReport) {
+    clamp: Option<f32>,
+) -> (RenderScene, crate::render::BuildReport, Option<PartialFilm>) {
     use crate::render::AutoDevice;
-    let mut measure = |rs: &RenderScene| measure_speed(ctx, rs, job.seed, job.max_depth);
+    let mut kept = None;
+    let mut measure = |rs: &RenderScene| {
+        let (seconds, compiled, film) = measure_speed(ctx, rs, job.seed, job.max_depth, clamp)?;
+        kept = Some(film);
+        Some((seconds, compiled))
+    };
     let device = if job.samples() >= 16.0 * f64::from(MEASURE_SPP) {
         AutoDevice::Measured { samples: job.samples(), budget: job.budget(), measure: &mut measure }
     } else {
         AutoDevice::Unmeasured
     };
-    RenderScene::build_auto_for(scene, job.rays(scene), device)
+    let (rs, report) = RenderScene::build_auto_for(scene, job.rays(scene), device);
+    (rs, report, kept)
 }
 
 /// The film's f64 sums from the device's shifted f32 sums (see [`GpuPixel`]). `sum_sq` is

@@ -207,20 +207,27 @@ pub fn measure_curve(
     let mut points = Vec::with_capacity(steps.len());
     let mut detail = String::new();
     // `auto` judges the render's length by timing paths on the device that renders.
+    // On the GPU, `auto` hands over the samples it timed, for the render to carry on.
     let build = |spp: u32| match choice {
-        BuilderChoice::Fixed(builder) => RenderScene::build(scene, builder),
+        BuilderChoice::Fixed(builder) => {
+            let (rs, report) = RenderScene::build(scene, builder);
+            (rs, report, None)
+        }
         BuilderChoice::Auto => {
             let job = AutoRender { spp, max_depth: config.max_depth, frames: 1, seed: config.seed, time: None };
             match device {
-                ConvergeDevice::Cpu => RenderScene::build_auto_cpu(scene, &job),
-                ConvergeDevice::Gpu(ctx) => crate::gpu::trace::build_auto(ctx, scene, &job),
+                ConvergeDevice::Cpu => {
+                    let (rs, report) = RenderScene::build_auto_cpu(scene, &job);
+                    (rs, report, None)
+                }
+                ConvergeDevice::Gpu(ctx) => crate::gpu::trace::build_auto(ctx, scene, &job, None),
             }
         }
     };
     match (choice, device) {
         (BuilderChoice::Fixed(_), ConvergeDevice::Cpu) => {
             let t = Instant::now();
-            let (rs, report) = build(1);
+            let (rs, report, _) = build(1);
             let build_s = t.elapsed().as_secs_f64();
             detail = report.builder;
             let mut film = Film::new(rs.width, rs.height);
@@ -237,7 +244,7 @@ pub fn measure_curve(
         (BuilderChoice::Auto, ConvergeDevice::Cpu) => {
             for &spp in &steps {
                 let t = Instant::now();
-                let (rs, report) = build(spp);
+                let (rs, report, _) = build(spp);
                 let build_s = t.elapsed().as_secs_f64();
                 let mut film = Film::new(rs.width, rs.height);
                 rs.render(&mut film, config.seed, config.max_depth, 0..spp, &|_| {});
@@ -252,10 +259,12 @@ pub fn measure_curve(
             let mut fixed: Option<(GpuScene, f64)> = None;
             for &spp in &steps {
                 let t = Instant::now();
+                let mut timed = None;
                 let (uploaded, build_s) = match (&fixed, choice) {
                     (Some(_), BuilderChoice::Fixed(_)) => (None, fixed.as_ref().map_or(0.0, |f| f.1)),
                     _ => {
-                        let (rs, report) = build(spp);
+                        let (rs, report, partial) = build(spp);
+                        timed = partial;
                         let gpu = GpuScene::upload(ctx, &rs)?;
                         let build_s = t.elapsed().as_secs_f64();
                         detail = report.builder;
@@ -270,7 +279,7 @@ pub fn measure_curve(
                 }
                 let gpu = &fixed.as_ref().expect("uploaded above").0;
                 let r = Instant::now();
-                let out = trace::render(ctx, gpu, config.seed, config.max_depth, spp, &mut |_| true)?;
+                let out = trace::render_from(ctx, gpu, config.seed, config.max_depth, spp, timed, &mut |_| true)?;
                 let render_s = r.elapsed().as_secs_f64();
                 points.push(point(&out.film, reference, spp, build_s, build_s + render_s));
                 progress(points.last().expect("just pushed"));
