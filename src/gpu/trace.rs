@@ -457,8 +457,7 @@ pub fn render_from(
     start: Option<PartialFilm>,
     after_pass: &mut dyn FnMut(u32) -> bool,
 ) -> Result<GpuRender, GpuError> {
-    let key = (seed, max_depth, scene.params.clamp.to_bits(), scene.width, scene.height);
-    let start = start.filter(|s| s.key == key && s.samples <= spp);
+    let start = start.filter(|s| s.key == film_key(scene, seed, max_depth) && s.samples <= spp);
     let carried = start.as_ref().map_or((0, 0.0), |s| (s.samples, s.seconds));
     let film = passes(ctx, scene, seed, max_depth, spp, start, after_pass)?;
     let (width, height) = (scene.width, scene.height);
@@ -472,6 +471,11 @@ pub fn render_from(
     });
     let rays = sums.iter().map(|p| u64::from(p.rays)).sum();
     Ok(GpuRender { film: out, rays, samples: film.samples, carried })
+}
+
+/// What a film's samples depend on besides the scene: [`PartialFilm::key`].
+fn film_key(scene: &GpuScene, seed: u64, max_depth: u32) -> (u64, u32, u32, u32, u32) {
+    (seed, max_depth, scene.params.clamp.to_bits(), scene.width, scene.height)
 }
 
 /// The passes of [`render_from`], the film left on the device.
@@ -493,7 +497,7 @@ fn passes(
             "a {width}x{height} image needs {groups:?} workgroups, over the adapter's {max_groups} per dimension"
         )));
     }
-    let key = (seed, max_depth, scene.params.clamp.to_bits(), width, height);
+    let key = film_key(scene, seed, max_depth);
     let (film_buffer, mut done, mut seconds) = match start {
         Some(s) => (s.buffer, s.samples, s.seconds),
         None => (ctx.storage_buffer_zeroed("film", (pixels * size_of::<GpuPixel>()) as u64)?, 0, 0.0),
