@@ -105,9 +105,13 @@ fn partition(ctx: &Context, ids: &mut [u32]) -> usize {
     let cb = ids.iter().fold(Aabb::EMPTY, |b, &p| b.grow(ctx.centroids[p as usize]));
     let extent = cb.extent();
     let bins = ctx.config.bins;
+    // In f64: in f32, `bins / extent` overflows below an extent of about 1e-37, and every
+    // centroid but the lowest went to the last bin, so each split peeled off one primitive and
+    // the recursion overflowed the stack.
     let bin_of = |axis: usize, p: u32| -> usize {
-        let scale = bins as f32 / extent[axis];
-        (((ctx.centroids[p as usize][axis] - cb.min[axis]) * scale) as usize).min(bins - 1)
+        let scale = bins as f64 / f64::from(extent[axis]);
+        let offset = f64::from(ctx.centroids[p as usize][axis]) - f64::from(cb.min[axis]);
+        ((offset * scale) as usize).min(bins - 1)
     };
     // (cost, axis, first bin of the right side). Costs are in f64: f32 areas overflow for boxes
     // of extent beyond about 1e19 and underflow below about 1e-19, which made every split cost
@@ -168,5 +172,18 @@ mod tests {
     #[test]
     fn the_tree_does_not_depend_on_the_units() {
         crate::bvh::assert_scale_invariant("binned-sah", |p| build(p, &BinnedSahConfig::default()));
+    }
+
+    /// At 2^-120 (about 1e-36) `bins / extent` overflows f32: every split peeled off one
+    /// primitive and 20,000 of them overflowed the stack. The bins are now computed in f64,
+    /// and the tree is the unit-scale one.
+    #[test]
+    fn a_tiny_scene_gets_the_same_tree() {
+        let unit = crate::bvh::scattered_boxes(2000, 0.3);
+        let tiny: Vec<Aabb> = unit.iter().map(|b| b.scaled(2f32.powi(-120))).collect();
+        let (a, b) = (build(&unit, &Default::default()), build(&tiny, &Default::default()));
+        crate::bvh::validate(&b, &tiny).unwrap();
+        assert_eq!(a.prim_ids, b.prim_ids);
+        assert!(a.nodes.iter().zip(b.nodes.iter()).all(|(x, y)| (x.first, x.prim_count) == (y.first, y.prim_count)));
     }
 }

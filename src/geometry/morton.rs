@@ -43,9 +43,14 @@ impl MortonQuantizer {
         let extent = bounds.extent();
         let cells = (1u32 << MORTON_BITS) as f32;
         let scale = Vec3::select(extent.cmpgt(Vec3::ZERO), Vec3::splat(cells) / extent, Vec3::ZERO);
-        // An all-NaN or infinite extent gives a zero or NaN scale; `as u32` below maps NaN to 0
-        // and saturates, so no input can index out of the grid.
-        let scale = Vec3::select(scale.is_finite_mask(), scale, Vec3::ZERO);
+        // An extent below about 2^-106 overflows `cells / extent`: such an axis gets the largest
+        // power of two instead, and uses fewer of its bits (at 1e-33, 17 of 21), where a zero
+        // scale put every primitive in one cell and left the tree to index order. An all-NaN
+        // or infinite extent gives a zero or NaN scale; `as u32` below maps NaN to 0 and
+        // saturates, so no input can index out of the grid.
+        let largest = Vec3::splat(2f32.powi(127));
+        let scale =
+            Vec3::select(scale.is_finite_mask(), scale, Vec3::select(scale.cmpgt(Vec3::ZERO), largest, Vec3::ZERO));
         // Rounded down to a power of two (clearing the mantissa): then `(p - origin) * scale`
         // rounds only in the subtraction, which every IEEE device rounds alike, and the GPU
         // build gets the same codes as this one whatever its compiler fuses. It costs at most
@@ -96,6 +101,10 @@ mod tests {
         let q = MortonQuantizer::new(&b);
         assert_eq!(q.code(Vec3::ZERO), 0);
         assert_eq!(q.code(b.max), morton_encode(MORTON_MAX, 0, MORTON_MAX));
+        // A tiny extent (2^-120) still spreads points over the grid, with fewer bits.
+        let tiny = Aabb::new(Vec3::ZERO, Vec3::splat(2f32.powi(-120)));
+        let t = MortonQuantizer::new(&tiny);
+        assert_eq!(t.code(tiny.max * 0.5), morton_encode(64, 64, 64));
         let nan = MortonQuantizer::new(&Aabb::new(Vec3::splat(f32::NAN), Vec3::splat(f32::NAN)));
         assert_eq!(nan.code(Vec3::ONE), 0);
         assert_eq!(q.code(Vec3::splat(f32::NAN)), 0);
