@@ -153,17 +153,63 @@ impl Triangle {
             return self.intersect_f64(ray, t_max, sheared);
         }
         let t = t_scaled * rcp;
-        // Written negated so that NaN is rejected.
-        if !(t > 0.0 && t <= t_max) {
+        // `t` is finite here (normal numerator and reciprocal). Not `t > 0` yet: a `t` within
+        // its error bound of zero is decided below.
+        if t > t_max {
             return None;
         }
-        // Computed only for hits, which are rare among tests.
+        // Computed only where the ray's line passes through the triangle in front of the
+        // origin's neighbourhood, which is rare among tests.
         let d = |v: [f32; 3]| v.map(f64::from);
         let coords = [d([ax, bx, cx]), d([ay, by, cy]), d([az, bz, cz]), d([a[kz], b[kz], c[kz]])];
-        if f64::from(t) <= t_error_bound(ray, coords, d([u, v, w]), f64::from(rcp.abs())) {
+        let bound = t_error_bound(ray, coords, d([u, v, w]), f64::from(rcp.abs()), gamma_f32);
+        if f64::from(t) > bound {
+            return Some(TriangleHit { t, u: v * rcp, v: w * rcp });
+        }
+        if f64::from(t) < -bound {
             return None;
         }
-        Some(TriangleHit { t, u: v * rcp, v: w * rcp })
+        // f32 cannot tell this `t` from zero: the f64 test decides.
+        self.intersect_exact(ray, t_max)
+    }
+
+    /// The hit distance of a ray the f32 test found inside the triangle but could not place in
+    /// front of or behind the origin (`|t|` within its error bound), recomputed in f64 from the
+    /// vertices, with an f64 error bound. A triangle far larger than its distance from the
+    /// origin needs it: the f32 bound grows with the vertices' distance, so a ground quad of
+    /// 10^6 units seen from 2 units above lost every hit within about 1 unit of the camera.
+    /// Taken by the few tests whose f32 `t` is that close to zero: mostly a ray against the
+    /// surface it leaves, which the f64 test rejects as well (the ray starts off the surface by
+    /// its hit point's error bound).
+    #[cold]
+    #[inline(never)]
+    fn intersect_exact(&self, ray: &WatertightRay, t_max: f32) -> Option<TriangleHit> {
+        let o = ray.origin.as_dvec3();
+        let (a, b, c) = (self.v0.as_dvec3() - o, self.v1.as_dvec3() - o, self.v2.as_dvec3() - o);
+        let (sx, sy) = (f64::from(ray.sx), f64::from(ray.sy));
+        let (kx, ky, kz) = (ray.kx, ray.ky, ray.kz);
+        let shear = |p: glam::DVec3| (p[kx] - sx * p[kz], p[ky] - sy * p[kz]);
+        let ((ax, ay), (bx, by), (cx, cy)) = (shear(a), shear(b), shear(c));
+        // The f32 test already decided that the ray passes inside: its edge decisions stand, so
+        // a shared edge stays watertight; here only the distance and barycentrics are computed.
+        let (u, v, w) = (cx * by - cy * bx, ax * cy - ay * cx, bx * ay - by * ax);
+        let det = u + v + w;
+        if det == 0.0 {
+            return None;
+        }
+        let sz = f64::from(ray.sz);
+        let (az, bz, cz) = (sz * a[kz], sz * b[kz], sz * c[kz]);
+        let t = (u * az + v * bz + w * cz) / det;
+        let t32 = t as f32;
+        if !(t32 > 0.0 && t32 <= t_max) {
+            return None;
+        }
+        let coords = [[ax, bx, cx], [ay, by, cy], [az, bz, cz], [a[kz], b[kz], c[kz]]];
+        if t <= t_error_bound(ray, coords, [u, v, w], 1.0 / det.abs(), gamma_f64) {
+            return None;
+        }
+        let (bu, bv) = ((v / det).max(0.0), (w / det).max(0.0));
+        Some(TriangleHit { t: t32, u: bu as f32, v: bv as f32 })
     }
 
     /// The rest of [`Triangle::intersect`] in f64, from the sheared coordinates
@@ -193,16 +239,22 @@ impl Triangle {
         // The range test on the f32 distance reported, as in the f32 path: the reported `t`
         // alone decides acceptance, so a query bounded by a hit's own `t` finds it again.
         let t32 = t as f32;
-        if !(t32 > 0.0 && t32 <= t_max) {
+        // Finite: det is not zero and the products of f32 values are far from overflowing.
+        if t32 > t_max {
             return None;
         }
         // The f32 path's bound: the shear rounded in f32, the rest is nearly exact here, so
         // this is conservative.
         let coords = [[ax, bx, cx], [ay, by, cy], [az, bz, cz], [a, b, c]];
-        if t <= t_error_bound(ray, coords, [u, v, w], 1.0 / det.abs()) {
+        let bound = t_error_bound(ray, coords, [u, v, w], 1.0 / det.abs(), gamma_f32);
+        if t > bound && t32 > 0.0 {
+            return Some(TriangleHit { t: t32, u: (v / det) as f32, v: (w / det) as f32 });
+        }
+        if t < -bound {
             return None;
         }
-        Some(TriangleHit { t: t32, u: (v / det) as f32, v: (w / det) as f32 })
+        // The shear was rounded in f32: without that rounding the distance may be clear of zero.
+        self.intersect_exact(ray, t_max)
     }
 }
 
@@ -221,11 +273,19 @@ impl Triangle {
 /// overflows or underflows (in f32, `max |e| * max |z|` grows as the cube of the scene's size).
 /// The GPU's copy (`woop_2d` in shaders/trace.wgsl) is f32 and groups the terms so that no
 /// product does: `max |e| / |det|` lies in [1/3, 1].
-fn t_error_bound(ray: &WatertightRay, sheared: [[f64; 3]; 4], e: [f64; 3], inv_det: f64) -> f64 {
+///
+/// `g` is the `γ_n` of the arithmetic the coordinates were computed in: [`gamma_f32`], or
+/// [`gamma_f64`] for [`Triangle::intersect_exact`].
+fn t_error_bound(
+    ray: &WatertightRay,
+    sheared: [[f64; 3]; 4],
+    e: [f64; 3],
+    inv_det: f64,
+    g: impl Fn(u32) -> f64,
+) -> f64 {
     let max_abs = |v: [f64; 3]| v[0].abs().max(v[1].abs()).max(v[2].abs());
     let [max_x, max_y, max_z, shear_z] = sheared.map(max_abs);
     let max_e = max_abs(e);
-    let g = |n: u32| f64::from(gamma(n));
     let delta_z = g(3) * max_z;
     let delta_x = g(5) * (max_x + f64::from(ray.sx).abs() * shear_z);
     let delta_y = g(5) * (max_y + f64::from(ray.sy).abs() * shear_z);
@@ -270,6 +330,17 @@ impl WatertightRay {
 #[inline]
 pub fn gamma(n: u32) -> f32 {
     let ne = n as f32 * (f32::EPSILON * 0.5);
+    ne / (1.0 - ne)
+}
+
+/// [`gamma`] as an f64, for [`t_error_bound`].
+fn gamma_f32(n: u32) -> f64 {
+    f64::from(gamma(n))
+}
+
+/// `γ_n` of f64 arithmetic.
+fn gamma_f64(n: u32) -> f64 {
+    let ne = f64::from(n) * (f64::EPSILON * 0.5);
     ne / (1.0 - ne)
 }
 
@@ -343,6 +414,36 @@ mod tests {
                 let wr = WatertightRay::new(&Ray::new(o, b.lerp(c, k as f32 / 200.0) - o));
                 let hits = t0.intersect(&wr, f32::INFINITY).is_some() || t1.intersect(&wr, f32::INFINITY).is_some();
                 assert!(hits, "{s:e}: ray {k} leaked through the shared edge");
+            }
+        }
+    }
+
+    /// A ground quad of 2 × 10^6 units seen from 1.7 units above: the f32 bound on `t` is over
+    /// 1 there, and every hit within about a unit of the camera was rejected (a wedge of ground
+    /// missing from the image). The hits are found at their distance, the shared diagonal lets
+    /// no ray through, and a ray leaving the ground does not hit it again.
+    #[test]
+    fn a_huge_ground_is_hit_next_to_the_camera() {
+        let s = 1e6f32;
+        let (a, b, c, d) = (Vec3::new(-s, 0.0, -s), Vec3::new(s, 0.0, -s), Vec3::new(s, 0.0, s), Vec3::new(-s, 0.0, s));
+        let (t0, t1) = (Triangle::new(a, b, c), Triangle::new(a, c, d));
+        let o = Vec3::new(0.3, 1.7, 0.2);
+        for k in 0..=400 {
+            let f = k as f32 / 400.0 * 3.0 - 1.5;
+            // Points on the diagonal (the shared edge) and beside it, all within 2.3 units.
+            for target in [Vec3::new(f, 0.0, f), Vec3::new(f, 0.0, 0.5 - f)] {
+                let r = Ray::new(o, target - o);
+                let wr = WatertightRay::new(&r);
+                let hit = t0.intersect(&wr, f32::INFINITY).or_else(|| t1.intersect(&wr, f32::INFINITY));
+                let h = hit.unwrap_or_else(|| panic!("the ray to {target} missed the ground"));
+                assert!((h.t - 1.0).abs() < 1e-4, "{target}: t = {}", h.t);
+                let tri = if t0.intersect(&wr, f32::INFINITY).is_some() { t0 } else { t1 };
+                let (p, err) = tri.point_with_error(h.u, h.v);
+                // The point comes from vertices 10^6 away (a 0.06 ulp), and its bound says so.
+                assert!(((p - target).abs() - err).max_element() <= 1e-4, "{target}: hit at {p} ± {err}");
+                let up = crate::geometry::spawn_ray(p, err, Vec3::Y, Vec3::new(0.3, 1.0, -0.2));
+                let up = WatertightRay::new(&up);
+                assert!(t0.intersect(&up, f32::INFINITY).is_none() && t1.intersect(&up, f32::INFINITY).is_none());
             }
         }
     }
