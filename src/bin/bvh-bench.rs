@@ -544,6 +544,10 @@ fn run_converge(args: &Args) -> Result<()> {
             a.worst_ratio_mae
         );
     }
+    let not_compared = converge::auto_not_compared(&curves);
+    for (device, why) in &not_compared {
+        arbor::outln!("{device}: auto not compared with the fixed builders: {why}");
+    }
     let non_finite: u64 = curves.iter().flat_map(|c| &c.points).map(|p| p.non_finite).sum();
     let report = serde_json::json!({
         "scene": path.display().to_string(),
@@ -554,6 +558,10 @@ fn run_converge(args: &Args) -> Result<()> {
         "reference": reference_info,
         "curves": curves,
         "auto": auto,
+        "auto_not_compared": not_compared
+            .iter()
+            .map(|(device, why)| serde_json::json!({"device": device, "reason": why}))
+            .collect::<Vec<_>>(),
     });
     let series: Vec<Series> = curves
         .iter()

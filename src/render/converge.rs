@@ -380,7 +380,8 @@ pub fn spp_at(points: &[ConvergePoint], t: f64) -> Option<f64> {
 }
 
 /// Compares the `auto` curve with the best fixed builder at equal time, at every point time
-/// where all curves have points. `None` without an `auto` curve, a fixed one, or an overlap.
+/// where all curves have points, device by device. A device is left out without an `auto`
+/// curve; [`auto_not_compared`] says why one with an `auto` curve is left out.
 ///
 /// The error at time `t` is the fitted model's at the samples the builder had taken by `t`
 /// ([`spp_at`]), not the measured error interpolated: at a few spp the measured error jumps
@@ -390,29 +391,45 @@ pub fn spp_at(points: &[ConvergePoint], t: f64) -> Option<f64> {
 pub fn compare_auto(curves: &[ConvergeCurve]) -> Vec<AutoComparison> {
     let mut devices: Vec<&str> = curves.iter().map(|c| c.device.as_str()).collect();
     devices.dedup();
-    devices.iter().filter_map(|d| compare_auto_on(curves.iter().filter(|c| c.device == *d).collect())).collect()
+    devices.iter().filter_map(|d| compare_auto_on(curves.iter().filter(|c| c.device == *d).collect()).ok()).collect()
 }
 
-/// [`compare_auto`] for the curves of one device.
-fn compare_auto_on(curves: Vec<&ConvergeCurve>) -> Option<AutoComparison> {
-    let auto = *curves.iter().find(|c| c.builder == "auto")?;
+/// The devices with an `auto` curve that [`compare_auto`] leaves out, each with the reason.
+pub fn auto_not_compared(curves: &[ConvergeCurve]) -> Vec<(String, &'static str)> {
+    let mut devices: Vec<&str> = curves.iter().filter(|c| c.builder == "auto").map(|c| c.device.as_str()).collect();
+    devices.dedup();
+    devices
+        .into_iter()
+        .filter_map(|d| {
+            let why = compare_auto_on(curves.iter().filter(|c| c.device == d).collect()).err()?;
+            Some((d.to_string(), why))
+        })
+        .collect()
+}
+
+/// [`compare_auto`] for the curves of one device, or why they cannot be compared.
+fn compare_auto_on(curves: Vec<&ConvergeCurve>) -> Result<AutoComparison, &'static str> {
+    let auto = *curves.iter().find(|c| c.builder == "auto").ok_or("no auto curve")?;
     let fixed: Vec<&ConvergeCurve> = curves.iter().filter(|c| c.builder != "auto").copied().collect();
     if fixed.is_empty() {
-        return None;
+        return Err("no fixed builder to compare with");
     }
     let mut from = 0.0f64;
     let mut to = f64::INFINITY;
     for c in fixed.iter().chain([&auto]) {
-        let (Some(a), Some(b)) = (c.points.first(), c.points.last()) else { return None };
+        let (Some(a), Some(b)) = (c.points.first(), c.points.last()) else { return Err("a curve has no points") };
         from = from.max(a.time_s);
         to = to.min(b.time_s);
     }
     if from > to {
-        return None;
+        return Err(
+            "no time at which every curve has an image: a build ended after another builder's last image (a higher --max-spp makes the curves overlap)",
+        );
     }
     let owned: Vec<ConvergeCurve> = curves.iter().map(|&c| c.clone()).collect();
-    let mse = ErrorModel::fit(&owned, 1.0, |p| p.rel_mse)?;
-    let mae = ErrorModel::fit(&owned, 0.5, |p| p.mae)?;
+    let zero = "every error is zero";
+    let mse = ErrorModel::fit(&owned, 1.0, |p| p.rel_mse).ok_or(zero)?;
+    let mae = ErrorModel::fit(&owned, 0.5, |p| p.mae).ok_or(zero)?;
     let times: Vec<f64> =
         curves.iter().flat_map(|c| c.points.iter().map(|p| p.time_s)).filter(|t| (from..=to).contains(t)).collect();
     let mut result: Option<AutoComparison> = None;
@@ -441,7 +458,9 @@ fn compare_auto_on(curves: Vec<&ConvergeCurve>) -> Option<AutoComparison> {
             });
         }
     }
-    result.map(|r| AutoComparison { worst_ratio_mae: worst_mae, ..r })
+    result
+        .map(|r| AutoComparison { worst_ratio_mae: worst_mae, ..r })
+        .ok_or("no time at which every curve has an image")
 }
 
 #[cfg(test)]
@@ -536,6 +555,26 @@ mod tests {
         assert!((c[0].worst_ratio_rel_mse - 2.0).abs() < 1e-9, "{c:?}");
         assert_eq!(c[1].device, "gpu");
         assert!((c[1].worst_ratio_rel_mse - 1.0).abs() < 1e-9, "{c:?}");
+    }
+
+    #[test]
+    fn curves_that_do_not_overlap_in_time_say_so() {
+        let steps = |k: f64, from: f64| curve("x", [1u32, 2, 4].iter().map(|&n| q(n, from + k * n as f64)).collect());
+        // A slow build: binned-sah's first image comes after lbvh's last one.
+        let lbvh = ConvergeCurve { builder: "lbvh".into(), ..steps(0.001, 0.0) };
+        let binned = ConvergeCurve { builder: "binned-sah".into(), ..steps(0.001, 0.01) };
+        let auto = ConvergeCurve { builder: "auto".into(), ..steps(0.001, 0.0) };
+        let curves = [lbvh.clone(), binned, auto.clone()];
+        assert!(compare_auto(&curves).is_empty());
+        let why = auto_not_compared(&curves);
+        assert_eq!(why.len(), 1);
+        assert_eq!(why[0].0, "cpu");
+        assert!(why[0].1.contains("no time at which every curve has an image"), "{why:?}");
+        // Overlapping curves are compared, and nothing is said of them.
+        assert_eq!(compare_auto(&[lbvh.clone(), auto.clone()]).len(), 1);
+        assert!(auto_not_compared(&[lbvh, auto.clone()]).is_empty());
+        // auto alone has nothing to be compared with.
+        assert_eq!(auto_not_compared(&[auto])[0].1, "no fixed builder to compare with");
     }
 
     #[test]
