@@ -95,6 +95,33 @@ fn uniform_triangle(u: vec2<f32>) -> vec3<f32> {
     return vec3<f32>(b0, b1, max(1.0 - b0 - b1, 0.0));
 }
 
+// |v| also where |v|^2 overflows or underflows f32: robust_length in src/render/sampling.rs.
+fn robust_length(v: vec3<f32>) -> f32 {
+    let dist2 = dot(v, v);
+    if is_normal_f(dist2) {
+        return sqrt(dist2);
+    }
+    let m = max(max(abs(v.x), abs(v.y)), abs(v.z));
+    if m > 0.0 && is_finite_f(m) {
+        return m * length(v / m);
+    }
+    return m;
+}
+
+// pdf_area |to|^2 / cos, 0 for a light never sampled, finite past distances of 10^19:
+// solid_angle_pdf in src/render/sampling.rs.
+fn solid_angle_pdf(pdf_area: f32, to: vec3<f32>, cos_at_light: f32) -> f32 {
+    if pdf_area == 0.0 {
+        return 0.0;
+    }
+    let dist2 = dot(to, to);
+    if is_normal_f(dist2) {
+        return pdf_area * dist2 / cos_at_light;
+    }
+    let dist = robust_length(to);
+    return pdf_area * dist * (dist / cos_at_light);
+}
+
 fn power_heuristic(pdf_f: f32, pdf_g: f32) -> f32 {
     if pdf_f == 0.0 {
         return 0.0;

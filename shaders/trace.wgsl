@@ -508,11 +508,11 @@ fn direct_light(
     let b = uniform_triangle(u);
     let lp = point_with_error(light.v0, light.v1, light.v2, b.y, b.z);
     let to = lp.p - sp.p;
-    let dist2 = dot(to, to);
-    if dist2 <= 0.0 {
+    let dist = robust_length(to);
+    if !(dist > 0.0 && is_finite_f(dist)) {
         return vec4<f32>(0.0);
     }
-    let wi_world = to / sqrt(dist2);
+    let wi_world = to / dist;
     let cos_light = dot(light.normal, -wi_world);
     if !(cos_light > 0.0 || (light.two_sided != 0u && cos_light < 0.0)) {
         return vec4<f32>(0.0);
@@ -531,10 +531,10 @@ fn direct_light(
     let shadow = Ray(from_surface, lp.p - from_surface);
     let short_of_plane = dot(abs(light.normal), lp.error) / (abs(cos_light) * length(shadow.dir));
     let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
-    if !(is_finite_f(clear) && clear * clear < dist2 && t_max > 0.0) || occluded(shadow, t_max) {
+    if !(is_finite_f(clear) && clear < dist && t_max > 0.0) || occluded(shadow, t_max) {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);
     }
-    let p_light = light.pdf_area * dist2 / abs(cos_light);
+    let p_light = solid_angle_pdf(light.pdf_area, to, abs(cos_light));
     let w = power_heuristic(p_light, bsdf_pdf(mat, wo, wi));
     return vec4<f32>(beta * f * abs(wi.z) * light.radiance * (w / p_light), 1.0);
 }
@@ -574,8 +574,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
             if prev_delta {
                 l += beta * mat.emission;
             } else {
-                let to = sp.p - ray.origin;
-                let p_light = tri.light_pdf * dot(to, to) / abs(dot(ng, wo_world));
+                let p_light = solid_angle_pdf(tri.light_pdf, sp.p - ray.origin, abs(dot(ng, wo_world)));
                 l += beta * mat.emission * power_heuristic(prev_pdf, p_light);
             }
         }

@@ -102,6 +102,16 @@ fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
     }
 }
 
+/// A floor lit by square lights 10^20 above it (`analytic::check_distant_lights`).
+#[test]
+fn a_light_at_1e20_lights_as_its_solid_angle_says_on_the_gpu() {
+    let Some(ctx) = gpu_or_skip("a_light_at_1e20_lights_as_its_solid_angle_says_on_the_gpu") else { return };
+    analytic::check_distant_lights("gpu", |scene| {
+        let (rs, _) = RenderScene::build(scene, &lbvh());
+        render_gpu(ctx, &rs, 0, 256, 2)
+    });
+}
+
 /// 8x8 blocks of `a` against `b`: the worst |z| over blocks and channels and the Bonferroni
 /// threshold for a family-wise rate of 10⁻³. Pixel channels with standard error 0 in both must
 /// agree within 1e-5 relative and stay out of the z-test.

@@ -141,6 +141,12 @@ fn irradiance_under_a_square_light_matches_the_closed_form() {
     }
 }
 
+/// A floor lit by square lights 10^20 above it (`analytic::check_distant_lights`).
+#[test]
+fn a_light_at_1e20_lights_as_its_solid_angle_says() {
+    analytic::check_distant_lights("cpu", |scene| render(scene, 256, 2));
+}
+
 /// Same scene, seed and spp: the same image to the bit, whatever the thread count.
 #[test]
 fn images_do_not_depend_on_thread_count() {

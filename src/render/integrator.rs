@@ -21,7 +21,7 @@ use super::film::Film;
 use super::geometry::{Flat, Geometry, Instanced, flat_lights, wants_instancing};
 use super::lights::Lights;
 use super::rng::Rng;
-use super::sampling::{Frame, power_heuristic};
+use super::sampling::{Frame, power_heuristic, robust_length, solid_angle_pdf};
 use crate::bvh::builders::Builder;
 use crate::bvh::instances::TopLevelUpdate;
 use crate::bvh::prbvh::{self, PrbvhConfig};
@@ -572,8 +572,8 @@ impl RenderScene {
                 if prev_delta {
                     l += beta * le;
                 } else {
-                    let dist2 = (p - ray.origin).length_squared();
-                    let p_light = self.lights.pdf_area(hit.light) * dist2 / ng.dot(wo_world).abs();
+                    let p_light =
+                        solid_angle_pdf(self.lights.pdf_area(hit.light), p - ray.origin, ng.dot(wo_world).abs());
                     l += beta * le * power_heuristic(prev_pdf, p_light);
                 }
             }
@@ -627,11 +627,11 @@ impl RenderScene {
         let u = rng.next_vec2();
         let Some(lp) = self.lights.sample(u_select, u) else { return 0 };
         let to = lp.point - p;
-        let dist2 = to.length_squared();
-        if dist2 <= 0.0 {
+        let dist = robust_length(to);
+        if !(dist > 0.0 && dist.is_finite()) {
             return 0;
         }
-        let wi_world = to / dist2.sqrt();
+        let wi_world = to / dist;
         let cos_light = lp.normal.dot(-wi_world);
         if !(cos_light > 0.0 || (lp.two_sided && cos_light < 0.0)) {
             return 0;
@@ -657,10 +657,10 @@ impl RenderScene {
         let length = shadow.dir.length();
         let short_of_plane = lp.normal.abs().dot(lp.point_error) / (cos_light.abs() * length);
         let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
-        if !(clear.is_finite() && clear * clear < dist2 && t_max > 0.0) || self.geometry.occluded(&shadow, t_max) {
+        if !(clear.is_finite() && clear < dist && t_max > 0.0) || self.geometry.occluded(&shadow, t_max) {
             return 1;
         }
-        let p_light = lp.pdf_area * dist2 / cos_light.abs();
+        let p_light = solid_angle_pdf(lp.pdf_area, to, cos_light.abs());
         let w = power_heuristic(p_light, bsdf.pdf(wo, wi));
         *l += beta * f * wi.z.abs() * lp.radiance * (w / p_light);
         1

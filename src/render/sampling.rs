@@ -110,6 +110,35 @@ pub fn power_heuristic(pdf_f: f32, pdf_g: f32) -> f32 {
     1.0 / (1.0 + r * r)
 }
 
+/// `|v|`, also where `|v|²` overflows or underflows f32 (lengths beyond about 10^19 or below
+/// about 10^-19): then from `v` divided by its largest component. Elsewhere the same bits as
+/// `v.length()`. Shared in form with the GPU's `robust_length` (shaders/trace.wgsl).
+pub fn robust_length(v: Vec3) -> f32 {
+    let dist2 = v.length_squared();
+    if dist2.is_normal() {
+        return dist2.sqrt();
+    }
+    let m = v.abs().max_element();
+    if m > 0.0 && m.is_finite() { m * (v / m).length() } else { m }
+}
+
+/// The solid-angle density `pdf_area · |to|² / cos` of a light point `to` away, seen from there at
+/// cosine `cos`. Zero for a light that is never sampled (`pdf_area` 0: a light dropped for its
+/// overflowing area), where the product was 0 · ∞ = NaN past distances of 10^19; and ordered so
+/// that such distances give a finite density (their square overflows f32). Elsewhere the same
+/// bits as the plain product. The GPU's `solid_angle_pdf` is the same.
+pub fn solid_angle_pdf(pdf_area: f32, to: Vec3, cos: f32) -> f32 {
+    if pdf_area == 0.0 {
+        return 0.0;
+    }
+    let dist2 = to.length_squared();
+    if dist2.is_normal() {
+        return pdf_area * dist2 / cos;
+    }
+    let dist = robust_length(to);
+    pdf_area * dist * (dist / cos)
+}
+
 /// A right-handed orthonormal frame `(s, t, n)`: `s × t = n`. Local coordinates have the normal
 /// along +z, which is the frame every BSDF in [`super::bsdf`] works in.
 #[derive(Clone, Copy, Debug, PartialEq)]

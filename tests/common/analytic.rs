@@ -207,3 +207,45 @@ pub fn check_closed_shell(tag: &str, scale: f32, mut render: impl FnMut(&Scene, 
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A floor lit by a square light 10^20 above it, where the square of the distance overflows
+/// f32: small enough (half-size 10^17) to be sampled, too powerful to be (5·10^18: its power
+/// overflows f32), and so large (10^20) that its area overflows; the last two light the floor
+/// only where paths hit them. `render` renders with max depth 2. The floor's radiance must be
+/// `albedo/π · E` from the closed form for a point under a square's centre, within 3 standard
+/// errors. The first rendered black (no light sample reached it, and hits on it got no
+/// weight), the others NaN (0 · ∞ in the density of a light that is never sampled).
+pub fn check_distant_lights(tag: &str, mut render: impl FnMut(&Scene) -> Film) {
+    for (half, radiance) in [(1e17f64, 1e3f64), (5e18, 100.0), (1e20, 1.0)] {
+        let height = 1e20f64;
+        let text = format!(
+            "[camera]\nposition = [0, 5, 1]\nlook_at = [0, 0, 0]\nfov = 30\nresolution = [16, 16]\n\n\
+             [materials.floor]\ntype = \"diffuse\"\nalbedo = [0.7, 0.7, 0.7]\n\n\
+             [materials.lamp]\ntype = \"emissive\"\nradiance = [{radiance}, {radiance}, {radiance}]\n\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"floor\"\nrotate = [-90, 0, 0]\nscale = 10\n\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [0, {height:e}, 0]\nrotate = [90, 0, 0]\nscale = {half:e}\n"
+        );
+        let path = std::env::temp_dir().join(format!("arbor-distant-light-{tag}.toml"));
+        let scene = Scene::parse(&text, path).unwrap_or_else(|e| panic!("{e}"));
+        let film = render(&scene);
+        // Point form factor of a 2a × 2a square at height h, on its axis: with A = a / h,
+        // F = (4/π) A/√(1+A²) atan(A/√(1+A²)); E = π L F. The floor seen spans a few units, and
+        // the light 10^17 and more: the same E everywhere on it.
+        let a = half / height;
+        let s = (1.0 + a * a).sqrt();
+        let e = radiance * 4.0 * (a / s) * (a / s).atan();
+        let want = (0.7 / std::f64::consts::PI * e) as f32;
+        let (got, se, n) = region(&film.mean(), &film.stderr(), |_, _| true);
+        eprintln!(
+            "{tag}: light of half-size {half:e} at {height:e}: {} against {want} (standard error {})",
+            got.x, se.x
+        );
+        assert_eq!(n, 256);
+        assert!(
+            (got.x - want).abs() <= 3.0 * se.x.max(1e-7),
+            "{tag}: light of half-size {half:e}: {} against the closed form {want} (standard error {})",
+            got.x,
+            se.x
+        );
+    }
+}
