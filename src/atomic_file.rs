@@ -54,6 +54,21 @@ pub fn destination(path: &Path) -> io::Result<Destination> {
     }
 }
 
+/// Whether writing `out` would replace the file `other` (an input, or another output): both
+/// lead to one regular file, through links and relative paths. Streams never do: two outputs
+/// to `/dev/stdout` are two writes to one stream, and `/dev/stdin` is not replaced by a write.
+pub fn replaces(out: &Path, other: &Path) -> bool {
+    let key = |p: &Path| -> Option<PathBuf> {
+        let Ok(Destination::File(target)) = destination(p) else { return None };
+        let name = target.file_name()?;
+        let dir = target.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        // A folder the write would make has no canonical form yet: its absolute path serves.
+        let dir = fs::canonicalize(dir).or_else(|_| std::path::absolute(dir)).ok()?;
+        Some(dir.join(name))
+    };
+    matches!((key(out), key(other)), (Some(a), Some(b)) if a == b)
+}
+
 /// `path` with the symbolic links of its last component followed, to a path that is not a link
 /// (a dangling link's target, which the write will create).
 fn follow_links(path: &Path) -> io::Result<PathBuf> {

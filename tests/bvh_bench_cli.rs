@@ -184,6 +184,12 @@ fn bad_input_is_a_clear_error() {
             "`cpu` is listed twice",
         ),
         (vec![huge.display().to_string()], "more than one BVH holds"),
+        // An output over the input, or two outputs over each other (the CSV replaced the JSON).
+        (vec![obj.display().to_string(), "--csv".into(), obj.display().to_string()], "that is the file of the input"),
+        (
+            vec![obj.display().to_string(), "--csv".into(), json.display().to_string()],
+            "--json and --csv name the same file",
+        ),
     ];
     for (args, expected) in cases {
         let out = bench().args(&args).arg("--json").arg(&json).output().unwrap();

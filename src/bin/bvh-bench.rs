@@ -228,8 +228,26 @@ fn check_options(args: &Args) -> Result<()> {
     if let Some(plot) = &args.plot {
         plot_format(plot)?;
     }
-    for path in [&args.json, &args.csv, &args.plot].into_iter().flatten() {
-        atomic_file::prepare(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let outputs = [("--json", &args.json), ("--csv", &args.csv), ("--plot", &args.plot)];
+    let inputs = [
+        ("the input", &args.input),
+        ("--converge", &args.converge),
+        ("--animated", &args.animated),
+        ("--reference", &args.reference),
+    ];
+    for (k, &(flag, out)) in outputs.iter().enumerate() {
+        let Some(out) = out else { continue };
+        for &(name, input) in &inputs {
+            if input.as_deref().is_some_and(|i| atomic_file::replaces(out, i)) {
+                bail!("{flag} {}: that is the file of {name}, which the report would replace", out.display());
+            }
+        }
+        for &(other_flag, other) in &outputs[k + 1..] {
+            if other.as_deref().is_some_and(|o| atomic_file::replaces(out, o)) {
+                bail!("{flag} and {other_flag} name the same file, {}: one would replace the other", out.display());
+            }
+        }
+        atomic_file::prepare(out).with_context(|| format!("cannot write {}", out.display()))?;
     }
     Ok(())
 }
@@ -282,7 +300,7 @@ fn write_outputs(
     log: bool,
 ) -> Result<()> {
     if let Some(path) = &args.json {
-        write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, report)?))?;
+        write_atomic(path, |f| write_json(f, report))?;
     }
     if let Some(path) = &args.csv {
         write_atomic(path, csv)?;
@@ -689,7 +707,7 @@ fn run_gpu(args: &Args) -> Result<()> {
     let report =
         serde_json::json!({"triangles": prims.len(), "adapter": ctx.describe(), "runs": args.runs, "rows": rows});
     if let Some(path) = &args.json {
-        write_atomic(path, |f| Ok(serde_json::to_writer_pretty(f, &report)?))?;
+        write_atomic(path, |f| write_json(f, &report))?;
     }
     Ok(())
 }
@@ -899,9 +917,10 @@ fn print_table(r: &Report) {
         "shadow",
         "diffuse"
     );
+    let speed = |v: Option<f64>| v.map_or_else(|| "n/a".to_string(), |v| format!("{v:.2}"));
     for b in &r.builders {
         arbor::outln!(
-            "{:<26} {:>10.1} {:>12.1} {:>10.2} {:>8.2} {:>9} {:>9} {:>9.2} {:>9.2} {:>9.2}",
+            "{:<26} {:>10.1} {:>12.1} {:>10.2} {:>8.2} {:>9} {:>9} {:>9} {:>9} {:>9}",
             b.name,
             b.build_ms,
             b.optimize_ms,
@@ -909,12 +928,17 @@ fn print_table(r: &Report) {
             b.sah,
             b.nodes,
             b.leaves,
-            b.primary_mrays,
-            b.shadow_mrays,
-            b.diffuse_mrays
+            speed(b.primary_mrays),
+            speed(b.shadow_mrays),
+            speed(b.diffuse_mrays)
         );
     }
     arbor::outln!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
+    if r.rays.shadow == 0 {
+        arbor::outln!(
+            "(no primary ray hit the mesh, so there are no shadow or diffuse rays: n/a, null in the JSON; a thin or flat mesh seen edge-on)"
+        );
+    }
 }
 
 fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {
@@ -935,12 +959,24 @@ fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {
             b.nodes,
             b.leaves,
             b.depth,
-            b.primary_mrays,
-            b.shadow_mrays,
-            b.diffuse_mrays
+            csv_speed(b.primary_mrays),
+            csv_speed(b.shadow_mrays),
+            csv_speed(b.diffuse_mrays)
         )?;
     }
     Ok(())
+}
+
+/// `value` as pretty JSON, ending in a newline as text files do.
+fn write_json(f: &mut dyn Write, value: &impl serde::Serialize) -> Result<()> {
+    serde_json::to_writer_pretty(&mut *f, value)?;
+    writeln!(f)?;
+    Ok(())
+}
+
+/// A trace speed in the CSV: empty where there were no rays.
+fn csv_speed(v: Option<f64>) -> String {
+    v.map_or_else(String::new, |v| v.to_string())
 }
 
 /// Writes `path` atomically (see `arbor::atomic_file`).

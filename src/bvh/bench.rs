@@ -55,9 +55,12 @@ pub struct BuilderReport {
     pub nodes: usize,
     pub leaves: usize,
     pub depth: usize,
-    pub primary_mrays: f64,
-    pub shadow_mrays: f64,
-    pub diffuse_mrays: f64,
+    /// Trace speeds in Mrays/s; `None` (null in the JSON) for a set of no rays: shadow and
+    /// diffuse rays start where primary rays hit, and a camera that sees nothing of a thin mesh
+    /// makes none.
+    pub primary_mrays: Option<f64>,
+    pub shadow_mrays: Option<f64>,
+    pub diffuse_mrays: Option<f64>,
     /// PRBVH iterations: `[milliseconds since the build started, leaf-1 SAH]`, starting with
     /// the unoptimised tree; one point for builders without optimisation.
     pub sah_curve: Vec<[f64; 2]>,
@@ -153,7 +156,7 @@ pub fn run_with_progress(
     }
     for (r, times) in report.builders.iter_mut().zip(times) {
         let [primary, shadow, diffuse] = times.map(median);
-        let mrays = |count: usize, ms: f64| if ms > 0.0 { count as f64 / ms / 1e3 } else { 0.0 };
+        let mrays = |count: usize, ms: f64| (count > 0 && ms > 0.0).then(|| count as f64 / ms / 1e3);
         r.primary_mrays = mrays(rays.primary.len(), primary);
         r.shadow_mrays = mrays(rays.shadow.len(), shadow);
         r.diffuse_mrays = mrays(rays.diffuse.len(), diffuse);
@@ -220,9 +223,9 @@ fn measure(
         nodes: stats.node_count,
         leaves: stats.leaf_count,
         depth: stats.depth,
-        primary_mrays: 0.0,
-        shadow_mrays: 0.0,
-        diffuse_mrays: 0.0,
+        primary_mrays: None,
+        shadow_mrays: None,
+        diffuse_mrays: None,
         sah_curve,
         checksums: [0; 3],
     };
@@ -244,4 +247,30 @@ fn trace(mesh: &MeshBvh, rays: &[Ray], t_max: f32) -> (Duration, u64) {
     let codes = rays.par_iter().with_min_len(64).map(hit_code).collect::<Vec<u64>>();
     let time = t.elapsed();
     (time, codes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &c| (h ^ c).wrapping_mul(0x0100_0000_01b3)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// A strip 10^4 long and 1 high, far thinner than a pixel of the camera that frames it:
+    /// no primary ray hits, so there are no shadow or diffuse rays, and their speeds are
+    /// `None` (null in the JSON), not 0 Mrays/s.
+    #[test]
+    fn a_mesh_the_camera_misses_has_no_secondary_speeds() {
+        let triangles: Vec<Triangle> = (0..200)
+            .map(|k| {
+                let p = Vec3::new(k as f32 * 50.0, (k % 7) as f32 / 7.0, 0.0);
+                Triangle::new(p, p + Vec3::new(0.5, 0.0, 1e-4), p + Vec3::new(0.0, 0.01, 0.0))
+            })
+            .collect();
+        let config =
+            BenchConfig { builders: vec!["lbvh".parse().unwrap()], runs: 1, resolution: 16, ..Default::default() };
+        let report = run(&triangles, &config).unwrap();
+        assert_eq!((report.rays.shadow, report.rays.diffuse), (0, 0));
+        let b = &report.builders[0];
+        assert!(b.primary_mrays.is_some_and(|v| v > 0.0));
+        assert_eq!((b.shadow_mrays, b.diffuse_mrays), (None, None));
+    }
 }
