@@ -287,18 +287,107 @@ pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshErro
         mtl_files.borrow_mut().push(mtl);
         loaded
     };
-    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    // Polygons as they are: tobj triangulates by a fan, which is wrong for a concave polygon.
+    let opts = tobj::LoadOptions { triangulate: false, single_index: true, ..Default::default() };
     let mut reader = Cursor::new(&text[..]);
-    let (models, loaded) = match tobj::load_obj_buf(&mut reader, &opts, load_mtl) {
+    let (mut models, loaded) = match tobj::load_obj_buf(&mut reader, &opts, load_mtl) {
         Ok(r) => r,
         Err(e) => return Err(tobj_error(path, &text, reader.position(), e)),
     };
+    for m in &mut models {
+        triangulate(&mut m.mesh);
+    }
     // An error only when no MTL file loaded, and then `mtl_error` says why.
     let materials = loaded.unwrap_or_default();
     let defined: HashSet<&str> = materials.iter().map(|m| m.name.as_str()).collect();
     let unknown_material = usemtl.into_iter().find(|(_, name)| !defined.contains(name.as_str()));
     let (mtl_files, mtl_error) = (mtl_files.into_inner(), mtl_error.into_inner());
     Ok(ObjFile { models, materials, mtl_files, mtl_error, unknown_material })
+}
+
+/// Replaces `mesh`'s polygons (tobj's `face_arities`) by triangles, in place: a convex polygon
+/// by a fan from its first vertex (what tobj's own triangulation gives), a concave one by ear
+/// clipping in the plane of its Newell normal, so that an L- or U-shaped floor keeps its shape
+/// (a fan covered the notch with back-facing triangles). Windings are kept. A polygon of more
+/// than [`EAR_CLIPPING_MAX`] vertices, or one whose ears run out (a self-intersecting one),
+/// gets a fan for what is left. Written here because tobj has only the fan and the one crate
+/// that ear-clips (earcutr) adds hole handling and a dependency for this one loop.
+fn triangulate(mesh: &mut tobj::Mesh) {
+    if mesh.face_arities.is_empty() {
+        return;
+    }
+    let arities = std::mem::take(&mut mesh.face_arities);
+    let position = |i: u32| {
+        let p = &mesh.positions[3 * i as usize..3 * i as usize + 3];
+        glam::DVec3::new(p[0].into(), p[1].into(), p[2].into())
+    };
+    let mut triangles = Vec::with_capacity(mesh.indices.len() * 3);
+    let mut at = 0;
+    for &n in &arities {
+        let polygon = &mesh.indices[at..at + n as usize];
+        at += n as usize;
+        triangulate_polygon(polygon, &position, &mut triangles);
+    }
+    mesh.indices = triangles;
+}
+
+/// Polygons above this size are fanned: ear clipping costs up to the cube of the size.
+const EAR_CLIPPING_MAX: usize = 1024;
+
+/// Appends the triangles of one polygon (vertex indices in order) to `out` (see [`triangulate`]).
+fn triangulate_polygon(polygon: &[u32], position: &impl Fn(u32) -> glam::DVec3, out: &mut Vec<u32>) {
+    let n = polygon.len();
+    let fan = |from: &[u32], out: &mut Vec<u32>| {
+        for k in 1..from.len().saturating_sub(1) {
+            out.extend([from[0], from[k], from[k + 1]]);
+        }
+    };
+    if n <= 3 || n > EAR_CLIPPING_MAX {
+        return fan(polygon, out);
+    }
+    // Newell's normal, then 2D coordinates in the plane across its largest component, oriented
+    // so that the polygon winds counter-clockwise there.
+    let p: Vec<glam::DVec3> = polygon.iter().map(|&i| position(i)).collect();
+    let normal = (0..n).fold(glam::DVec3::ZERO, |acc, k| {
+        let (a, b) = (p[k], p[(k + 1) % n]);
+        acc + glam::DVec3::new((a.y - b.y) * (a.z + b.z), (a.z - b.z) * (a.x + b.x), (a.x - b.x) * (a.y + b.y))
+    });
+    let axis = normal.abs().max_position();
+    if !(normal[axis].abs() > 0.0) {
+        return fan(polygon, out);
+    }
+    let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+    let sign = normal[axis].signum();
+    let q: Vec<glam::DVec2> = p.iter().map(|a| glam::DVec2::new(a[u], a[v] * sign)).collect();
+    let cross = |a: usize, b: usize, c: usize| (q[b] - q[a]).perp_dot(q[c] - q[a]);
+    if (0..n).all(|k| cross(k, (k + 1) % n, (k + 2) % n) >= 0.0) {
+        return fan(polygon, out);
+    }
+    let mut left: Vec<usize> = (0..n).collect();
+    while left.len() > 3 {
+        let m = left.len();
+        let ear = (0..m).find(|&k| {
+            let (a, b, c) = (left[(k + m - 1) % m], left[k], left[(k + 1) % m]);
+            let turn = cross(a, b, c);
+            // A vertex in the middle of a straight run (a T-junction's) goes as a zero-area
+            // triangle, which keeps it joined to its neighbours without changing the shape.
+            (turn == 0.0 && (q[b] - q[a]).dot(q[c] - q[b]) > 0.0)
+                || turn > 0.0
+                    && left.iter().all(|&o| {
+                        o == a
+                            || o == b
+                            || o == c
+                            || cross(a, b, o) < 0.0
+                            || cross(b, c, o) < 0.0
+                            || cross(c, a, o) < 0.0
+                    })
+        });
+        let Some(k) = ear else { break };
+        out.extend([polygon[left[(k + m - 1) % m]], polygon[left[k]], polygon[left[(k + 1) % m]]]);
+        left.remove(k);
+    }
+    let rest: Vec<u32> = left.iter().map(|&k| polygon[k]).collect();
+    fan(&rest, out);
 }
 
 /// The MTL file at `path`, for tobj's OBJ loader, checked first ([`check_mtl`]). The first
@@ -605,6 +694,47 @@ mod tests {
             }
         }
         assert!(uses.values().all(|&c| c == 2));
+    }
+
+    /// A U-shaped octagon and a 10-point star (concave) keep their shapes: their triangles
+    /// add up to the polygon's area, all wound as the polygon (normal +z), and none covers
+    /// the notch; a convex quad is the fan tobj gave, and a straight run's middle vertex is kept.
+    #[test]
+    fn concave_polygons_keep_their_shape() {
+        let dir = std::env::temp_dir().join(format!("arbor-polygons-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let star: String = (0..10)
+            .map(|k| {
+                let (r, a) = (if k % 2 == 0 { 1.0 } else { 0.4 }, k as f64 * std::f64::consts::PI / 5.0);
+                format!("v {} {} 0\n", r * a.cos(), r * a.sin())
+            })
+            .collect();
+        let cases = [
+            (
+                "v 0 0 0\nv 3 0 0\nv 3 3 0\nv 2 3 0\nv 2 1 0\nv 1 1 0\nv 1 3 0\nv 0 3 0\nf 1 2 3 4 5 6 7 8\n"
+                    .to_string(),
+                7.0,
+            ),
+            (star + "f 1 2 3 4 5 6 7 8 9 10\n", 10.0 * 0.5 * 0.4 * (std::f64::consts::PI / 5.0).sin()),
+            // An L with a vertex in the middle of its bottom edge.
+            ("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 2 1 0\nv 1 1 0\nv 1 2 0\nv 0 2 0\nf 1 2 3 4 5 6 7\n".to_string(), 3.0),
+        ];
+        for (k, (text, area)) in cases.iter().enumerate() {
+            let path = dir.join(format!("p{k}.obj"));
+            std::fs::write(&path, text).unwrap();
+            let m = TriangleMesh::load_obj(&path).unwrap();
+            let tris = m.triangles();
+            let sum: f64 = tris.iter().map(|t| f64::from((t.v1 - t.v0).cross(t.v2 - t.v0).z) * 0.5).sum();
+            assert!((sum - area).abs() < 1e-5, "polygon {k}: triangles of area {sum}, polygon {area}");
+            assert!(
+                tris.iter().all(|t| (t.v1 - t.v0).cross(t.v2 - t.v0).z >= 0.0),
+                "polygon {k}: a triangle turned over"
+            );
+            assert!(m.indices.iter().flatten().copied().collect::<HashSet<u32>>().len() == m.positions.len());
+        }
+        std::fs::write(dir.join("quad.obj"), "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n").unwrap();
+        assert_eq!(TriangleMesh::load_obj(dir.join("quad.obj")).unwrap().indices, vec![[0, 1, 2], [0, 2, 3]]);
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
