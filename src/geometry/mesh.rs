@@ -353,7 +353,8 @@ fn triangulate_polygon(polygon: &[u32], position: &impl Fn(u32) -> glam::DVec3, 
         acc + glam::DVec3::new((a.y - b.y) * (a.z + b.z), (a.z - b.z) * (a.x + b.x), (a.x - b.x) * (a.y + b.y))
     });
     let axis = normal.abs().max_position();
-    if !(normal[axis].abs() > 0.0) {
+    // Zero (a degenerate polygon) or NaN.
+    if normal[axis].abs().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return fan(polygon, out);
     }
     let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
