@@ -271,10 +271,10 @@ pub(crate) struct ObjFile {
 /// (a broken MTL file is no error here: see [`ObjFile::mtl_error`]).
 pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshError> {
     // One rewrite of the text alive at a time beside the next (the file read is dropped here).
-    let text = without_comments(
-        &crate::memory::read_at_most(path, crate::memory::text_file_limit())
+    let text = without_comments(&lossy_utf8(
+        crate::memory::read_at_most(path, crate::memory::text_file_limit())
             .map_err(|error| MeshError::Read { path: path.to_owned(), error })?,
-    );
+    ));
     let usemtl = check_obj(path, &text)?;
     let text = for_tobj(text);
     let (mtl_files, mtl_error) = (RefCell::new(Vec::new()), RefCell::new(None));
@@ -400,10 +400,21 @@ fn load_mtl(path: &Path, error: &RefCell<Option<MeshError>>) -> tobj::MTLLoadRes
     };
     let file = crate::memory::read_at_most(path, crate::memory::text_file_limit())
         .map_err(|error| fail(MeshError::Read { path: path.to_owned(), error }))?;
-    let text = without_comments(&file);
+    let text = without_comments(&lossy_utf8(file));
     check_mtl(path, &text).map_err(fail)?;
     let mut reader = Cursor::new(&text[..]);
     tobj::load_mtl_buf(&mut reader).map_err(|e| fail(tobj_error(path, &text, reader.position(), e)))
+}
+
+/// An OBJ or MTL file's bytes as UTF-8, any byte that is not replaced by U+FFFD. Exporters
+/// write names and comments in Latin-1 or the system's code page (`g Fläche`, `# Modèle`),
+/// and one such byte made tobj refuse the whole file. OBJ and MTL files are converted alike, so
+/// a `usemtl` still finds its `newmtl`; only names that differ in such bytes alone would merge.
+fn lossy_utf8(bytes: Vec<u8>) -> Vec<u8> {
+    match String::from_utf8(bytes) {
+        Ok(text) => text.into_bytes(),
+        Err(e) => String::from_utf8_lossy(e.as_bytes()).into_owned().into_bytes(),
+    }
 }
 
 /// `text` (an OBJ or MTL file) without a leading UTF-8 byte-order mark, which tobj would read
@@ -735,6 +746,18 @@ mod tests {
         }
         std::fs::write(dir.join("quad.obj"), "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n").unwrap();
         assert_eq!(TriangleMesh::load_obj(dir.join("quad.obj")).unwrap().indices, vec![[0, 1, 2], [0, 2, 3]]);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// One Latin-1 byte in a comment or a group name (a 3ds Max export's `g Fläche`) made the
+    /// whole file "not UTF-8 text".
+    #[test]
+    fn latin1_names_and_comments_load() {
+        let dir = std::env::temp_dir().join(format!("arbor-latin1-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.obj");
+        std::fs::write(&path, b"# Mod\xe8le\ng Fl\xe4che\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        assert_eq!(TriangleMesh::load_obj(&path).unwrap().triangle_count(), 1);
         std::fs::remove_dir_all(&dir).ok();
     }
 
