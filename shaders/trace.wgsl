@@ -529,7 +529,7 @@ fn direct_light(
     let clear = dot(abs(ng), sp.error + abs(sp.p) * GAMMA1) / cos_receiver;
     let from_surface = sp.p + wi_world * clear;
     let shadow = Ray(from_surface, lp.p - from_surface);
-    let short_of_plane = dot(abs(light.normal), lp.error) / (abs(cos_light) * length(shadow.dir));
+    let short_of_plane = dot(abs(light.normal), lp.error) / (abs(cos_light) * robust_length(shadow.dir));
     let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
     if !(is_finite_f(clear) && clear < dist && t_max > 0.0) || occluded(shadow, t_max) {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);

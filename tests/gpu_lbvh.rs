@@ -1,4 +1,4 @@
-//! The GPU LBVH builds the CPU LBVH's tree, node for node (topology, boxes, primitive order),
+//! The GPU LBVH builds the CPU's `lbvh::build_karras` tree (Karras as published), node for node (topology, boxes, primitive order),
 //! on random boxes, on inputs with many equal Morton codes, and on the shared dragon; and the
 //! tree passes `validate()`. Runs on any adapter, lavapipe included; skips without one, except
 //! under `CI=true`.

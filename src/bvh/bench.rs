@@ -55,9 +55,9 @@ pub struct BuilderReport {
     pub nodes: usize,
     pub leaves: usize,
     pub depth: usize,
-    /// Trace speeds in Mrays/s; `None` (null in the JSON) for a set of no rays: shadow and
-    /// diffuse rays start where primary rays hit, and a camera that sees nothing of a thin mesh
-    /// makes none.
+    /// Trace speeds in Mrays/s; `None` (null in the JSON) for a set of no rays (or one traced
+    /// in no measurable time): shadow and diffuse rays start where primary rays hit, and a
+    /// camera that sees nothing of a thin mesh makes none.
     pub primary_mrays: Option<f64>,
     pub shadow_mrays: Option<f64>,
     pub diffuse_mrays: Option<f64>,

@@ -92,8 +92,8 @@ impl TriangleMesh {
         Ok(mesh)
     }
 
-    /// The positions and triangles of one tobj mesh (loaded with `triangulate` and
-    /// `single_index`).
+    /// The positions and triangles of one tobj mesh (loaded with `single_index`, its polygons
+    /// triangulated by [`triangulate`]).
     pub(crate) fn from_tobj(m: &tobj::Mesh) -> Self {
         TriangleMesh {
             positions: m.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])).collect(),
@@ -410,10 +410,20 @@ fn load_mtl(path: &Path, error: &RefCell<Option<MeshError>>) -> tobj::MTLLoadRes
 /// write names and comments in Latin-1 or the system's code page (`g Fläche`, `# Modèle`),
 /// and one such byte made tobj refuse the whole file. OBJ and MTL files are converted alike, so
 /// a `usemtl` still finds its `newmtl`; only names that differ in such bytes alone would merge.
+/// A file of which more than a quarter of the bytes are not UTF-8 is no text file (a binary one
+/// given by mistake; Latin-1 prose has a few percent): it is left as it is, for tobj's "not UTF-8
+/// text" at its line, and so that the three bytes of each replacement cannot triple the file.
 fn lossy_utf8(bytes: Vec<u8>) -> Vec<u8> {
     match String::from_utf8(bytes) {
         Ok(text) => text.into_bytes(),
-        Err(e) => String::from_utf8_lossy(e.as_bytes()).into_owned().into_bytes(),
+        Err(e) => {
+            let bytes = e.into_bytes();
+            let bad: usize = bytes.utf8_chunks().map(|c| c.invalid().len()).sum();
+            if bad > bytes.len() / 4 {
+                return bytes;
+            }
+            String::from_utf8_lossy(&bytes).into_owned().into_bytes()
+        }
     }
 }
 
@@ -450,7 +460,8 @@ const NUMBER_KEYWORDS: [&str; 17] =
 /// line for line. Line (`l`) and point (`p`) elements are blanked: tobj makes triangles of them
 /// (`l 1 2 3` is a face, `l 1 2` a degenerate one), and Arbor renders faces only. A vertex colour
 /// (`v x y z r g b`) is dropped: tobj needs one on every vertex or on none, and Arbor does not
-/// use them. Lines that are not UTF-8 are kept, for tobj's error.
+/// use them. Lines that are not UTF-8 (a file [`lossy_utf8`] left as it was) are kept, for
+/// tobj's error.
 fn for_tobj(text: Vec<u8>) -> Vec<u8> {
     let mut out = Vec::with_capacity(text.len());
     for (k, line) in text.split(|&b| b == b'\n').enumerate() {
@@ -758,6 +769,18 @@ mod tests {
         let path = dir.join("m.obj");
         std::fs::write(&path, b"# Mod\xe8le\ng Fl\xe4che\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
         assert_eq!(TriangleMesh::load_obj(&path).unwrap().triangle_count(), 1);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_binary_file_is_refused_as_not_text() {
+        let dir = std::env::temp_dir().join(format!("arbor-binary-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.obj");
+        let bytes: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8 | 0x80).collect();
+        std::fs::write(&path, bytes).unwrap();
+        let e = TriangleMesh::load_obj(&path).unwrap_err().to_string();
+        assert!(e.contains("not UTF-8 text") && e.contains("m.obj"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 

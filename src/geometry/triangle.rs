@@ -239,8 +239,9 @@ impl Triangle {
         // The range test on the f32 distance reported, as in the f32 path: the reported `t`
         // alone decides acceptance, so a query bounded by a hit's own `t` finds it again.
         let t32 = t as f32;
-        // Finite: det is not zero and the products of f32 values are far from overflowing.
-        if t32 > t_max {
+        // Sheared coordinates that overflowed f32 give infinite edge functions here, and then a
+        // NaN `t`: no hit, as before (the f64 test below would not recheck the edges).
+        if !t.is_finite() || t32 > t_max {
             return None;
         }
         // The f32 path's bound: the shear rounded in f32, the rest is nearly exact here, so

@@ -1,5 +1,7 @@
 //! LBVH on the GPU: the CPU builder's algorithm ([`crate::bvh::lbvh`], Karras 2012), kernel by
-//! kernel in `shaders/lbvh.wgsl`, building the same tree bit for bit (tested).
+//! kernel in `shaders/lbvh.wgsl`, building the same tree bit for bit as the CPU's
+//! [`crate::bvh::lbvh::build_karras`] (tested), Karras' algorithm as published: without the CPU
+//! default's refinement of runs of equal Morton codes.
 //!
 //! 1. Centroid bounds by a two-stage workgroup reduction. The 24 bytes of bounds are read back,
 //!    and the Morton quantizer (origin and scale) is computed on the host exactly as the CPU
@@ -81,7 +83,7 @@ pub fn sorted_morton_codes(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(Vec
 }
 
 /// Builds the LBVH over `prim_aabbs` on the GPU and reads it back: the same tree as
-/// [`crate::bvh::lbvh::build`].
+/// [`crate::bvh::lbvh::build_karras`].
 pub fn build(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(Bvh, GpuBuildTimes), GpuError> {
     if prim_aabbs.len() <= 1 {
         return Ok((Bvh::single_leaf(prim_aabbs), GpuBuildTimes::default()));

@@ -3,7 +3,7 @@
 //! - [`context`]: adapter choice (discrete, integrated, then software only when allowed),
 //!   features and limits, the pipeline cache, buffers within the adapter's limits;
 //! - [`layout`]: the structs and constants shared with WGSL, and the prelude generated from them;
-//! - [`lbvh`]: the LBVH build, the same tree as the CPU's;
+//! - [`lbvh`]: the LBVH build, the same tree as the CPU's `lbvh::build_karras`;
 //! - [`prbvh`]: parallel reinsertion, the paper's six kernels per iteration;
 //! - [`trace`]: path tracing, the CPU's integrator in one kernel per scene variant.
 //!

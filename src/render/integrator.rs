@@ -654,7 +654,7 @@ impl RenderScene {
         let clear = ng.abs().dot(p_error + p.abs() * gamma(1)) / cos_receiver;
         let from = p + wi_world * clear;
         let shadow = Ray::new(from, lp.point - from);
-        let length = shadow.dir.length();
+        let length = robust_length(shadow.dir);
         let short_of_plane = lp.normal.abs().dot(lp.point_error) / (cos_light.abs() * length);
         let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
         if !(clear.is_finite() && clear < dist && t_max > 0.0) || self.geometry.occluded(&shadow, t_max) {

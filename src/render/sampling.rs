@@ -112,7 +112,7 @@ pub fn power_heuristic(pdf_f: f32, pdf_g: f32) -> f32 {
 
 /// `|v|`, also where `|v|²` overflows or underflows f32 (lengths beyond about 10^19 or below
 /// about 10^-19): then from `v` divided by its largest component. Elsewhere the same bits as
-/// `v.length()`. Shared in form with the GPU's `robust_length` (shaders/trace.wgsl).
+/// `v.length()`. Shared in form with the GPU's `robust_length` (shaders/bsdf.wgsl).
 pub fn robust_length(v: Vec3) -> f32 {
     let dist2 = v.length_squared();
     if dist2.is_normal() {
