@@ -144,6 +144,10 @@ impl LbvhBuilder {
 pub fn refine_equal_codes(prim_aabbs: &[Aabb], codes: &[u64], prim_ids: &mut [u32], keys: &mut Vec<u128>) -> bool {
     let n = codes.len();
     let centroid = |p: u32| prim_aabbs[p as usize].center();
+    // Most meshes have no equal codes at all: nothing to allocate then.
+    if !codes.par_windows(2).with_min_len(4096).any(|w| w[0] == w[1]) {
+        return false;
+    }
     // Runs of two or more equal codes whose centroids are not all the same point.
     let starts: Vec<usize> =
         (0..n).into_par_iter().with_min_len(4096).filter(|&k| k == 0 || codes[k] != codes[k - 1]).collect();
@@ -361,6 +365,22 @@ mod tests {
         ];
         for (i, e) in expected.into_iter().enumerate() {
             assert_eq!(karras_split(&codes, i), e, "internal node {i}");
+        }
+    }
+
+    /// A u128 key with the code in its high half and equal low halves splits where the u64 code
+    /// does, so refined keys change the tree only inside runs of equal codes.
+    #[test]
+    fn wide_keys_split_as_their_codes() {
+        let codes: Vec<u64> = {
+            let mut c: Vec<u64> = (0..500u64).map(|k| k.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 3).collect();
+            c.extend_from_slice(&[c[7]; 5]);
+            c.sort_unstable();
+            c
+        };
+        let wide: Vec<u128> = codes.iter().map(|&c| u128::from(c) << 64).collect();
+        for i in 0..codes.len() - 1 {
+            assert_eq!(karras_split(&codes, i), karras_split(&wide, i), "internal node {i}");
         }
     }
 

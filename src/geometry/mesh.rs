@@ -310,8 +310,10 @@ pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshErro
 /// clipping in the plane of its Newell normal, so that an L- or U-shaped floor keeps its shape
 /// (a fan covered the notch with back-facing triangles). Windings are kept. A polygon of more
 /// than [`EAR_CLIPPING_MAX`] vertices, or one whose ears run out (a self-intersecting one),
-/// gets a fan for what is left. Written here because tobj has only the fan and the one crate
-/// that ear-clips (earcutr) adds hole handling and a dependency for this one loop.
+/// gets a fan for what is left. Ear clipping as in Meisters' two-ears theorem (every simple
+/// polygon of four or more vertices has two non-overlapping ears; G. H. Meisters, "Polygons Have
+/// Ears", Amer. Math. Monthly 82, 1975). Written here because tobj has only the fan and the one
+/// crate that ear-clips (earcutr) adds hole handling and a dependency for this one loop.
 fn triangulate(mesh: &mut tobj::Mesh) {
     if mesh.face_arities.is_empty() {
         return;
