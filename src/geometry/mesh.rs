@@ -762,28 +762,25 @@ mod tests {
         std::fs::remove_dir_all(&dir).ok();
     }
 
-    /// One Latin-1 byte in a comment or a group name (a 3ds Max export's `g Fläche`) made the
-    /// whole file "not UTF-8 text".
-    #[test]
-    fn latin1_names_and_comments_load() {
-        let dir = std::env::temp_dir().join(format!("arbor-latin1-{}", std::process::id()));
+    /// Loads `bytes` as an OBJ file of its own.
+    fn load_obj_bytes(name: &str, bytes: &[u8]) -> Result<TriangleMesh, MeshError> {
+        let dir = std::env::temp_dir().join(format!("arbor-{name}-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("m.obj");
-        std::fs::write(&path, b"# Mod\xe8le\ng Fl\xe4che\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
-        assert_eq!(TriangleMesh::load_obj(&path).unwrap().triangle_count(), 1);
+        std::fs::write(dir.join("m.obj"), bytes).unwrap();
+        let result = TriangleMesh::load_obj(dir.join("m.obj"));
         std::fs::remove_dir_all(&dir).ok();
+        result
     }
 
+    /// One Latin-1 byte in a comment or a group name (a 3ds Max export's `g Fläche`) made the
+    /// whole file "not UTF-8 text"; a binary file, mostly not UTF-8, is still refused as such.
     #[test]
-    fn a_binary_file_is_refused_as_not_text() {
-        let dir = std::env::temp_dir().join(format!("arbor-binary-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("m.obj");
-        let bytes: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8 | 0x80).collect();
-        std::fs::write(&path, bytes).unwrap();
-        let e = TriangleMesh::load_obj(&path).unwrap_err().to_string();
+    fn latin1_text_loads_and_binary_is_refused() {
+        let latin1 = b"# Mod\xe8le\ng Fl\xe4che\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+        assert_eq!(load_obj_bytes("latin1", latin1).unwrap().triangle_count(), 1);
+        let binary: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8 | 0x80).collect();
+        let e = load_obj_bytes("binary", &binary).unwrap_err().to_string();
         assert!(e.contains("not UTF-8 text") && e.contains("m.obj"), "{e}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
