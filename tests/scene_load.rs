@@ -465,7 +465,10 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
         ),
         (BASE.replace("[camera]", "[camera"), 1, "syntax", ""),
         (BASE.replace("fov = 40\n", ""), 1, "camera", "fov"),
-        (BASE.replace("look_at = [0, 0, 0]", "look_at = [0, 0, 5]"), 3, "camera.look_at", "position"),
+        (BASE.replace("look_at = [0, 0, 0]", "look_at = [0, 0, 5]"), 3, "camera.look_at", "equals"),
+        (BASE.replace("position = [0, 0, 5]", "position = [0, 0, 1e-23]"), 3, "camera.look_at", "1.00e-23 from"),
+        (BASE.replace("fov = 40", "fov = 40\nfov = 50"), 5, "syntax", "duplicate key `fov`"),
+        (format!("{BASE}\n[[objects]]\nmesh = \"\"\nmaterial = \"white\"\n"), 12, "objects[0].mesh", "is empty"),
         (
             BASE.replace("type = \"diffuse\"", "type = \"diffuse\"\nior = 1.5"),
             9,

@@ -436,6 +436,8 @@ fn lossy_utf8(bytes: Vec<u8>) -> Vec<u8> {
 /// numbers stay the file's.
 fn without_comments(text: &[u8]) -> Vec<u8> {
     let text = text.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(text);
+    let joined = logical_lines(text);
+    let text = joined.as_deref().unwrap_or(text);
     let mut out = Vec::with_capacity(text.len());
     for (k, line) in text.split(|&b| b == b'\n').enumerate() {
         if k > 0 {
@@ -451,6 +453,44 @@ fn without_comments(text: &[u8]) -> Vec<u8> {
         out.extend_from_slice(kept);
     }
     out
+}
+
+/// `text` with its physical lines made the logical lines tobj reads, where they differ (`None`
+/// where they do not): a lone carriage return (classic Mac OS line ends) ends a line, and a
+/// line ending in `\` goes on in the next, as the OBJ format allows (long face lines), unless
+/// it is a comment. A continued line is joined with a space in place of the `\` and its line
+/// end, and its line ends are written after it, so that every later line keeps its number; an
+/// error in a joined line names its first line. tobj does neither: it reads a file of lone CRs
+/// as one line, and a `\` as a value.
+fn logical_lines(text: &[u8]) -> Option<Vec<u8>> {
+    let lone_cr = |i: usize| text[i] == b'\r' && text.get(i + 1) != Some(&b'\n');
+    if !text.contains(&b'\\') && !(0..text.len()).any(lone_cr) {
+        return None;
+    }
+    let unified: Vec<u8> = (0..text.len()).map(|i| if lone_cr(i) { b'\n' } else { text[i] }).collect();
+    let mut out = Vec::with_capacity(unified.len());
+    let mut owed = 0;
+    let mut lines = unified.split(|&b| b == b'\n').peekable();
+    while let Some(line) = lines.next() {
+        let last = lines.peek().is_none();
+        // A comment is not continued: `# C:\models\` would swallow the next line.
+        let comment = line.trim_ascii_start().starts_with(b"#") && owed == 0;
+        match line.trim_ascii_end().strip_suffix(b"\\") {
+            Some(head) if !last && !comment => {
+                out.extend_from_slice(head);
+                out.push(b' ');
+                owed += 1;
+            }
+            _ => {
+                out.extend_from_slice(line);
+                if !last {
+                    out.resize(out.len() + 1 + owed, b'\n');
+                }
+                owed = 0;
+            }
+        }
+    }
+    Some(out)
 }
 
 /// The OBJ and MTL keywords whose values are numbers (or indices), after which a `#` starts a
@@ -781,6 +821,21 @@ mod tests {
         let binary: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8 | 0x80).collect();
         let e = load_obj_bytes("binary", &binary).unwrap_err().to_string();
         assert!(e.contains("not UTF-8 text") && e.contains("m.obj"), "{e}");
+    }
+
+    /// Lone carriage returns end lines, and a `\` continues one; line numbers stay the file's.
+    #[test]
+    fn line_ends_and_continuations() {
+        let mac = b"v 0 0 0\rv 1 0 0\rv 0 1 0\rf 1 2 3\r";
+        assert_eq!(load_obj_bytes("cr", mac).unwrap().triangle_count(), 1);
+        let continued = b"v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nv 1 1 0\r\nf 1 \\\r\n 2 \\ \n3 4\nf 1 2 9\n";
+        let e = load_obj_bytes("continued", continued).unwrap_err().to_string();
+        assert!(e.contains("m.obj:8"), "the error after a joined face names its own line: {e}");
+        let continued = &continued[..continued.len() - b"f 1 2 9\n".len()];
+        assert_eq!(load_obj_bytes("continued", continued).unwrap().triangle_count(), 2);
+        assert_eq!(logical_lines(b"a \\\nb\nc\\").unwrap(), b"a  b\n\nc\\");
+        assert_eq!(logical_lines(b"# C:\\m\\\nv 0 0 0").unwrap(), b"# C:\\m\\\nv 0 0 0");
+        assert!(logical_lines(b"a\r\nb\n").is_none());
     }
 
     #[test]

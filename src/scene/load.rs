@@ -110,8 +110,17 @@ impl Ctx<'_> {
 
 pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
     let ctx = Ctx { file: &file, text };
-    let de = toml::de::Deserializer::parse(text)
-        .map_err(|e| ctx.err(e.span().unwrap_or(0..0), "syntax", e.message().trim().to_string()))?;
+    let de = toml::de::Deserializer::parse(text).map_err(|e| {
+        let span = e.span().unwrap_or(0..0);
+        let mut message = e.message().trim().to_string();
+        // toml says only "duplicate key"; its span is the key as written.
+        if message == "duplicate key" {
+            if let Some(k) = text.get(span.clone()).map(str::trim).filter(|k| !k.is_empty() && !k.contains('\n')) {
+                message = format!("duplicate key `{k}`");
+            }
+        }
+        ctx.err(span, "syntax", message)
+    })?;
     let parsed: SceneFile = serde_path_to_error::deserialize(de).map_err(|e| {
         // `Spanned` shows up in the path as a private field; the user wrote none of it.
         let key = e
@@ -180,8 +189,17 @@ fn camera(ctx: &Ctx, f: &SceneFile) -> Result<Camera, SceneError> {
         None => Vec3::Y,
     };
     let view = look_at - position;
-    if view.length_squared() == 0.0 {
+    if view == Vec3::ZERO {
         return Err(ctx.err(c.look_at.span(), "camera.look_at", "equals camera.position"));
+    }
+    // The camera normalizes the view direction in f32: its squared length must not underflow.
+    if view.length_squared() < f32::MIN_POSITIVE {
+        let distance = view.as_dvec3().length();
+        return Err(ctx.err(
+            c.look_at.span(),
+            "camera.look_at",
+            format!("is {distance:.2e} from camera.position, too close for f32 (at least 1.1e-19): scale the scene up"),
+        ));
     }
     // The camera normalizes both: their squared lengths must be finite.
     if !view.length_squared().is_finite() {
@@ -411,6 +429,9 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
     };
     let mesh = match (&f.mesh, &f.shape) {
         (Some(path), None) => {
+            if path.get_ref().trim().is_empty() {
+                return Err(ctx.err(path.span(), key("mesh"), "is empty: name an OBJ file"));
+            }
             if let Some(s) = &f.subdivisions {
                 return Err(ctx.err(s.span(), key("subdivisions"), "only a built-in sphere takes subdivisions"));
             }
