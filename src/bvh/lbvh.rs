@@ -195,6 +195,16 @@ pub fn sorted_morton_codes(prim_aabbs: &[Aabb]) -> (Vec<u64>, Vec<u32>) {
     (b.codes, prim_ids)
 }
 
+/// The primitives in the LBVH's order: by Morton code, and inside each run of equal codes by
+/// the run's own codes ([`refine_equal_codes`]). PLOC clusters in this order.
+pub fn morton_order(prim_aabbs: &[Aabb]) -> Vec<u32> {
+    let mut b = LbvhBuilder::default();
+    let mut prim_ids = Vec::new();
+    b.sort_morton_codes(prim_aabbs, &mut prim_ids);
+    refine_equal_codes(prim_aabbs, &b.codes, &mut prim_ids, &mut b.keys);
+    prim_ids
+}
+
 /// Karras' radix tree over sorted `codes` (at least 2), in the layout of [`Bvh`], with empty
 /// boxes. Leaf `k` (the k-th code) gets `first = k`. Fills `nodes`, `parents`, and each leaf's
 /// slot in key order (`leaf_slots`).

@@ -2,8 +2,8 @@
 //! Construction" (IEEE TVCG 2018).
 //!
 //! Bottom-up agglomerative clustering restricted to a window of the Morton order:
-//! 1. The primitives, sorted by the Morton codes of their box centres (the same codes and sort as
-//!    [`super::lbvh`]), are the first clusters.
+//! 1. The primitives, sorted by the Morton codes of their box centres (the same codes, sort and
+//!    refinement of runs of equal codes as [`super::lbvh`]), are the first clusters.
 //! 2. Each iteration (section 4), in parallel:
 //!    - every cluster finds its nearest neighbour among the `radius` clusters on either side of
 //!      it, the distance being the surface area of the merged box;
@@ -66,7 +66,7 @@ fn build_counting(prim_aabbs: &[Aabb], config: &PlocConfig) -> (Bvh, usize) {
     if n <= 1 {
         return (Bvh::single_leaf(prim_aabbs), 0);
     }
-    let (_, prim_ids) = super::lbvh::sorted_morton_codes(prim_aabbs);
+    let prim_ids = super::lbvh::morton_order(prim_aabbs);
     let len = 2 * n;
     let mut nodes = Nodes::default();
     nodes.fill_pairs(n, len, |_| [BvhNode::zeroed(); 2]);
@@ -234,6 +234,23 @@ mod tests {
     #[test]
     fn the_tree_does_not_depend_on_the_units() {
         crate::bvh::assert_scale_invariant("ploc", |p| build(p, &PlocConfig::default()));
+    }
+
+    /// A far outlier puts the cluster's codes in a few cells; PLOC's window then follows the
+    /// refined order, not the file order, and the cluster's tree is about the one it gets alone.
+    #[test]
+    fn a_far_outlier_does_not_spoil_the_window() {
+        let cluster = crate::bvh::scattered_boxes(2000, 0.3);
+        let mut prims = cluster.clone();
+        prims.push(Aabb::new(Vec3::splat(1e7), Vec3::splat(1e7 + 1.0)));
+        let interior =
+            |b: &Bvh| -> f64 { b.nodes.iter().filter(|n| !n.is_leaf()).map(|n| f64::from(n.aabb().half_area())).sum() };
+        let alone = interior(&build(&cluster, &PlocConfig::default()));
+        let with = build(&prims, &PlocConfig::default());
+        crate::bvh::validate(&with, &prims).unwrap();
+        // Below the root, which holds the outlier beside the cluster's root.
+        let below = interior(&with) - f64::from(with.nodes[0].aabb().half_area());
+        assert!(below <= 1.1 * alone, "{below} against {alone} for the cluster alone");
     }
 
     #[test]
