@@ -66,3 +66,44 @@ fn dragon_gives_the_cpu_tree() {
     let prims: Vec<Aabb> = mesh.triangles().iter().map(Triangle::aabb).collect();
     same_tree("dragon", &prims);
 }
+
+/// A sphere inside a box of 10^6 (a sky box): the sphere's triangles share a few Morton cells,
+/// where Karras' tree keeps them in file order. `render --device gpu` then builds the CPU's
+/// LBVH, which splits such runs: the same tree as `render --device cpu`, where Karras' tree
+/// has several times the sphere's interior area.
+#[test]
+fn a_sky_box_gets_the_cpu_lbvh_for_rendering() {
+    use arbor::bvh::builders::Builder;
+    use arbor::bvh::{Bvh, collapse_leaves};
+    use arbor::render::geometry::Geometry;
+    use arbor::render::{BuildReport, RenderScene};
+    use arbor::scene::Scene;
+    let Some(ctx) = gpu_or_skip("a sky box") else { return };
+    let text = "[camera]\nposition = [0, 0, 4]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\n\
+        [materials.w]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\n\
+        [[objects]]\nshape = \"sphere\"\nsubdivisions = 4\nmaterial = \"w\"\n\n\
+        [[objects]]\nshape = \"box\"\nmaterial = \"w\"\nscale = 1e6\n";
+    let scene = Scene::parse(text, std::env::temp_dir().join("arbor-sky-box.toml")).unwrap();
+    let tree = |(rs, _): &(RenderScene, BuildReport)| match &rs.geometry {
+        Geometry::Flat(f) => f.mesh.bvh.clone(),
+        Geometry::Instanced(_) => panic!("a flat scene was expected"),
+    };
+    // Internal nodes within the sphere's bounds: their area.
+    let inner = |b: &Bvh| -> f64 {
+        let inside =
+            |n: &&arbor::bvh::BvhNode| n.aabb().max.abs().max_element().max(n.aabb().min.abs().max_element()) < 2.0;
+        b.nodes.iter().filter(|n| !n.is_leaf()).filter(inside).map(|n| f64::from(n.aabb().half_area())).sum()
+    };
+    let cpu = RenderScene::build(&scene, &"lbvh".parse::<Builder>().unwrap());
+    let gpu = arbor::gpu::build_render_scene(ctx, &scene, false).unwrap().unwrap();
+    assert!(gpu.1.builder.contains("on the CPU"), "{}", gpu.1.builder);
+    assert!(tree(&gpu).nodes[..] == tree(&cpu).nodes[..], "{}: not the CPU's tree", gpu.1.builder);
+    let (triangles, _) = scene.world_triangles();
+    let prims: Vec<Aabb> = triangles.iter().map(Triangle::aabb).collect();
+    let karras = inner(&collapse_leaves(&lbvh::build_karras(&prims), &Default::default()));
+    let refined = inner(&tree(&cpu));
+    assert!(karras > 2.0 * refined, "Karras' tree: {karras} against {refined}: the test no longer shows the problem");
+    let optimized = arbor::gpu::build_render_scene(ctx, &scene, true).unwrap().unwrap();
+    assert!(optimized.1.builder.contains("prbvh on the GPU"), "{}", optimized.1.builder);
+    validate(&tree(&optimized), &prims).unwrap();
+}

@@ -142,22 +142,8 @@ impl LbvhBuilder {
 /// Two levels give 42 bits per axis, a range of about 4·10^12: a run whose second codes tie
 /// again is split by index, as Karras does.
 pub fn refine_equal_codes(prim_aabbs: &[Aabb], codes: &[u64], prim_ids: &mut [u32], keys: &mut Vec<u128>) -> bool {
-    let n = codes.len();
     let centroid = |p: u32| prim_aabbs[p as usize].center();
-    // Most meshes have no equal codes at all: nothing to allocate then.
-    if !codes.par_windows(2).with_min_len(4096).any(|w| w[0] == w[1]) {
-        return false;
-    }
-    // Runs of two or more equal codes whose centroids are not all the same point.
-    let starts: Vec<usize> =
-        (0..n).into_par_iter().with_min_len(4096).filter(|&k| k == 0 || codes[k] != codes[k - 1]).collect();
-    let runs: Vec<(usize, usize)> = starts
-        .par_iter()
-        .enumerate()
-        .with_min_len(1024)
-        .map(|(r, &s)| (s, starts.get(r + 1).copied().unwrap_or(n)))
-        .filter(|&(s, e)| e - s >= 2 && prim_ids[s + 1..e].iter().any(|&p| centroid(p) != centroid(prim_ids[s])))
-        .collect();
+    let runs = refinable_runs(prim_aabbs, codes, prim_ids);
     if runs.is_empty() {
         return false;
     }
@@ -185,6 +171,33 @@ pub fn refine_equal_codes(prim_aabbs: &[Aabb], codes: &[u64], prim_ids: &mut [u3
         }
     });
     true
+}
+
+/// The runs `(start, end)` of two or more equal sorted `codes` whose centroids are not all the
+/// same point: those [`refine_equal_codes`] splits.
+fn refinable_runs(prim_aabbs: &[Aabb], codes: &[u64], prim_ids: &[u32]) -> Vec<(usize, usize)> {
+    let n = codes.len();
+    let centroid = |p: u32| prim_aabbs[p as usize].center();
+    // Most meshes have no equal codes at all: nothing to allocate then.
+    if !codes.par_windows(2).with_min_len(4096).any(|w| w[0] == w[1]) {
+        return Vec::new();
+    }
+    let starts: Vec<usize> =
+        (0..n).into_par_iter().with_min_len(4096).filter(|&k| k == 0 || codes[k] != codes[k - 1]).collect();
+    starts
+        .par_iter()
+        .enumerate()
+        .with_min_len(1024)
+        .map(|(r, &s)| (s, starts.get(r + 1).copied().unwrap_or(n)))
+        .filter(|&(s, e)| e - s >= 2 && prim_ids[s + 1..e].iter().any(|&p| centroid(p) != centroid(prim_ids[s])))
+        .collect()
+}
+
+/// How many primitives lie in runs that [`refine_equal_codes`] would split, given the sorted
+/// `codes` and their `prim_ids`: where it is a large share, [`build_karras`] leaves much of the
+/// scene in file order.
+pub fn refinable_primitives(prim_aabbs: &[Aabb], codes: &[u64], prim_ids: &[u32]) -> usize {
+    refinable_runs(prim_aabbs, codes, prim_ids).iter().map(|(s, e)| e - s).sum()
 }
 
 /// Morton codes sorted ascending, and the primitive index for each.

@@ -23,7 +23,8 @@ use crate::scene::Scene;
 /// A flat scene built with its BVH made on the GPU: the LBVH, then, when `optimize`, parallel
 /// reinsertion with the best locks the adapter has, read back once; the leaf collapse and the
 /// rest as for a CPU build ([`RenderScene::assemble`]). What `render --device gpu` does for the
-/// builders `lbvh` and `lbvh+prbvh`. `None` for scenes the GPU build does not take (fewer than
+/// builders `lbvh` and `lbvh+prbvh`. A scene with many equal Morton codes gets the CPU's LBVH
+/// instead (see the body). `None` for scenes the GPU build does not take (fewer than
 /// two triangles).
 pub fn build_render_scene(
     ctx: &GpuContext,
@@ -38,14 +39,37 @@ pub fn build_render_scene(
     }
     let prims: Vec<crate::geometry::Aabb> = triangles.iter().map(crate::geometry::Triangle::aabb).collect();
     let (gpu, _) = lbvh::build_on_device(ctx, &prims)?;
-    let mut label = "lbvh on the GPU".to_owned();
-    if optimize {
-        let scheme = prbvh::LockScheme::best_for(ctx);
-        let config = crate::bvh::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
-        let stats = prbvh::optimize_on_device(ctx, &gpu, &config, scheme)?;
-        label = format!("lbvh+prbvh on the GPU, {} iterations, {scheme:?} locks", stats.iterations.len());
-    }
-    let tree = gpu.read(ctx)?;
+    let scheme = prbvh::LockScheme::best_for(ctx);
+    let config = crate::bvh::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
+    // The GPU builds Karras' LBVH, which leaves runs of equal Morton codes in file order: a
+    // model far from another object (under a ground quad of 10^6) lies in a few cells, and its
+    // tree would be a list. Where such runs hold more than 1/64 of the primitives (none of the
+    // bunny's, 2 of the dragon's 202,520), the CPU's LBVH, which splits them, is built instead
+    // and optimised on the GPU all the same.
+    let (codes, ids) = gpu.read_codes(ctx)?;
+    let scrambled = crate::bvh::lbvh::refinable_primitives(&prims, &codes, &ids);
+    let (tree, mut label) = if scrambled > prims.len() / 64 {
+        drop(gpu);
+        let cpu = crate::bvh::lbvh::build(&prims);
+        let why = format!("{scrambled} triangles in runs of equal Morton codes");
+        if optimize {
+            let (tree, stats) = prbvh::optimize(ctx, &cpu, &config, scheme)?;
+            let label = format!(
+                "lbvh on the CPU ({why}), prbvh on the GPU, {} iterations, {scheme:?} locks",
+                stats.iterations.len()
+            );
+            (tree, label)
+        } else {
+            (cpu, format!("lbvh on the CPU ({why})"))
+        }
+    } else {
+        let mut label = "lbvh on the GPU".to_owned();
+        if optimize {
+            let stats = prbvh::optimize_on_device(ctx, &gpu, &config, scheme)?;
+            label = format!("lbvh+prbvh on the GPU, {} iterations, {scheme:?} locks", stats.iterations.len());
+        }
+        (gpu.read(ctx)?, label)
+    };
     // Pipeline compilation, paid once per process, is reported apart from the build.
     let compiled = ctx.compile_time().saturating_sub(compiled_before);
     if compiled >= std::time::Duration::from_millis(1) {
