@@ -15,11 +15,12 @@
 //! centroid bounds, and sorted by that second code; the radix tree then splits such a run by
 //! the second code before the index ([`refine_equal_codes`]). Karras' codes are relative to the
 //! bounds of all centroids, so one far outlier (a stray triangle 10^7 away from a bunny, or a
-//! ground quad of 10^6 under a model) put the whole model in a few cells, and the index
-//! tie-break left its tree to the file's triangle order: the bunny with one stray triangle
-//! rendered at 0.02 Mrays/s, and PRBVH took 2.8 s to repair it (now 3.5 Mrays/s and 71 ms). Inputs with no such run get
-//! Karras' tree unchanged; elsewhere only the order inside such runs changes.
-//! [`build_karras`] is the plain algorithm, which the GPU build reproduces node for node.
+//! sky box of 10^6 around a model) put the whole model in a few cells, and the index tie-break
+//! left its tree to the file's triangle order: the bunny with one stray triangle rendered at
+//! 0.02 Mrays/s, and PRBVH took 2.8 s to repair it (now 3.5 Mrays/s and 71 ms). Inputs with no
+//! such run get Karras' tree unchanged; elsewhere only the order inside such runs changes.
+//! [`build_karras`] is the plain algorithm, which the GPU build reproduces node for node
+//! (`render --device gpu` takes this module's tree where [`refinable_primitives`] is large).
 //!
 //! Layout: Karras numbers internal nodes `0..n-1` and leaves `0..n`, and each node (but the root)
 //! is a child of exactly one internal node. We store the two children of Karras internal node `i`
