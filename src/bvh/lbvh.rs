@@ -212,10 +212,8 @@ pub fn sorted_morton_codes(prim_aabbs: &[Aabb]) -> (Vec<u64>, Vec<u32>) {
 /// The primitives in the LBVH's order: by Morton code, and inside each run of equal codes by
 /// the run's own codes ([`refine_equal_codes`]). PLOC clusters in this order.
 pub fn morton_order(prim_aabbs: &[Aabb]) -> Vec<u32> {
-    let mut b = LbvhBuilder::default();
-    let mut prim_ids = Vec::new();
-    b.sort_morton_codes(prim_aabbs, &mut prim_ids);
-    refine_equal_codes(prim_aabbs, &b.codes, &mut prim_ids, &mut b.keys);
+    let (codes, mut prim_ids) = sorted_morton_codes(prim_aabbs);
+    refine_equal_codes(prim_aabbs, &codes, &mut prim_ids, &mut Vec::new());
     prim_ids
 }
 

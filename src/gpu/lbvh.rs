@@ -57,6 +57,15 @@ pub struct GpuBvh {
 }
 
 impl GpuBvh {
+    /// The sorted Morton codes and the primitive of each, read back.
+    pub fn read_codes(&self, ctx: &GpuContext) -> Result<(Vec<u64>, Vec<u32>), GpuError> {
+        let n = self.prim_count as usize;
+        let hi: Vec<u32> = ctx.read_buffer("codes", &self.code_hi, n)?;
+        let lo: Vec<u32> = ctx.read_buffer("codes", &self.code_lo, n)?;
+        let codes = hi.iter().zip(&lo).map(|(&h, &l)| (u64::from(h) << 32) | u64::from(l)).collect();
+        Ok((codes, ctx.read_buffer("primitive ids", &self.prim_ids, n)?))
+    }
+
     /// Reads the tree back into host memory.
     pub fn read(&self, ctx: &GpuContext) -> Result<Bvh, GpuError> {
         let n = self.prim_count as usize;
@@ -75,17 +84,6 @@ impl GpuBvh {
 /// counterpart of [`crate::bvh::lbvh::sorted_morton_codes`], for tests of that stage.
 pub fn sorted_morton_codes(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(Vec<u64>, Vec<u32>), GpuError> {
     build_on_device(ctx, prim_aabbs)?.0.read_codes(ctx)
-}
-
-impl GpuBvh {
-    /// The sorted Morton codes and the primitive of each, read back.
-    pub fn read_codes(&self, ctx: &GpuContext) -> Result<(Vec<u64>, Vec<u32>), GpuError> {
-        let n = self.prim_count as usize;
-        let hi: Vec<u32> = ctx.read_buffer("codes", &self.code_hi, n)?;
-        let lo: Vec<u32> = ctx.read_buffer("codes", &self.code_lo, n)?;
-        let codes = hi.iter().zip(&lo).map(|(&h, &l)| (u64::from(h) << 32) | u64::from(l)).collect();
-        Ok((codes, ctx.read_buffer("primitive ids", &self.prim_ids, n)?))
-    }
 }
 
 /// Builds the LBVH over `prim_aabbs` on the GPU and reads it back: the same tree as

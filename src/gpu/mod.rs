@@ -42,7 +42,7 @@ pub fn build_render_scene(
     let scheme = prbvh::LockScheme::best_for(ctx);
     let config = crate::bvh::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
     // The GPU builds Karras' LBVH, which leaves runs of equal Morton codes in file order: a
-    // model far from another object (under a ground quad of 10^6) lies in a few cells, and its
+    // model far from another object (inside a sky box of 10^6) lies in a few cells, and its
     // tree would be a list. Where such runs hold more than 1/64 of the primitives (none of the
     // bunny's, 2 of the dragon's 202,520), the CPU's LBVH, which splits them, is built instead
     // and optimised on the GPU all the same.

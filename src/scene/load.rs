@@ -198,7 +198,10 @@ fn camera(ctx: &Ctx, f: &SceneFile) -> Result<Camera, SceneError> {
         return Err(ctx.err(
             c.look_at.span(),
             "camera.look_at",
-            format!("is {distance:.2e} from camera.position, too close for f32 (at least 1.1e-19): scale the scene up"),
+            format!(
+                "is {distance:.2e} from camera.position, too close for f32 (at least {:.1e}): scale the scene up",
+                f32::MIN_POSITIVE.sqrt()
+            ),
         ));
     }
     // The camera normalizes both: their squared lengths must be finite.
