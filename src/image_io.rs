@@ -148,44 +148,6 @@ pub fn check_output_path(path: impl AsRef<Path>) -> Result<(), ImageError> {
     Format::of(path.as_ref()).map(|_| ())
 }
 
-/// Whether `path` holds a frame-number pattern: `%d`, or `%0Nd` with N digits (`%04d`, `%010d`).
-/// A `%` in any other place is kept as it is (there is no `%%` escape).
-pub fn has_frame_pattern(path: impl AsRef<Path>) -> bool {
-    find_frame_pattern(&path.as_ref().to_string_lossy()).is_some()
-}
-
-/// `path` with its first frame-number pattern (`%d` or `%0Nd`, as in printf) replaced by
-/// `frame`, zero-padded to N digits; `path` itself when it has none.
-pub fn frame_path(path: impl AsRef<Path>, frame: u32) -> PathBuf {
-    let text = path.as_ref().to_string_lossy();
-    match find_frame_pattern(&text) {
-        Some((range, width)) => PathBuf::from(format!("{}{frame:0width$}{}", &text[..range.start], &text[range.end..])),
-        None => path.as_ref().to_path_buf(),
-    }
-}
-
-/// Widest zero padding a frame pattern may ask for: a file name is at most 255 bytes.
-const MAX_FRAME_WIDTH: usize = 255;
-
-/// The byte range and zero-padding width of the first `%d` or `%0Nd` in `s`.
-fn find_frame_pattern(s: &str) -> Option<(std::ops::Range<usize>, usize)> {
-    let bytes = s.as_bytes();
-    for (i, _) in s.match_indices('%') {
-        match bytes.get(i + 1..) {
-            Some([b'd', ..]) => return Some((i..i + 2, 0)),
-            Some([b'0', rest @ ..]) => {
-                let digits = rest.iter().take_while(|b| b.is_ascii_digit()).count();
-                if rest.get(digits) == Some(&b'd') {
-                    let width = s[i + 2..i + 2 + digits].parse::<usize>().unwrap_or(0).min(MAX_FRAME_WIDTH);
-                    return Some((i..i + 3 + digits, width));
-                }
-            }
-            _ => {}
-        }
-    }
-    None
-}
-
 fn io_error(path: &Path, what: &'static str, source: std::io::Error) -> ImageError {
     ImageError::Io { path: path.to_path_buf(), what, source }
 }
@@ -279,24 +241,6 @@ mod tests {
             fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
         names.sort();
         names
-    }
-
-    #[test]
-    fn frame_patterns_take_any_width() {
-        let cases = [
-            ("f_%04d.png", 7, "f_0007.png"),
-            ("f_%d.png", 7, "f_7.png"),
-            ("f_%010d.exr", 42, "f_0000000042.exr"),
-            ("f_%0d.png", 7, "f_7.png"),
-            ("f_%00d.png", 7, "f_7.png"),
-            ("%02d/f_%03d.png", 5, "05/f_%03d.png"),
-            ("f_100%.png", 5, "f_100%.png"),
-            ("f_%4d.png", 5, "f_%4d.png"),
-        ];
-        for (name, frame, expected) in cases {
-            assert_eq!(frame_path(name, frame), PathBuf::from(expected), "{name}");
-            assert_eq!(has_frame_pattern(name), name != expected, "{name}");
-        }
     }
 
     /// Values that stress a float round trip: tiny, huge, negative, subnormal, non-finite.

@@ -1,63 +1,72 @@
 //! Arbor: a path tracer built around its bounding volume hierarchy.
 //!
-//! - [`geometry`]: boxes, rays, the watertight triangle test, Morton codes, meshes.
-//! - [`bvh`]: the tree layout shared with the GPU, the LBVH and binned-SAH builders, SAH cost and
-//!   leaf collapse, validation, and closest/any-hit traversal.
-//! - [`gpu`]: the wgpu backend: context, shared layouts, GPU LBVH.
-//! - [`scene`]: the TOML scene format and its loader.
-//! - [`render`]: camera, film, materials (BSDFs), sampling, lights, the path tracer, and the
-//!   time-against-error benchmark.
-//! - [`image_io`]: EXR and PNG output; [`atomic_file`]: every file output, written atomically;
-//!   [`memory`]: peak resident memory for reports.
+//! Build a BVH over triangles and trace a ray through it:
+//!
+//! ```
+//! use arbor::bvh::builders::Builder;
+//! use arbor::geometry::{Ray, Triangle};
+//! use arbor::glam::Vec3;
+//!
+//! let triangles = vec![
+//!     Triangle::new(Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)),
+//!     Triangle::new(Vec3::new(-1.0, -1.0, 2.0), Vec3::new(1.0, -1.0, 2.0), Vec3::new(0.0, 1.0, 2.0)),
+//! ];
+//! // LBVH (Karras 2012), optimised by parallel reinsertion (Meister & Bittner 2018), then the
+//! // leaf collapse; the triangles are stored in leaf order.
+//! let builder: Builder = "lbvh+prbvh".parse()?;
+//! let bvh = builder.build_mesh(&triangles);
+//! let ray = Ray::new(Vec3::new(0.0, 0.0, -1.0), Vec3::Z);
+//! let hit = bvh.closest_hit(&ray, f32::INFINITY).expect("the ray meets the first triangle");
+//! assert_eq!((hit.prim_id, hit.t), (0, 1.0));
+//! assert!(bvh.any_hit(&ray, f32::INFINITY));
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! Render a scene file to an image, on the CPU ([`device::Device::Gpu`] renders on a GPU):
+//!
+//! ```no_run
+//! use arbor::device::{BuilderChoice, Device, Renderer};
+//! use arbor::render::first_frame_time;
+//! use arbor::scene::Scene;
+//!
+//! let scene = Scene::load("scenes/cornell-box.toml")?;
+//! let settings = arbor::scene::RenderSettings { spp: 16, ..scene.render };
+//! let time = first_frame_time(&scene);
+//! let mut renderer = Renderer::new(Device::Cpu, &scene, &BuilderChoice::Auto, &settings, 1, time)?;
+//! let frame = renderer.render(&settings, &|_| {})?;
+//! arbor::image_io::write_image("cornell.png", &frame.film.mean())?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! `examples/` holds both as programs. The modules, bottom to top (none imports one above it):
+//!
+//! - [`geometry`]: boxes, rays, the watertight triangle test, Morton codes, meshes, built-in
+//!   shapes and the OBJ/MTL reader.
+//! - [`bvh`]: the tree layout shared with the GPU, the builders (LBVH, binned SAH, PLOC, parallel
+//!   and sequential reinsertion), SAH cost and leaf collapse, validation, traversal, the
+//!   dynamic and two-level BVHs.
+//! - [`scene`]: the TOML scene format, its loader, and animation.
+//! - [`render`]: camera, film, materials (BSDFs), sampling, lights, scene assembly, `--builder
+//!   auto`, and the path tracer.
+//! - [`gpu`] (feature `gpu`): the wgpu backend: context, shared layouts, GPU LBVH, PRBVH and
+//!   path tracing.
+//! - [`device`]: one entry point that renders a frame on the CPU or the GPU.
+//! - [`image_io`]: EXR and PNG; [`atomic_file`]: every file output, written atomically;
+//!   [`memory`]: peak resident memory and the memory check.
+//!
+//! Features: `gpu` (the wgpu backend) and `cli` (the `render` binary's dependencies), both on by
+//! default; `default-features = false` gives the library alone.
 
 pub mod atomic_file;
 pub mod bvh;
+pub mod device;
 pub mod geometry;
+#[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod image_io;
 pub mod memory;
 pub mod render;
 pub mod scene;
 
-/// `println!` for the command-line tools' reports, which does not panic when standard output
-/// fails: a closed pipe (`| head`) is ignored, so the work, and the files it writes, go on
-/// (`println!` would panic); any other failure (`> /dev/full`) is kept for [`stdout_error`],
-/// which the tools check before they exit.
-#[macro_export]
-macro_rules! outln {
-    ($($arg:tt)*) => {
-        $crate::write_stdout_line(format_args!($($arg)*))
-    };
-}
-
-static STDOUT_ERROR: std::sync::OnceLock<std::io::Error> = std::sync::OnceLock::new();
-
-/// What [`outln!`] does: one line to standard output, flushed by the line.
-#[doc(hidden)]
-pub fn write_stdout_line(line: std::fmt::Arguments) {
-    use std::io::Write as _;
-    if let Err(e) = writeln!(std::io::stdout(), "{line}") {
-        if e.kind() != std::io::ErrorKind::BrokenPipe {
-            let _ = STDOUT_ERROR.set(e);
-        }
-    }
-}
-
-/// The first error [`outln!`] met writing standard output, other than a closed pipe: a report
-/// that did not arrive must not end in success.
-pub fn stdout_error() -> Option<&'static std::io::Error> {
-    STDOUT_ERROR.get()
-}
-
-/// Most worker threads `--threads` takes: far past any core count, and below the thousands at
-/// which the pool's start-up alone takes seconds (2000 threads: 16 s on 2 cores).
-pub const MAX_THREADS: usize = 1024;
-
-/// Sizes rayon's global pool from the tools' `--threads` (all cores when `None`).
-pub fn init_threads(threads: Option<usize>) -> Result<(), String> {
-    let Some(n) = threads else { return Ok(()) };
-    if !(1..=MAX_THREADS).contains(&n) {
-        return Err(format!("--threads must be 1 to {MAX_THREADS}, not {n}"));
-    }
-    rayon::ThreadPoolBuilder::new().num_threads(n).build_global().map_err(|e| format!("--threads: {e}"))
-}
+/// The vector maths crate of Arbor's public types (`Vec3` in [`geometry::Triangle`], ...).
+pub use glam;

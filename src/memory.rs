@@ -25,15 +25,21 @@ pub fn available_bytes() -> Option<u64> {
 /// An error where `bytes`, what `what` needs, is more than the memory available
 /// ([`available_bytes`]): a clear message up front instead of an abort when the allocation
 /// fails. Nothing is checked where the available memory is unknown.
-pub fn check_fits(what: &str, bytes: f64) -> Result<(), String> {
+pub fn check_fits(what: &str, bytes: f64) -> Result<(), OutOfMemory> {
     match available_bytes() {
-        Some(available) if bytes > available as f64 => Err(format!(
-            "{what} needs about {:.1} GB of memory, and {:.1} GB is available",
-            bytes / 1e9,
-            available as f64 / 1e9
-        )),
+        Some(available) if bytes > available as f64 => Err(OutOfMemory { what: what.to_owned(), bytes, available }),
         _ => Ok(()),
     }
+}
+
+/// What [`check_fits`] refuses.
+#[derive(Debug, thiserror::Error)]
+#[error("{what} needs about {:.1} GB of memory, and {:.1} GB is available", bytes / 1e9, *available as f64 / 1e9)]
+pub struct OutOfMemory {
+    /// What needs the memory, as the user knows it (a file, a line, a key).
+    pub what: String,
+    pub bytes: f64,
+    pub available: u64,
 }
 
 /// Peak bytes per triangle of a flat scene rendered on the CPU, its BVH built and collapsed:
@@ -96,7 +102,7 @@ mod tests {
         let Some(available) = available_bytes() else { return }; // not Linux
         assert!(available > 0);
         assert!(check_fits("a small thing", 1e3).is_ok());
-        let err = check_fits("--procedural city:1e15", 1e18).unwrap_err();
+        let err = check_fits("--procedural city:1e15", 1e18).unwrap_err().to_string();
         assert!(err.starts_with("--procedural city:1e15 needs about 1000000000.0 GB"), "{err}");
     }
 

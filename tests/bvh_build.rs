@@ -1,7 +1,7 @@
 //! Every builder's output passes validate() on edge cases, on large random input and on the
 //! shared meshes; validate() itself rejects broken trees.
 
-mod common;
+use crate::common;
 
 use arbor::bvh::{
     self, Bvh, BvhNode, CollapseConfig, INVALID_INDEX, ValidationError, binned_sah, collapse_leaves, lbvh, ploc,

@@ -1,7 +1,7 @@
 //! The dynamic BVH: deletion with dirty marking, the batched clean, insertion, local PRBVH and
 //! the quality monitor, against `validate` after every operation.
 
-mod common;
+use crate::common;
 
 use arbor::bvh::dynamic::{DynamicBvh, DynamicConfig};
 use arbor::bvh::{brute_force_closest, sah_cost};

@@ -157,7 +157,7 @@ fn usable(s: &Scene) -> Result<(), String> {
         return Err(format!("camera view direction not finite: {c:?}"));
     }
     let r = &s.render;
-    if r.spp == 0 || r.max_depth == 0 || r.time_seconds.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
+    if r.spp == 0 || r.max_depth == 0 || r.time.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
         return Err(format!("render {r:?}"));
     }
     if s.environment.is_some_and(|e| !e.is_finite() || e.min_element() < 0.0) {

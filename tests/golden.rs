@@ -32,7 +32,7 @@
 //! `<scene>.gpu.{actual,diff,z}.exr`. Without a GPU adapter those tests print why and pass,
 //! except under `CI=true`.
 
-mod common;
+use crate::common;
 
 use common::{two_sided_p, z_for_two_sided_p};
 

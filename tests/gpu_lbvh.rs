@@ -3,7 +3,7 @@
 //! tree passes `validate()`. Runs on any adapter, lavapipe included; skips without one, except
 //! under `CI=true`.
 
-mod common;
+use crate::common;
 
 use arbor::bvh::{lbvh, validate};
 use arbor::geometry::{Aabb, Triangle};

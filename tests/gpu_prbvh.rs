@@ -2,7 +2,7 @@
 //! is within 2% of the CPU optimiser's on the same input (the same LBVH, μ and ε), and the
 //! optimisation lowers the SAH. Skips without an adapter, except under `CI=true`.
 
-mod common;
+use crate::common;
 
 use arbor::bvh::prbvh::{self, PrbvhConfig};
 use arbor::bvh::{lbvh, sah_cost, validate};

@@ -6,7 +6,7 @@
 //! 8x8-pixel blocks: the difference of block means over the combined standard error must stay
 //! below a Bonferroni threshold for a family-wise false-alarm rate of 10⁻³ per image.
 
-mod common;
+use crate::common;
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -208,8 +208,8 @@ fn auto_hands_its_timed_samples_to_the_render() {
     scene.camera.width = 24;
     scene.camera.height = 16;
     let (seed, max_depth, spp) = (5, 6, 16 * trace::MEASURE_SPP);
-    let job = arbor::render::AutoRender { spp, max_depth, frames: 1, seed, time: None };
-    let (rs, _, timed) = trace::build_auto(ctx, &scene, &job, Some(4.0));
+    let job = arbor::scene::RenderSettings { spp, max_depth, seed, time: None, clamp: Some(4.0) };
+    let (rs, _, timed) = trace::build_auto(ctx, &scene, &job, 1);
     let timed = timed.expect("a render of 16 x MEASURE_SPP samples is timed");
     assert_eq!(timed.samples(), trace::MEASURE_SPP);
     let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
@@ -229,12 +229,8 @@ fn auto_hands_its_timed_samples_to_the_render() {
     assert_eq!(carried.film.stderr().pixels, fresh.film.stderr().pixels);
     // Timed under another seed, clamp or path depth: not this render's samples.
     for (other_seed, clamp, other_depth) in [(6, Some(4.0), max_depth), (seed, None, max_depth), (seed, Some(4.0), 5)] {
-        let (_, _, other) = trace::build_auto(
-            ctx,
-            &scene,
-            &arbor::render::AutoRender { seed: other_seed, max_depth: other_depth, ..job },
-            clamp,
-        );
+        let other_job = arbor::scene::RenderSettings { seed: other_seed, max_depth: other_depth, clamp, ..job };
+        let (_, _, other) = trace::build_auto(ctx, &scene, &other_job, 1);
         let out = trace::render_from(ctx, &gpu, seed, max_depth, spp, other, &mut |_| true).unwrap();
         assert_eq!(out.carried.0, 0, "seed {other_seed}, clamp {clamp:?}, depth {other_depth}");
         assert_eq!(out.film.mean().pixels, fresh.film.mean().pixels);

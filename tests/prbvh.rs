@@ -1,7 +1,7 @@
 //! Parallel reinsertion: the search against brute force, reinsertion on every pair of nodes,
 //! and optimize() on edge cases, random input and the shared meshes.
 
-mod common;
+use crate::common;
 
 use arbor::bvh::prbvh::{self, LockStrategy, PrbvhConfig, find_best_output, reinsert};
 use arbor::bvh::{Bvh, BvhNode, INVALID_INDEX, binned_sah, lbvh, refit_sequential, sah_cost, validate};

@@ -3,7 +3,7 @@
 //! Every tolerance is a number of combined standard errors: ours from the film's per-pixel
 //! variance, the reference's from its standard-error image.
 
-mod common;
+use crate::common;
 
 use common::analytic::{self, region};
 

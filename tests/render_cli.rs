@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-mod common;
+use crate::common;
 
 fn render() -> Command {
     Command::new(env!("CARGO_BIN_EXE_render"))
@@ -205,8 +205,8 @@ fn auto_builder_judges_another_device_by_its_own_time() {
 
 /// A render of `spp` samples per pixel in each of `frames` frames, paths of 6 segments, for
 /// `auto`, with a time limit per frame.
-fn job(spp: u32, frames: usize, time: Option<f64>) -> arbor::render::AutoRender {
-    arbor::render::AutoRender { spp, max_depth: 6, frames, seed: 7, time }
+fn job(spp: u32, frames: usize, time: Option<f64>) -> (arbor::scene::RenderSettings, usize) {
+    (arbor::scene::RenderSettings { spp, max_depth: 6, seed: 7, time, clamp: None }, frames)
 }
 
 /// The CPU's `auto` times real paths on its trees where the render affords it: from 16 × 3 ×
@@ -217,9 +217,9 @@ fn job(spp: u32, frames: usize, time: Option<f64>) -> arbor::render::AutoRender 
 #[test]
 fn cpu_auto_times_paths_where_the_render_affords_it() {
     use arbor::render::RenderScene;
-    use arbor::render::integrator::TIMED_PATHS;
+    use arbor::render::auto::TIMED_PATHS;
     let Some(_) = common::shared_model_path("dragon_res2.obj") else { return };
-    let bench_scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("benches/scenes/dragon.toml");
+    let bench_scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("bench/scenes/dragon.toml");
     let mut dragon = arbor::scene::Scene::load(bench_scene).unwrap();
     (dragon.camera.width, dragon.camera.height) = (64, 64);
     assert_eq!(TIMED_PATHS, 64 * 64);
@@ -228,10 +228,16 @@ fn cpu_auto_times_paths_where_the_render_affords_it() {
         Some(rest.strip_suffix(" ms per sample").unwrap().parse().unwrap())
     };
     // 16 spp in each of 3 frames of 64 × 64 pixels: 16 × 3 × TIMED_PATHS samples.
-    let (_, timed) = RenderScene::build_auto_cpu(&dragon, &job(16, 3, None));
+    let (_, timed) = {
+        let (s, f) = job(16, 3, None);
+        RenderScene::build_auto_cpu(&dragon, &s, f)
+    };
     let ms = timed_ms(&timed.builder).unwrap_or_else(|| panic!("not timed: {}", timed.builder));
     assert!(ms.is_finite() && ms > 0.0, "{}", timed.builder);
-    let (_, short) = RenderScene::build_auto_cpu(&dragon, &job(47, 1, None));
+    let (_, short) = {
+        let (s, f) = job(47, 1, None);
+        RenderScene::build_auto_cpu(&dragon, &s, f)
+    };
     assert_eq!(timed_ms(&short.builder), None, "{}", short.builder);
 }
 
@@ -242,9 +248,15 @@ fn cpu_auto_weighs_a_time_budget() {
     use arbor::render::RenderScene;
     let mut showcase = arbor::scene::Scene::load(scene("showcase.toml")).unwrap();
     (showcase.camera.width, showcase.camera.height) = (64, 64);
-    let (_, long) = RenderScene::build_auto_cpu(&showcase, &job(1 << 20, 2, None));
+    let (_, long) = {
+        let (s, f) = job(1 << 20, 2, None);
+        RenderScene::build_auto_cpu(&showcase, &s, f)
+    };
     assert!(!long.builder.contains(", 0 iterations"), "{}", long.builder);
-    let (_, limited) = RenderScene::build_auto_cpu(&showcase, &job(1 << 20, 2, Some(1e-3)));
+    let (_, limited) = {
+        let (s, f) = job(1 << 20, 2, Some(1e-3));
+        RenderScene::build_auto_cpu(&showcase, &s, f)
+    };
     assert!(limited.builder.starts_with("auto: lbvh+prbvh, 0 iterations"), "{}", limited.builder);
     assert!(limited.sah > long.sah, "{} vs {}", limited.sah, long.sah);
 }

@@ -3,8 +3,6 @@
 //! documented, scatter makes its instances by the documented rule, and every kind of bad input is
 //! an error naming the file, the line and the key.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 
 use arbor::geometry::TriangleMesh;

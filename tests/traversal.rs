@@ -1,7 +1,7 @@
 //! Closest-hit and any-hit traversal against brute force: the same primitive id, and the same t,
 //! u and v to the bit, for every builder, on random and real meshes.
 
-mod common;
+use crate::common;
 
 use arbor::bvh::{
     Bvh, CollapseConfig, Hit, MeshBvh, binned_sah, brute_force_any, brute_force_closest, collapse_leaves, lbvh,

@@ -7,7 +7,7 @@
 //! - Self-intersection: rays spawned from hit points with the Wächter-Binder offset never hit
 //!   their own triangle, and rays leaving a convex mesh never hit it again.
 
-mod common;
+use crate::common;
 
 use arbor::bvh::{Bvh, CollapseConfig, collapse_leaves, hit_point_and_normal, lbvh};
 use arbor::geometry::{Ray, Triangle, TriangleMesh, spawn_ray};

@@ -10,13 +10,14 @@
 //! | `ploc`, `ploc-R` | [`super::ploc`] with radius 16, or R |
 //! | `ploc+prbvh`, `ploc-R+prbvh` | PLOC optimised by PRBVH |
 //! | `lbvh+rbvh` (any base `+rbvh`) | sequential reinsertion ([`super::rbvh`]), the paper's reference |
-//! | `obvhs-fastest` … `obvhs-very-slow` | the obvhs crate's presets (feature `peers`) |
+//! | any name given to [`register_external`] | an external builder; `arbor-bench` registers the obvhs crate's presets |
 //!
 //! Every builder returns a tree with one primitive per leaf; the leaf collapse is applied by the
 //! caller, the same for all, so that trees compare by topology and not by leaf policy.
 
 use std::fmt;
 use std::str::FromStr;
+use std::sync::RwLock;
 use std::time::{Duration, Instant};
 
 use super::prbvh::{self, LockStrategy, PrbvhConfig, PrbvhStats};
@@ -49,15 +50,47 @@ pub enum BaseBuilder {
     BinnedSah,
     /// PLOC with this search radius.
     Ploc(u32),
-    /// An obvhs preset, by name (`fastest`, `very-fast`, `fast`, `medium`, `slow`, `very-slow`).
-    Obvhs(&'static str),
+    /// A builder from outside the library, added by [`register_external`].
+    External(&'static ExternalBuilder),
+}
+
+/// A builder that another crate adds to the names [`Builder`] parses (the benchmark crate adds
+/// its peers this way, so that the library does not depend on them). Its tree must have one
+/// primitive per leaf and pass [`super::validate`]; it is traced, collapsed and optimised like
+/// ours. It takes no optimiser (`NAME+prbvh` is refused), as it is measured as its authors ship it.
+#[derive(Debug)]
+pub struct ExternalBuilder {
+    /// The name `--builder` takes; must not collide with a library builder's.
+    pub name: &'static str,
+    /// Builds over the triangles, given with their boxes.
+    pub build: fn(&[Triangle], &[Aabb]) -> Bvh,
+}
+
+impl PartialEq for ExternalBuilder {
+    fn eq(&self, other: &Self) -> bool {
+        self.name == other.name
+    }
+}
+
+impl Eq for ExternalBuilder {}
+
+static EXTERNAL: RwLock<Vec<&'static ExternalBuilder>> = RwLock::new(Vec::new());
+
+/// Adds an external builder to the names [`Builder`] parses, for the rest of the process. A name
+/// registered twice keeps its first registration.
+pub fn register_external(builder: ExternalBuilder) {
+    let mut list = EXTERNAL.write().unwrap_or_else(|e| e.into_inner());
+    if !list.iter().any(|b| b.name == builder.name) {
+        list.push(Box::leak(Box::new(builder)));
+    }
+}
+
+fn external(name: &str) -> Option<&'static ExternalBuilder> {
+    EXTERNAL.read().unwrap_or_else(|e| e.into_inner()).iter().copied().find(|b| b.name == name)
 }
 
 /// The largest radius `ploc-R` accepts.
 pub const PLOC_MAX_RADIUS: u32 = 1024;
-
-/// The obvhs presets' names, fastest first.
-pub const OBVHS_PRESETS: [&str; 6] = ["fastest", "very-fast", "fast", "medium", "slow", "very-slow"];
 
 #[derive(Debug, thiserror::Error)]
 #[error("unknown builder `{name}`; known: {known}")]
@@ -67,7 +100,7 @@ pub struct UnknownBuilder {
 }
 
 impl Builder {
-    /// Every name [`FromStr`] accepts (obvhs ones only with the `peers` feature).
+    /// Every name [`FromStr`] accepts: the library's, then the registered external ones.
     pub fn names() -> Vec<String> {
         let mut v: Vec<String> = [
             "lbvh",
@@ -81,9 +114,7 @@ impl Builder {
         ]
         .map(String::from)
         .to_vec();
-        if cfg!(feature = "peers") {
-            v.extend(OBVHS_PRESETS.iter().map(|p| format!("obvhs-{p}")));
-        }
+        v.extend(EXTERNAL.read().unwrap_or_else(|e| e.into_inner()).iter().map(|b| b.name.to_owned()));
         v
     }
 }
@@ -120,10 +151,7 @@ impl FromStr for Builder {
                 Ok(r) if (1..=PLOC_MAX_RADIUS).contains(&r) => BaseBuilder::Ploc(r),
                 _ => return Err(unknown()),
             },
-            b if cfg!(feature = "peers") && optimize.is_none() => {
-                let preset = b.strip_prefix("obvhs-").ok_or_else(unknown)?;
-                BaseBuilder::Obvhs(OBVHS_PRESETS.iter().find(|&&p| p == preset).ok_or_else(unknown)?)
-            }
+            b if optimize.is_none() => BaseBuilder::External(external(b).ok_or_else(unknown)?),
             _ => return Err(unknown()),
         };
         Ok(Builder { base, optimize })
@@ -137,7 +165,7 @@ impl fmt::Display for Builder {
             BaseBuilder::BinnedSah => write!(f, "binned-sah")?,
             BaseBuilder::Ploc(r) if r as usize == PlocConfig::default().radius => write!(f, "ploc")?,
             BaseBuilder::Ploc(r) => write!(f, "ploc-{r}")?,
-            BaseBuilder::Obvhs(p) => write!(f, "obvhs-{p}")?,
+            BaseBuilder::External(b) => write!(f, "{}", b.name)?,
         }
         match self.optimize {
             None => Ok(()),
@@ -168,7 +196,7 @@ impl Builder {
             BaseBuilder::Lbvh => lbvh::build(prim_aabbs),
             BaseBuilder::BinnedSah => binned_sah::build(prim_aabbs, &Default::default()),
             BaseBuilder::Ploc(radius) => ploc::build(prim_aabbs, &PlocConfig { radius: radius as usize }),
-            BaseBuilder::Obvhs(preset) => obvhs_build(preset, triangles, prim_aabbs),
+            BaseBuilder::External(b) => (b.build)(triangles, prim_aabbs),
         };
         let build_time = t.elapsed();
         let mut built =
@@ -200,16 +228,6 @@ impl Builder {
     }
 }
 
-#[cfg(feature = "peers")]
-fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) -> Bvh {
-    super::peers::obvhs_build(preset, triangles, prim_aabbs)
-}
-
-#[cfg(not(feature = "peers"))]
-fn obvhs_build(_: &str, _: &[Triangle], _: &[Aabb]) -> Bvh {
-    unreachable!("obvhs builders are not parsed without the `peers` feature")
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -230,5 +248,18 @@ mod tests {
         }
         let e = "nope".parse::<Builder>().unwrap_err().to_string();
         assert!(e.contains("unknown builder `nope`") && e.contains("lbvh+prbvh"), "{e}");
+    }
+
+    #[test]
+    fn an_external_builder_is_parsed_once_registered() {
+        assert!("test-external".parse::<Builder>().is_err());
+        register_external(ExternalBuilder { name: "test-external", build: |_, prims| lbvh::build(prims) });
+        let b: Builder = "test-external".parse().unwrap();
+        assert_eq!(b.to_string(), "test-external");
+        assert!(Builder::names().contains(&"test-external".to_owned()));
+        assert!("test-external+prbvh".parse::<Builder>().is_err(), "external builders take no optimiser");
+        let tris = [Triangle::new(glam::Vec3::ZERO, glam::Vec3::X, glam::Vec3::Y); 3];
+        let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
+        assert_eq!(b.build(&tris, &prims, &Default::default()).bvh.prim_ids.len(), 3);
     }
 }

@@ -1,8 +1,5 @@
 //! The bounding volume hierarchy: layout, builders, cost, validation and traversal.
 
-pub mod anim_bench;
-pub mod bench;
-pub mod bench_rays;
 pub mod binned_sah;
 pub mod builders;
 pub mod dynamic;
@@ -12,8 +9,6 @@ pub mod lbvh;
 mod mesh_bvh;
 mod node;
 mod parallel;
-#[cfg(feature = "peers")]
-pub mod peers;
 pub mod ploc;
 pub mod prbvh;
 pub mod rbvh;

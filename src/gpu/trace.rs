@@ -77,7 +77,7 @@ use crate::geometry::{Aabb, Triangle};
 use crate::render::bsdf::{Bsdf, ConductorFresnel};
 use crate::render::film::{Film, PixelAccum};
 use crate::render::geometry::Geometry;
-use crate::render::integrator::{BuildReport, RenderMaterial, RenderScene};
+use crate::render::{BuildReport, RenderMaterial, RenderScene};
 use crate::scene::Scene;
 
 /// The shader files concatenated (after the variant's constants and the prelude) into the
@@ -571,26 +571,29 @@ pub fn measure_speed(
 /// while the most a skipped one could have saved is the render's trace-speed gain (20% on the
 /// dragon scene on an H100). The sixteenth is of the samples, not of a time limit: the GPU's
 /// speed is not known before it is timed. The timed samples are returned with the tree, for the
-/// render's first frame to carry on ([`render_from`]; `clamp` is the render's firefly clamp).
+/// render's first frame to carry on ([`render_from`]; `settings.clamp` is the render's firefly clamp).
 pub fn build_auto(
     ctx: &GpuContext,
     scene: &crate::scene::Scene,
-    job: &crate::render::AutoRender,
-    clamp: Option<f32>,
+    settings: &crate::scene::RenderSettings,
+    frames: usize,
 ) -> (RenderScene, crate::render::BuildReport, Option<PartialFilm>) {
     use crate::render::AutoDevice;
+    use crate::render::auto::{total_budget, total_samples};
     let mut kept = None;
     let mut measure = |rs: &RenderScene| {
-        let (seconds, compiled, film) = measure_speed(ctx, rs, job.seed, job.max_depth, clamp)?;
+        let (seconds, compiled, film) = measure_speed(ctx, rs, settings.seed, settings.max_depth, settings.clamp)?;
         kept = Some(film);
         Some((seconds, compiled))
     };
-    let device = if job.samples() >= 16.0 * f64::from(MEASURE_SPP) {
-        AutoDevice::Measured { samples: job.samples(), budget: job.budget(), measure: &mut measure }
+    let samples = total_samples(settings, frames);
+    let device = if samples >= 16.0 * f64::from(MEASURE_SPP) {
+        AutoDevice::Measured { samples, budget: total_budget(settings, frames), measure: &mut measure }
     } else {
         AutoDevice::Unmeasured
     };
-    let (rs, report) = RenderScene::build_auto_for(scene, job.rays(scene), device);
+    let rays = RenderScene::estimated_rays(scene, settings.spp, settings.max_depth, frames);
+    let (rs, report) = RenderScene::build_auto_for(scene, rays, device);
     (rs, report, kept)
 }
 

@@ -14,8 +14,8 @@
 use glam::{Affine3A, Vec3};
 use rayon::prelude::*;
 
-use super::integrator::RenderMaterial;
 use super::lights::Lights;
+use super::material::RenderMaterial;
 use crate::bvh::dynamic::UpdateStats;
 use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
 use crate::bvh::{INVALID_INDEX, MeshBvh};

@@ -1,13 +1,23 @@
 //! Rendering: camera, random streams, film, materials, lights and the path tracer.
+//!
+//! - [`assembly`]: a loaded scene turned into the [`RenderScene`] the integrator reads;
+//! - [`auto`]: `--builder auto`, the tree the render's length repays;
+//! - [`integrator`]: the path tracer, one path at a time;
+//! - [`tiles`]: the CPU's loop over pixels and samples into a [`film::Film`].
 
+pub mod assembly;
+pub mod auto;
 pub mod bsdf;
 pub mod camera;
-pub mod converge;
 pub mod film;
 pub mod geometry;
 pub mod integrator;
 pub mod lights;
+pub mod material;
 pub mod rng;
 pub mod sampling;
+pub mod tiles;
 
-pub use integrator::{AutoDevice, AutoRender, BuildReport, RenderScene};
+pub use assembly::{BuildReport, RenderScene, first_frame_time};
+pub use auto::AutoDevice;
+pub use material::RenderMaterial;

@@ -241,7 +241,7 @@ fn camera(ctx: &Ctx, f: &SceneFile) -> Result<Camera, SceneError> {
 }
 
 fn render(ctx: &Ctx, f: &SceneFile) -> Result<RenderSettings, SceneError> {
-    let mut s = RenderSettings { spp: 64, max_depth: 8, seed: 0, time_seconds: None };
+    let mut s = RenderSettings::default();
     let Some(r) = &f.render else { return Ok(s) };
     let r = r.get_ref();
     if let Some(spp) = &r.spp {
@@ -264,7 +264,7 @@ fn render(ctx: &Ctx, f: &SceneFile) -> Result<RenderSettings, SceneError> {
         if !(x.is_finite() && x > 0.0) {
             return Err(ctx.err(t.span(), "render.time", format!("{x} is not a time > 0 seconds")));
         }
-        s.time_seconds = Some(x);
+        s.time = Some(x);
     }
     Ok(s)
 }
@@ -466,7 +466,7 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
                 // The meshes themselves, before any BVH (positions and indices, with room).
                 let what = format!("{} triangles of procedural shapes", out.procedural_triangles);
                 crate::memory::check_fits(&what, out.procedural_triangles as f64 * PROCEDURAL_MESH_BYTES_PER_TRIANGLE)
-                    .map_err(|msg| ctx.err(n.span(), key("triangles"), msg))?;
+                    .map_err(|e| ctx.err(n.span(), key("triangles"), e.to_string()))?;
             }
             let meshes = &mut out.meshes;
             let known = out.known.entry(MeshKey::Shape(spec)).or_insert_with(|| {

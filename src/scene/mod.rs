@@ -36,8 +36,19 @@ pub struct Camera {
     pub resolution_line: usize,
 }
 
-/// How to render: the `[render]` table; command-line flags override it.
-#[derive(Clone, Debug, PartialEq)]
+/// What [`Scene::check_flat_fits`] refuses.
+#[derive(Debug, thiserror::Error)]
+pub enum FlatSceneError {
+    #[error("{}: the scene flattened ({triangles} triangles) is more than one BVH holds (2^31 triangles)", file.display())]
+    TooManyTriangles { file: PathBuf, triangles: u64 },
+    #[error(transparent)]
+    Memory(#[from] crate::memory::OutOfMemory),
+}
+
+/// How to render: the one settings struct of every render, on either device. A scene file's
+/// `[render]` table gives the first four; `render`'s flags override them, and the benchmarks
+/// and tests set them directly.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
     /// Samples per pixel, at least 1. Default 64.
     pub spp: u32,
@@ -45,8 +56,19 @@ pub struct RenderSettings {
     pub max_depth: u32,
     /// Seed of the random streams. Default 0.
     pub seed: u64,
-    /// Optional time budget in seconds.
-    pub time_seconds: Option<f64>,
+    /// Optional time budget per frame in seconds: the render stops after the pass that
+    /// crosses it.
+    pub time: Option<f64>,
+    /// Firefly clamp, off (`None`) unless the user asks (`render --clamp`): a sample whose
+    /// largest channel exceeds it is scaled down to it. Biased, so never a default.
+    pub clamp: Option<f32>,
+}
+
+impl Default for RenderSettings {
+    /// The `[render]` table's defaults: 64 spp, 8 segments, seed 0, no time limit, no clamp.
+    fn default() -> Self {
+        Self { spp: 64, max_depth: 8, seed: 0, time: None, clamp: None }
+    }
 }
 
 /// How a surface scatters light.
@@ -155,16 +177,13 @@ impl Scene {
     /// `file` names the scene in the message. Checked before flattening, which otherwise aborts
     /// when an allocation fails (a city of 10^8 triangles, or 10^4 instances of a 1.3M-triangle
     /// sphere, which the CPU renders as instances but the GPU and `bvh-bench` flatten).
-    pub fn check_flat_fits(&self, file: &std::path::Path, bytes_per_triangle: f64) -> Result<(), String> {
+    pub fn check_flat_fits(&self, file: &std::path::Path, bytes_per_triangle: f64) -> Result<(), FlatSceneError> {
         let n = self.world_triangle_count();
         if n >= 1 << 31 {
-            return Err(format!(
-                "{}: the scene flattened ({n} triangles) is more than one BVH holds (2^31 triangles)",
-                file.display()
-            ));
+            return Err(FlatSceneError::TooManyTriangles { file: file.to_path_buf(), triangles: n });
         }
         let what = format!("{}: the scene flattened ({n} triangles)", file.display());
-        crate::memory::check_fits(&what, n as f64 * bytes_per_triangle)
+        Ok(crate::memory::check_fits(&what, n as f64 * bytes_per_triangle)?)
     }
 
     /// Every object's triangles in world space at time 0, with their material ids: the same as

@@ -8,10 +8,12 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::builders::Builder;
-use super::prbvh::PrbvhConfig;
-use super::{CollapseConfig, MeshBvh, bench_rays, collapse_leaves, lbvh, sah_cost, validate};
-use crate::geometry::{Aabb, Ray, Triangle};
+use arbor::bvh::builders::Builder;
+use arbor::bvh::prbvh::PrbvhConfig;
+use arbor::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh, sah_cost, validate};
+use arbor::geometry::{Aabb, Ray, Triangle};
+
+use crate::rays as bench_rays;
 
 /// What to measure.
 #[derive(Clone, Debug)]

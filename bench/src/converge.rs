@@ -13,9 +13,11 @@
 //! - `auto` decides how long to optimise from the render's length, timed on its device
 //!   ([`RenderScene::build_auto_cpu`], `gpu::trace::build_auto`), so each of its points is a
 //!   separate build and render with that point's sample count.
-//! - On the GPU ([`ConvergeDevice::Gpu`]) every point is a separate render of `0..n` samples
-//!   (its film is read back once per render); the tree is built and uploaded once per curve
-//!   for a fixed builder, per point for `auto`, and that time counts as build time.
+//! - On the GPU every point is a separate render of `0..n` samples (its film is read back once
+//!   per render); the tree is built (as `render --device gpu` builds it) and uploaded once per
+//!   curve for a fixed builder, per point for `auto`, and that time counts as build time.
+//!
+//! Every render goes through [`arbor::device::Renderer`], the entry point `render` uses.
 //!
 //! Errors, over every pixel and channel against the reference `r`:
 //! - relative MSE: the mean of `(x - r)² / (r² + 0.01)` (the 0.01 keeps dark pixels from
@@ -38,54 +40,28 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::film::Film;
-use super::{AutoRender, RenderScene};
-use crate::bvh::builders::Builder;
-use crate::image_io::Image;
-use crate::scene::Scene;
+use arbor::device::{BuilderChoice, Device, DeviceError, RenderedFrame, Renderer};
+use arbor::image_io::Image;
+use arbor::render::film::Film;
+use arbor::render::first_frame_time;
+use arbor::scene::{RenderSettings, Scene};
 
 /// The relative MSE's guard against division by a dark reference pixel.
 const REL_MSE_EPSILON: f64 = 0.01;
 
-/// A builder as the convergence benchmark takes it.
-#[derive(Clone, Debug)]
-pub enum BuilderChoice {
-    Fixed(Builder),
-    /// `render --builder auto`: optimise as long as the render's estimated length repays it.
-    Auto,
-}
-
-impl std::fmt::Display for BuilderChoice {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            BuilderChoice::Fixed(b) => write!(f, "{b}"),
-            BuilderChoice::Auto => f.write_str("auto"),
-        }
-    }
-}
-
-impl std::str::FromStr for BuilderChoice {
-    type Err = crate::bvh::builders::UnknownBuilder;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        if s == "auto" { Ok(BuilderChoice::Auto) } else { s.parse().map(BuilderChoice::Fixed) }
-    }
-}
-
-/// What to measure. `Default`: 1 to 64 spp, seed 0.
+/// What to measure. `Default`: 1 to 64 spp, depth 8, seed 0.
 #[derive(Clone, Debug)]
 pub struct ConvergeConfig {
-    /// Sample counts: `start_spp`, doubled while at most `max_spp`.
+    /// Sample counts: `start_spp`, doubled while at most `render.spp`.
     pub start_spp: u32,
-    pub max_spp: u32,
-    /// Path segments per sample (the scene's `render.max_depth` usually).
-    pub max_depth: u32,
-    /// Seed of the curves' renders (the rendered reference takes another).
-    pub seed: u64,
+    /// The renders: `spp` is the last point's, `max_depth` and `seed` (the scene's usually)
+    /// every point's (the rendered reference takes another seed); no time limit.
+    pub render: RenderSettings,
 }
 
 impl Default for ConvergeConfig {
     fn default() -> Self {
-        Self { start_spp: 1, max_spp: 64, max_depth: 8, seed: 0 }
+        Self { start_spp: 1, render: RenderSettings { spp: 64, ..Default::default() } }
     }
 }
 
@@ -93,8 +69,13 @@ impl ConvergeConfig {
     /// The sample counts of a curve's points.
     pub fn spp_steps(&self) -> Vec<u32> {
         std::iter::successors(Some(self.start_spp.max(1)), |&n| n.checked_mul(2))
-            .take_while(|&n| n <= self.max_spp)
+            .take_while(|&n| n <= self.render.spp)
             .collect()
+    }
+
+    /// The settings of the point at `spp`.
+    fn at(&self, spp: u32) -> RenderSettings {
+        RenderSettings { spp, time: None, ..self.render }
     }
 }
 
@@ -165,126 +146,71 @@ pub fn image_error(image: &Image, reference: &Image) -> (f64, f64) {
     (sq / n, abs / n)
 }
 
-/// Renders `scene` at `spp` samples with `seed` (a reference); returns it and the seconds taken.
-pub fn render_reference(scene: &Scene, spp: u32, max_depth: u32, seed: u64) -> (Image, f64) {
+/// Renders `scene` at `spp` samples with `seed` (a reference) on the CPU; returns it and the
+/// seconds taken.
+pub fn render_reference(scene: &Scene, spp: u32, max_depth: u32, seed: u64) -> Result<(Image, f64), DeviceError> {
     let t = Instant::now();
-    let (rs, _) = RenderScene::build(scene, &"lbvh+prbvh".parse().expect("a builder name"));
-    let mut film = Film::new(rs.width, rs.height);
-    rs.render(&mut film, seed, max_depth, 0..spp, &|_| {});
-    (film.mean(), t.elapsed().as_secs_f64())
-}
-
-/// Where a curve renders.
-#[derive(Clone, Copy)]
-pub enum ConvergeDevice {
-    Cpu,
-    /// The GPU path ([`crate::gpu::trace`]): the BVH is built on the CPU as for a CPU render,
-    /// uploaded (counted in the build time), and each point is its own render of samples
-    /// `0..spp` (the GPU film is read back once per render). Pipeline compilation is done
-    /// before timing, once per scene variant.
-    Gpu(&'static crate::gpu::GpuContext),
-}
-
-impl ConvergeDevice {
-    pub fn name(&self) -> &'static str {
-        match self {
-            ConvergeDevice::Cpu => "cpu",
-            ConvergeDevice::Gpu(_) => "gpu",
-        }
-    }
+    let settings = RenderSettings { spp, max_depth, seed, ..Default::default() };
+    let builder = BuilderChoice::Fixed("lbvh+prbvh".parse().expect("a builder name"));
+    let mut renderer = Renderer::new(Device::Cpu, scene, &builder, &settings, 1, first_frame_time(scene))?;
+    let frame = renderer.render(&settings, &|_| {})?;
+    Ok((frame.film.mean(), t.elapsed().as_secs_f64()))
 }
 
 /// The curve of `choice` on `device` against `reference`; `progress` hears of each point.
+///
+/// Every point is rendered through [`Renderer`], as `render` renders. A fixed builder builds
+/// once per curve and each point carries on from the last ([`Renderer::render_more`]: the CPU
+/// adds the samples between them, the GPU renders `0..spp` again); `auto` builds for each
+/// point's sample count. GPU kernel compilation, paid once per process and variant, is left
+/// out of the build's time, and samples `auto` timed while building count once, in the build.
 pub fn measure_curve(
     scene: &Scene,
     choice: &BuilderChoice,
-    device: ConvergeDevice,
+    device: Device,
     reference: &Image,
     config: &ConvergeConfig,
     progress: &mut dyn FnMut(&ConvergePoint),
-) -> Result<ConvergeCurve, crate::gpu::GpuError> {
-    let steps = config.spp_steps();
-    let mut points = Vec::with_capacity(steps.len());
-    let mut detail = String::new();
-    // `auto` judges the render's length by timing paths on the device that renders.
-    // On the GPU, `auto` hands over the samples it timed, for the render to carry on.
-    let build = |spp: u32| match choice {
-        BuilderChoice::Fixed(builder) => {
-            let (rs, report) = RenderScene::build(scene, builder);
-            (rs, report, None)
-        }
-        BuilderChoice::Auto => {
-            let job = AutoRender { spp, max_depth: config.max_depth, frames: 1, seed: config.seed, time: None };
-            match device {
-                ConvergeDevice::Cpu => {
-                    let (rs, report) = RenderScene::build_auto_cpu(scene, &job);
-                    (rs, report, None)
-                }
-                ConvergeDevice::Gpu(ctx) => crate::gpu::trace::build_auto(ctx, scene, &job, None),
-            }
-        }
+) -> Result<ConvergeCurve, DeviceError> {
+    let time = first_frame_time(scene);
+    let build = |spp: u32| -> Result<(Renderer, f64), DeviceError> {
+        let t = Instant::now();
+        let renderer = Renderer::new(device, scene, choice, &config.at(spp), 1, time)?;
+        let build_s = (t.elapsed().as_secs_f64() - renderer.compile_seconds()).max(0.0);
+        Ok((renderer, build_s))
     };
-    match (choice, device) {
-        (BuilderChoice::Fixed(_), ConvergeDevice::Cpu) => {
-            let t = Instant::now();
-            let (rs, report, _) = build(1);
-            let build_s = t.elapsed().as_secs_f64();
-            detail = report.builder;
-            let mut film = Film::new(rs.width, rs.height);
-            let (mut done, mut render_s) = (0, 0.0);
-            for &spp in &steps {
-                let t = Instant::now();
-                rs.render(&mut film, config.seed, config.max_depth, done..spp, &|_| {});
-                render_s += t.elapsed().as_secs_f64();
-                done = spp;
-                points.push(point(&film, reference, spp, build_s, build_s + render_s));
-                progress(points.last().expect("just pushed"));
-            }
-        }
-        (BuilderChoice::Auto, ConvergeDevice::Cpu) => {
-            for &spp in &steps {
-                let t = Instant::now();
-                let (rs, report, _) = build(spp);
-                let build_s = t.elapsed().as_secs_f64();
-                let mut film = Film::new(rs.width, rs.height);
-                rs.render(&mut film, config.seed, config.max_depth, 0..spp, &|_| {});
-                let time_s = t.elapsed().as_secs_f64();
-                detail = report.builder;
-                points.push(point(&film, reference, spp, build_s, time_s));
-                progress(points.last().expect("just pushed"));
-            }
-        }
-        (_, ConvergeDevice::Gpu(ctx)) => {
-            use crate::gpu::trace::{self, GpuScene};
-            let mut fixed: Option<(GpuScene, f64)> = None;
-            for &spp in &steps {
-                let t = Instant::now();
-                let mut timed = None;
-                let (uploaded, build_s) = match (&fixed, choice) {
-                    (Some(_), BuilderChoice::Fixed(_)) => (None, fixed.as_ref().map_or(0.0, |f| f.1)),
-                    _ => {
-                        let (rs, report, partial) = build(spp);
-                        timed = partial;
-                        let gpu = GpuScene::upload(ctx, &rs)?;
-                        let build_s = t.elapsed().as_secs_f64();
-                        detail = report.builder;
-                        // Compiling is once per process and variant, not part of a render: done
-                        // after the build is timed, before the render is.
-                        trace::compile(ctx, &gpu)?;
-                        (Some((gpu, build_s)), build_s)
-                    }
-                };
-                if let Some(u) = uploaded {
-                    fixed = Some(u);
+    let mut points = Vec::new();
+    let mut detail = String::new();
+    let mut fixed: Option<(Renderer, f64, Option<RenderedFrame>)> = None;
+    for spp in config.spp_steps() {
+        let frame = match choice {
+            BuilderChoice::Fixed(_) => {
+                if fixed.is_none() {
+                    let (renderer, build_s) = build(config.render.spp)?;
+                    fixed = Some((renderer, build_s, None));
                 }
-                let gpu = &fixed.as_ref().expect("uploaded above").0;
-                let r = Instant::now();
-                let out = trace::render_from(ctx, gpu, config.seed, config.max_depth, spp, timed, &mut |_| true)?;
-                let render_s = r.elapsed().as_secs_f64();
-                points.push(point(&out.film, reference, spp, build_s, build_s + render_s));
-                progress(points.last().expect("just pushed"));
+                let (renderer, build_s, last) = fixed.as_mut().expect("built above");
+                detail.clone_from(&renderer.build_report().builder);
+                let frame = match last.take() {
+                    None => renderer.render(&config.at(spp), &|_| {})?,
+                    Some(f) => renderer.render_more(f, &config.at(spp), &|_| {})?,
+                };
+                points.push(point(&frame.film, reference, spp, *build_s, *build_s + frame.seconds));
+                frame
             }
+            BuilderChoice::Auto => {
+                let (mut renderer, build_s) = build(spp)?;
+                detail.clone_from(&renderer.build_report().builder);
+                let frame = renderer.render(&config.at(spp), &|_| {})?;
+                let render_s = frame.seconds - frame.timed_seconds;
+                points.push(point(&frame.film, reference, spp, build_s, build_s + render_s));
+                frame
+            }
+        };
+        if let Some((_, _, last)) = fixed.as_mut() {
+            *last = Some(frame);
         }
+        progress(points.last().expect("just pushed"));
     }
     Ok(ConvergeCurve { builder: choice.to_string(), device: device.name().into(), detail, points })
 }
@@ -586,7 +512,7 @@ mod tests {
 
     #[test]
     fn spp_steps_double_up_to_the_maximum() {
-        let c = ConvergeConfig { start_spp: 1, max_spp: 20, ..Default::default() };
+        let c = ConvergeConfig { start_spp: 1, render: RenderSettings { spp: 20, ..Default::default() } };
         assert_eq!(c.spp_steps(), vec![1, 2, 4, 8, 16]);
     }
 }

@@ -3,7 +3,7 @@
 //!
 //! Strategies, all fed the same motion:
 //! - `reinsert+prbvh`: delete the moved instances, clean, reinsert, one round of local PRBVH,
-//!   with the quality monitor ([`super::dynamic`]);
+//!   with the quality monitor ([`arbor::bvh::dynamic`]);
 //! - `reinsert`: the same without the local PRBVH;
 //! - `rebuild`: a binned-SAH build of the top level every frame; its SAH is the "fresh build"
 //!   every strategy's SAH is divided by, frame by frame;
@@ -24,13 +24,15 @@ use glam::{Affine3A, Quat, Vec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::builders::Builder;
-use super::dynamic::{DynamicBvh, DynamicConfig};
-use super::instances::{Instance, TopLevelUpdate, TwoLevel};
-use super::{MeshBvh, bench_rays, binned_sah, sah_cost};
-use crate::geometry::{Aabb, Ray, Triangle, TriangleMesh};
-use crate::render::rng::Rng;
-use crate::scene::Scene;
+use arbor::bvh::builders::Builder;
+use arbor::bvh::dynamic::{DynamicBvh, DynamicConfig};
+use arbor::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
+use arbor::bvh::{MeshBvh, binned_sah, sah_cost};
+use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
+use arbor::render::rng::Rng;
+use arbor::scene::Scene;
+
+use crate::rays as bench_rays;
 
 /// Instances of a few meshes, some of which move.
 pub struct AnimatedInstances {

@@ -7,10 +7,10 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::{Bvh, hit_point_and_normal};
-use crate::geometry::{Aabb, Ray, Triangle, spawn_ray};
-use crate::render::rng::Rng;
-use crate::render::sampling::{Frame, cosine_hemisphere};
+use arbor::bvh::{Bvh, hit_point_and_normal};
+use arbor::geometry::{Aabb, Ray, Triangle, spawn_ray};
+use arbor::render::rng::Rng;
+use arbor::render::sampling::{Frame, cosine_hemisphere};
 
 /// Pinhole camera rays through pixel centres, `width * height` of them, looking at the centre
 /// of `bounds` from the front (+z), a little right and above, with the field of view narrowed until the

@@ -1,5 +1,6 @@
-//! External builders as peers for comparison (feature `peers`): the obvhs crate's presets,
-//! converted into Arbor's layout so that they are traced by the same traversal as ours.
+//! External builders as peers for comparison: the obvhs crate's presets, converted into Arbor's
+//! layout so that they are traced by the same traversal as ours. [`register`] adds them to the
+//! builder names (`obvhs-medium`, ...) through [`arbor::bvh::builders::register_external`].
 //!
 //! The presets run with `max_prims_per_leaf = 1` (no leaf collapse of their own): callers apply
 //! Arbor's leaf collapse to every builder alike. They also run with `pre_split = false`: spatial
@@ -10,10 +11,33 @@
 use obvhs::BvhBuildParams;
 use obvhs::bvh2::Bvh2;
 
-use super::{Bvh, BvhNode, INVALID_INDEX, refit};
-use crate::geometry::{Aabb, Triangle};
+use arbor::bvh::builders::{ExternalBuilder, register_external};
+use arbor::bvh::{Bvh, BvhNode, INVALID_INDEX, refit};
+use arbor::geometry::{Aabb, Triangle};
 
-/// Builds with the obvhs preset `preset` (one of [`super::builders::OBVHS_PRESETS`]).
+/// The obvhs presets' names, fastest first.
+pub const OBVHS_PRESETS: [&str; 6] = ["fastest", "very-fast", "fast", "medium", "slow", "very-slow"];
+
+/// Registers every obvhs preset as the builder `obvhs-PRESET`.
+pub fn register() {
+    // `ExternalBuilder::build` is a plain function, so each preset gets its own.
+    macro_rules! preset {
+        ($name:literal) => {
+            register_external(ExternalBuilder {
+                name: concat!("obvhs-", $name),
+                build: |triangles, prim_aabbs| obvhs_build($name, triangles, prim_aabbs),
+            })
+        };
+    }
+    preset!("fastest");
+    preset!("very-fast");
+    preset!("fast");
+    preset!("medium");
+    preset!("slow");
+    preset!("very-slow");
+}
+
+/// Builds with the obvhs preset `preset` (one of [`OBVHS_PRESETS`]).
 pub fn obvhs_build(preset: &str, triangles: &[Triangle], prim_aabbs: &[Aabb]) -> Bvh {
     let tris = to_obvhs_triangles(triangles);
     let mut core_time = std::time::Duration::ZERO;

@@ -3,7 +3,34 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-mod common;
+/// The repository's root, where the scenes are.
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+mod common {
+    /// Runs `cmd` with its standard output closed before it writes (as `| head` does once it
+    /// has read enough): the tool must neither panic nor stop its work and files.
+    pub fn output_with_stdout_closed(cmd: &mut std::process::Command) -> std::process::Output {
+        use std::process::Stdio;
+        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        drop(child.stdout.take());
+        child.wait_with_output().unwrap()
+    }
+
+    /// The shared GPU context, or `None` with a printed reason; under `CI=true` a missing
+    /// adapter fails the test.
+    pub fn gpu_or_skip(test: &str) -> Option<&'static arbor::gpu::GpuContext> {
+        match arbor::gpu::GpuContext::shared() {
+            Ok(ctx) => Some(ctx),
+            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("{test}: no GPU under CI=true: {e}"),
+            Err(e) => {
+                eprintln!("skipping {test}: {e}");
+                None
+            }
+        }
+    }
+}
 
 fn bench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_bvh-bench"))
@@ -93,7 +120,7 @@ fn writes_table_json_csv_and_plot() {
 
 #[test]
 fn scenes_as_input() {
-    let scene = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/showcase.toml");
+    let scene = root().join("scenes/showcase.toml");
     let out = bench()
         .arg(&scene)
         .args(["--builders", "lbvh,lbvh+prbvh", "--runs", "1", "--resolution", "32"])
@@ -329,12 +356,12 @@ fn animation_benchmark_reports_every_strategy() {
     assert!(std::fs::read_to_string(&csv).unwrap().lines().count() == 6);
     assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
 
-    let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell-animated.toml");
+    let scene = root().join("scenes/cornell-animated.toml");
     let out = bench().arg("--animated").arg(&scene).args(["--frames", "6", "--resolution", "32"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stdout).contains("11 instances, 3 moving"));
 
-    let furnace = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/furnace.toml");
+    let furnace = root().join("scenes/furnace.toml");
     for (args, expected) in [
         (
             vec!["--animated".to_string(), scene.display().to_string(), "--moving".into(), "5".into()],
@@ -358,7 +385,7 @@ fn run_ok(cmd: &mut Command) -> String {
 }
 
 fn manifest(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
+    root().join(rel)
 }
 
 /// `--converge`: one curve per builder (auto included), errors falling with the samples, the
@@ -424,14 +451,15 @@ fn convergence_against_a_given_reference() {
     let dir = temp_dir("converge-ref");
     let reference = dir.join("ref.exr");
     let scene = manifest("scenes/furnace.toml");
-    let render = Command::new(env!("CARGO_BIN_EXE_render"))
-        .arg(&scene)
-        .arg("-o")
-        .arg(&reference)
-        .args(["--spp", "4", "--quiet"])
-        .status()
-        .unwrap();
-    assert!(render.success());
+    {
+        use arbor::device::{BuilderChoice, Device, Renderer};
+        let loaded = arbor::scene::Scene::load(&scene).unwrap();
+        let settings = arbor::scene::RenderSettings { spp: 4, ..loaded.render };
+        let builder = BuilderChoice::Fixed("lbvh+prbvh".parse().unwrap());
+        let mut renderer = Renderer::new(Device::Cpu, &loaded, &builder, &settings, 1, 0.0).unwrap();
+        let frame = renderer.render(&settings, &|_| {}).unwrap();
+        arbor::image_io::write_image(&reference, &frame.film.mean()).unwrap();
+    }
     let json = dir.join("r.json");
     run_ok(
         bench()

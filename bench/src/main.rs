@@ -3,20 +3,25 @@
 //! through an animation; with `--converge`, compares the image error each builder's renders
 //! reach against wall time.
 //!
-//! Argument parsing and reporting only; the measuring is `arbor::bvh::bench`,
-//! `arbor::bvh::anim_bench` and `arbor::render::converge`.
+//! Argument parsing and reporting only; the measuring is `arbor_bench::compare`,
+//! `arbor_bench::anim` and `arbor_bench::converge`.
+
+#[path = "../../src/bin/cli/mod.rs"]
+mod cli;
 
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use arbor::atomic_file::{self, AtomicWriteError};
-use arbor::bvh::anim_bench::{self, AnimBenchConfig, AnimatedInstances};
-use arbor::bvh::bench::{self, BenchConfig, Report};
 use arbor::bvh::builders::Builder;
 use arbor::bvh::prbvh::PrbvhConfig;
 use arbor::geometry::{TriangleMesh, procedural};
+use arbor::scene::RenderSettings;
+use arbor_bench::anim::{self as anim_bench, AnimBenchConfig, AnimatedInstances};
+use arbor_bench::compare::{self as bench, BenchConfig, Report};
 use clap::Parser;
+use cli::outln;
 use indicatif::ProgressBar;
 
 /// Compare BVH builders: build time, SAH cost (cT = 3, cI = 2) and trace speed of primary,
@@ -31,8 +36,8 @@ struct Args {
     /// has at least N triangles). N may use k/M suffixes (e.g. city:2M).
     #[arg(long, value_name = "KIND:N")]
     procedural: Option<String>,
-    /// Builders to compare, comma-separated [default: lbvh,lbvh+prbvh,binned-sah,ploc and, with the
-    /// peers feature, obvhs-medium; with --converge: lbvh,lbvh+prbvh,binned-sah,auto].
+    /// Builders to compare, comma-separated [default: lbvh,lbvh+prbvh,binned-sah,ploc,obvhs-medium;
+    /// with --converge: lbvh,lbvh+prbvh,binned-sah,auto].
     #[arg(long, value_delimiter = ',')]
     builders: Option<Vec<String>>,
     /// Builds and traces per builder (with --converge: whole curves); medians are reported.
@@ -111,11 +116,7 @@ struct Args {
 }
 
 fn default_builders() -> Vec<String> {
-    let mut v = vec!["lbvh".to_string(), "lbvh+prbvh".into(), "binned-sah".into(), "ploc".into()];
-    if cfg!(feature = "peers") {
-        v.push("obvhs-medium".into());
-    }
-    v
+    ["lbvh", "lbvh+prbvh", "binned-sah", "ploc", "obvhs-medium"].map(String::from).to_vec()
 }
 
 fn main() {
@@ -125,7 +126,7 @@ fn main() {
         eprintln!("bvh-bench: error: {e:#}");
         std::process::exit(1);
     }
-    if let Some(e) = arbor::stdout_error() {
+    if let Some(e) = cli::stdout_error() {
         eprintln!("bvh-bench: error: writing to standard output: {e}");
         std::process::exit(1);
     }
@@ -133,7 +134,8 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = Args::parse();
-    arbor::init_threads(args.threads).map_err(anyhow::Error::msg)?;
+    arbor_bench::peers::register();
+    cli::init_threads(args.threads)?;
     if let Some(builder) = &args.memory_child {
         return memory_child(&args, builder);
     }
@@ -329,8 +331,7 @@ fn run_animated(args: &Args) -> Result<()> {
             let spec = n;
             let n = parse_count(n).with_context(|| format!("--procedural-animated: bad instance count `{n}`"))?;
             // About 1.6 kB per instance at the peak (200k instances, 2 frames).
-            arbor::memory::check_fits(&format!("--procedural-animated {spec}"), n as f64 * 2000.0)
-                .map_err(anyhow::Error::msg)?;
+            arbor::memory::check_fits(&format!("--procedural-animated {spec}"), n as f64 * 2000.0)?;
             let moving = args.moving.unwrap_or(10.0);
             if !(0.0..=100.0).contains(&moving) {
                 bail!("--moving must be a percentage from 0 to 100, not {moving}");
@@ -349,7 +350,7 @@ fn run_animated(args: &Args) -> Result<()> {
     );
     let config = AnimBenchConfig { frames, resolution: args.resolution.min(256), ..Default::default() };
     let report = anim_bench::run(&anim, &config);
-    arbor::outln!(
+    outln!(
         "{} instances, {} moving, {} triangles, {} frames, {} threads",
         report.instances,
         report.moving,
@@ -357,7 +358,7 @@ fn run_animated(args: &Args) -> Result<()> {
         report.frames,
         report.threads
     );
-    arbor::outln!(
+    outln!(
         "{:<16} {:>10} {:>10} {:>10} {:>10} {:>10} {:>9} {:>9} {:>9}",
         "strategy",
         "update ms",
@@ -371,7 +372,7 @@ fn run_animated(args: &Args) -> Result<()> {
     );
     for s in &report.strategies {
         let v = strategy_values(s);
-        arbor::outln!(
+        outln!(
             "{:<16} {:>10.3} {:>10.3} {:>10.3} {:>10.3} {:>10.3} {:>9} {:>9.2} {:>9.2}",
             s.name,
             v[0],
@@ -384,11 +385,11 @@ fn run_animated(args: &Args) -> Result<()> {
             v[7]
         );
     }
-    arbor::outln!(
+    outln!(
         "(update: median per frame; SAH as a ratio to a fresh binned-SAH build; trace speeds in Mrays/s at the last frame)"
     );
     if report.single_level_differences > 0 {
-        arbor::outln!(
+        outln!(
             "({} rays hit another triangle through the single-level tree's world-space copies: rounding at shared edges)",
             report.single_level_differences
         );
@@ -432,7 +433,7 @@ const STRATEGY_COLUMNS: [&str; 8] = [
     "diffuse_mrays_final",
 ];
 
-fn strategy_values(s: &arbor::bvh::anim_bench::StrategyReport) -> [f64; 8] {
+fn strategy_values(s: &anim_bench::StrategyReport) -> [f64; 8] {
     [
         s.update_ms,
         s.update_ms_mean,
@@ -447,13 +448,14 @@ fn strategy_values(s: &arbor::bvh::anim_bench::StrategyReport) -> [f64; 8] {
 
 /// `--converge`.
 fn run_converge(args: &Args) -> Result<()> {
-    use arbor::render::converge::{self, BuilderChoice, ConvergeConfig};
+    use arbor::device::{BuilderChoice, Device, DeviceChoice};
+    use arbor_bench::converge::{self, ConvergeConfig};
     let path = args.converge.as_ref().expect("checked by the caller");
     let mut devices = Vec::new();
     for d in args.devices.as_deref().unwrap_or(&["cpu".to_string()]) {
         devices.push(match d.trim() {
-            "cpu" => converge::ConvergeDevice::Cpu,
-            "gpu" => converge::ConvergeDevice::Gpu(arbor::gpu::GpuContext::shared().context("--devices gpu")?),
+            "cpu" => Device::Cpu,
+            "gpu" => DeviceChoice::Gpu.select().context("--devices gpu")?.0,
             other => bail!("--devices: unknown device `{other}`; known: cpu, gpu"),
         });
     }
@@ -471,8 +473,8 @@ fn run_converge(args: &Args) -> Result<()> {
     if let Some((w, h)) = args.image_size {
         (scene.camera.width, scene.camera.height) = (w, h);
     }
-    let config =
-        ConvergeConfig { max_spp, max_depth: scene.render.max_depth, seed: scene.render.seed, ..Default::default() };
+    let render = RenderSettings { spp: max_spp, time: None, clamp: None, ..scene.render };
+    let config = ConvergeConfig { render, ..Default::default() };
     let (w, h) = (scene.camera.width, scene.camera.height);
     let (reference, reference_info) = match &args.reference {
         Some(file) => {
@@ -492,14 +494,19 @@ fn run_converge(args: &Args) -> Result<()> {
             if spp == 0 {
                 bail!("--reference-spp must be at least 1");
             }
-            let seed = config.seed ^ 0x5eed_0f5e;
+            let seed = config.render.seed ^ 0x5eed_0f5e;
             eprintln!("rendering the reference: {w}x{h}, {spp} spp ...");
-            let (image, secs) = converge::render_reference(&scene, spp, config.max_depth, seed);
+            let (image, secs) = converge::render_reference(&scene, spp, config.render.max_depth, seed)?;
             eprintln!("  {secs:.1} s");
             (image, serde_json::json!({"source": "rendered", "spp": spp, "seed": seed, "time_s": secs}))
         }
     };
-    eprintln!("{}: {w}x{h}, max depth {}, {} threads", path.display(), config.max_depth, rayon::current_num_threads());
+    eprintln!(
+        "{}: {w}x{h}, max depth {}, {} threads",
+        path.display(),
+        config.render.max_depth,
+        rayon::current_num_threads()
+    );
     // Runs interleave the builders, so that a slow spell of a shared machine falls on all.
     let mut runs = Vec::new();
     for run in 0..args.runs {
@@ -522,7 +529,7 @@ fn run_converge(args: &Args) -> Result<()> {
         runs.push(curves);
     }
     let curves = converge::median_of_runs(runs);
-    arbor::outln!(
+    outln!(
         "{:<14} {:>6} {:>6} {:>10} {:>10} {:>12} {:>10}",
         "builder",
         "device",
@@ -534,7 +541,7 @@ fn run_converge(args: &Args) -> Result<()> {
     );
     for c in &curves {
         for p in &c.points {
-            arbor::outln!(
+            outln!(
                 "{:<14} {:>6} {:>6} {:>10.3} {:>10.3} {:>12.4e} {:>10.4e}",
                 c.builder,
                 c.device,
@@ -547,11 +554,11 @@ fn run_converge(args: &Args) -> Result<()> {
         }
     }
     if args.runs > 1 {
-        arbor::outln!("(times: the median of {} runs)", args.runs);
+        outln!("(times: the median of {} runs)", args.runs);
     }
     let auto = converge::compare_auto(&curves);
     for a in &auto {
-        arbor::outln!(
+        outln!(
             "{}: auto against the best fixed builder at equal time ({:.3} to {:.3} s): worst rel MSE ratio {:.3} at {:.3} s ({} best there), worst MAE ratio {:.3}",
             a.device,
             a.compared_from_s,
@@ -564,14 +571,14 @@ fn run_converge(args: &Args) -> Result<()> {
     }
     let not_compared = converge::auto_not_compared(&curves);
     for (device, why) in &not_compared {
-        arbor::outln!("{device}: auto not compared with the fixed builders: {why}");
+        outln!("{device}: auto not compared with the fixed builders: {why}");
     }
     let non_finite: u64 = curves.iter().flat_map(|c| &c.points).map(|p| p.non_finite).sum();
     let report = serde_json::json!({
         "scene": path.display().to_string(),
         "width": w,
         "height": h,
-        "max_depth": config.max_depth,
+        "max_depth": config.render.max_depth,
         "threads": rayon::current_num_threads(),
         "reference": reference_info,
         "curves": curves,
@@ -686,15 +693,15 @@ fn run_gpu(args: &Args) -> Result<()> {
         let lock = if scheme == LockScheme::Atomic64 { "64-bit" } else { "32-bit" };
         rows.push(serde_json::json!({"stage": "prbvh", "device": "gpu", "locks": lock, "ms": median(times), "sah": sah, "iterations": iterations}));
     }
-    arbor::outln!(
+    outln!(
         "{} triangles; {}; medians of {} runs (GPU times exclude pipeline compilation, upload and readback)",
         prims.len(),
         ctx.describe(),
         args.runs
     );
-    arbor::outln!("{:<8} {:<6} {:<8} {:>12} {:>10}", "stage", "device", "locks", "ms", "SAH");
+    outln!("{:<8} {:<6} {:<8} {:>12} {:>10}", "stage", "device", "locks", "ms", "SAH");
     for r in &rows {
-        arbor::outln!(
+        outln!(
             "{:<8} {:<6} {:<8} {:>12.2} {:>10.2}",
             r["stage"].as_str().unwrap_or(""),
             r["device"].as_str().unwrap_or(""),
@@ -739,8 +746,8 @@ fn run_memory(args: &Args) -> Result<()> {
         reports.push(r);
     }
     let triangles = reports.first().map_or(0, |r| r.triangles);
-    arbor::outln!("{triangles} triangles; each builder in its own process");
-    arbor::outln!(
+    outln!("{triangles} triangles; each builder in its own process");
+    outln!(
         "{:<26} {:>10} {:>12} {:>12} {:>14} {:>14}",
         "builder",
         "build ms",
@@ -750,7 +757,7 @@ fn run_memory(args: &Args) -> Result<()> {
         "peak B/tri"
     );
     for r in &reports {
-        arbor::outln!(
+        outln!(
             "{:<26} {:>10.1} {:>12.1} {:>12.1} {:>14.1} {:>14.1}",
             r.name,
             r.build_ms,
@@ -760,7 +767,7 @@ fn run_memory(args: &Args) -> Result<()> {
             r.peak_bytes_per_triangle
         );
     }
-    arbor::outln!(
+    outln!(
         "(kept: what tracing needs, triangles included; peak: the whole process, mesh and input triangles included)"
     );
     let report = serde_json::json!({ "triangles": triangles, "builders": reports });
@@ -788,9 +795,8 @@ fn memory_child(args: &Args, name: &str) -> Result<()> {
     drop(mesh);
     let t = std::time::Instant::now();
     let kept = match builder.to_string().strip_prefix("obvhs-") {
-        #[cfg(feature = "peers")]
         Some(preset) => {
-            let (tris, bvh) = arbor::bvh::peers::obvhs_native_bytes(preset, &triangles);
+            let (tris, bvh) = arbor_bench::peers::obvhs_native_bytes(preset, &triangles);
             tris + bvh
         }
         _ => {
@@ -810,7 +816,7 @@ fn memory_child(args: &Args, name: &str) -> Result<()> {
         kept_bytes_per_triangle: kept as f64 / n,
         peak_bytes_per_triangle: peak as f64 / n,
     };
-    arbor::outln!("{}", serde_json::to_string(&r)?);
+    outln!("{}", serde_json::to_string(&r)?);
     Ok(())
 }
 
@@ -839,7 +845,7 @@ fn load_any_input(args: &Args) -> Result<(String, TriangleMesh)> {
         Some(path) if path.extension().is_some_and(|e| e == "toml") => {
             // A scene: every object's triangles in world space, as the renderer builds over them.
             let scene = arbor::scene::Scene::load(path)?;
-            scene.check_flat_fits(path, arbor::memory::BENCH_BYTES_PER_TRIANGLE).map_err(anyhow::Error::msg)?;
+            scene.check_flat_fits(path, arbor::memory::BENCH_BYTES_PER_TRIANGLE)?;
             let (triangles, _) = scene.world_triangles();
             let mesh = TriangleMesh {
                 positions: triangles.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect(),
@@ -858,8 +864,7 @@ fn load_any_input(args: &Args) -> Result<(String, TriangleMesh)> {
     };
     let (kind, count) = spec.split_once(':').context("--procedural: expected KIND:N, e.g. city:1M")?;
     let n = parse_count(count).with_context(|| format!("--procedural: bad triangle count `{count}`"))?;
-    arbor::memory::check_fits(&format!("--procedural {spec}"), n as f64 * arbor::memory::BENCH_BYTES_PER_TRIANGLE)
-        .map_err(anyhow::Error::msg)?;
+    arbor::memory::check_fits(&format!("--procedural {spec}"), n as f64 * arbor::memory::BENCH_BYTES_PER_TRIANGLE)?;
     let mesh = match kind {
         "hairball" => procedural::hairball(n, args.seed),
         "city" => procedural::city(n, args.seed),
@@ -898,7 +903,7 @@ fn parse_count(s: &str) -> Result<usize> {
 }
 
 fn print_table(r: &Report) {
-    arbor::outln!(
+    outln!(
         "{} triangles, {} threads; rays: {} primary, {} shadow, {} diffuse",
         r.triangles,
         r.threads,
@@ -906,7 +911,7 @@ fn print_table(r: &Report) {
         r.rays.shadow,
         r.rays.diffuse
     );
-    arbor::outln!(
+    outln!(
         "{:<26} {:>10} {:>12} {:>10} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9}",
         "builder",
         "build ms",
@@ -921,7 +926,7 @@ fn print_table(r: &Report) {
     );
     let speed = |v: Option<f64>| v.map_or_else(|| "n/a".to_string(), |v| format!("{v:.2}"));
     for b in &r.builders {
-        arbor::outln!(
+        outln!(
             "{:<26} {:>10.1} {:>12.1} {:>10.2} {:>8.2} {:>9} {:>9} {:>9} {:>9} {:>9}",
             b.name,
             b.build_ms,
@@ -935,9 +940,9 @@ fn print_table(r: &Report) {
             speed(b.diffuse_mrays)
         );
     }
-    arbor::outln!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
+    outln!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
     if r.rays.shadow == 0 {
-        arbor::outln!(
+        outln!(
             "(no primary ray hit the mesh, so there are no shadow or diffuse rays: n/a, null in the JSON; a thin or flat mesh seen edge-on)"
         );
     }

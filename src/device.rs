@@ -1,0 +1,437 @@
+//! One entry point for rendering on the CPU or the GPU: [`Renderer`].
+//!
+//! The `render` binary, `bvh-bench --converge` and the tests all render through it, so the
+//! choice between the CPU path ([`crate::render`]) and the GPU path ([`crate::gpu::trace`]) is
+//! made here once, as pbrt-v4 chooses once between its CPU and wavefront integrators. It also
+//! holds what differs between them beyond the kernel:
+//! - the BVH: `lbvh` and `lbvh+prbvh` build on the GPU itself, `auto` times the device it
+//!   renders on, and other builders build on the CPU;
+//! - animation: the CPU keeps an instanced scene's two-level BVH and updates it each frame; the
+//!   GPU traces flat scenes only, so an animated or instanced scene is flattened and rebuilt
+//!   per frame (with `lbvh` unless a builder other than `auto` is named);
+//! - samples `auto` timed on the GPU become the first samples of the first frame.
+//!
+//! Without the `gpu` feature only [`Device::Cpu`] exists.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use crate::bvh::builders::{Builder, UnknownBuilder};
+use crate::bvh::instances::TopLevelUpdate;
+#[cfg(feature = "gpu")]
+use crate::gpu::{GpuContext, GpuError, trace};
+use crate::render::film::Film;
+use crate::render::geometry::wants_instancing;
+use crate::render::{BuildReport, RenderScene, first_frame_time};
+use crate::scene::{RenderSettings, Scene};
+
+/// Where a render runs.
+#[derive(Clone, Copy)]
+pub enum Device {
+    Cpu,
+    #[cfg(feature = "gpu")]
+    Gpu(&'static GpuContext),
+}
+
+impl Device {
+    /// `cpu` or `gpu`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Device::Cpu => "cpu",
+            #[cfg(feature = "gpu")]
+            Device::Gpu(_) => "gpu",
+        }
+    }
+}
+
+/// What `--device` asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeviceChoice {
+    Cpu,
+    /// Any GPU adapter, software ones (lavapipe) included.
+    Gpu,
+    /// A hardware GPU where there is one, else the CPU (a software GPU is slower than the CPU
+    /// path).
+    Auto,
+}
+
+impl DeviceChoice {
+    /// The device, and a line for the user saying what was chosen and why (`None` for the CPU
+    /// when it was asked for).
+    pub fn select(self) -> Result<(Device, Option<String>), DeviceError> {
+        match self {
+            DeviceChoice::Cpu => Ok((Device::Cpu, None)),
+            #[cfg(feature = "gpu")]
+            DeviceChoice::Gpu => {
+                let ctx = GpuContext::shared().map_err(DeviceError::NoGpu)?;
+                Ok((Device::Gpu(ctx), Some(format!("GPU: {}", ctx.describe()))))
+            }
+            #[cfg(not(feature = "gpu"))]
+            DeviceChoice::Gpu => Err(DeviceError::NoGpuFeature),
+            #[cfg(feature = "gpu")]
+            DeviceChoice::Auto => match GpuContext::new(crate::gpu::AdapterPolicy::HardwareOnly) {
+                // One context for the process's lifetime.
+                Ok(ctx) => {
+                    let ctx: &'static GpuContext = Box::leak(Box::new(ctx));
+                    Ok((Device::Gpu(ctx), Some(format!("GPU: {}", ctx.describe()))))
+                }
+                Err(e) => Ok((Device::Cpu, Some(format!("no hardware GPU ({e}): rendering on the CPU")))),
+            },
+            #[cfg(not(feature = "gpu"))]
+            DeviceChoice::Auto => Ok((Device::Cpu, None)),
+        }
+    }
+}
+
+/// A builder by name, or `auto`: the tree the render's estimated length repays.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BuilderChoice {
+    Fixed(Builder),
+    Auto,
+}
+
+impl std::fmt::Display for BuilderChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BuilderChoice::Fixed(b) => write!(f, "{b}"),
+            BuilderChoice::Auto => f.write_str("auto"),
+        }
+    }
+}
+
+impl std::str::FromStr for BuilderChoice {
+    type Err = UnknownBuilder;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s == "auto" { Ok(BuilderChoice::Auto) } else { s.parse().map(BuilderChoice::Fixed) }
+    }
+}
+
+/// What can go wrong on a device.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    #[cfg(feature = "gpu")]
+    #[error("--device gpu")]
+    NoGpu(#[source] GpuError),
+    #[cfg(not(feature = "gpu"))]
+    #[error("--device gpu: this build of Arbor has no GPU backend (the `gpu` feature is off)")]
+    NoGpuFeature,
+    #[cfg(feature = "gpu")]
+    #[error("building the BVH on the GPU")]
+    Build(#[source] GpuError),
+    #[cfg(feature = "gpu")]
+    #[error("uploading the scene to the GPU")]
+    Upload(#[source] GpuError),
+    #[cfg(feature = "gpu")]
+    #[error("compiling the GPU kernel")]
+    Compile(#[source] GpuError),
+    #[cfg(feature = "gpu")]
+    #[error("rendering on the GPU")]
+    Render(#[source] GpuError),
+}
+
+/// How far a render has come, for a progress bar: `done` of `total` units (pixel rows × samples),
+/// and the rays traced so far where the device counts them as it goes (the CPU; 0 on the GPU).
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    pub done: u64,
+    pub total: u64,
+    pub rays: u64,
+}
+
+/// A rendered frame.
+pub struct RenderedFrame {
+    pub film: Film,
+    /// Rays traced, camera rays included.
+    pub rays: u64,
+    /// The render's seconds, those of samples carried over included.
+    pub seconds: f64,
+    /// Samples per pixel taken (fewer than asked where a time budget stopped the render).
+    pub samples: u32,
+    /// Of `seconds`, those of samples `auto` took while it timed the GPU, which its build's
+    /// time counts too.
+    pub timed_seconds: f64,
+}
+
+/// A scene made ready to render on one device: its BVH built (and uploaded), frame after frame.
+pub struct Renderer {
+    device: Device,
+    render_scene: RenderScene,
+    build: BuildReport,
+    /// The builder an instanced scene is flattened with on the GPU, per frame.
+    flat_builder: Builder,
+    /// The scene time the geometry stands at.
+    time: f32,
+    /// A line about the GPU kernel, for the user.
+    kernel_note: Option<String>,
+    /// Seconds spent compiling GPU kernels while building (once per process and variant).
+    compile_seconds: f64,
+    #[cfg(feature = "gpu")]
+    gpu: Option<GpuState>,
+}
+
+#[cfg(feature = "gpu")]
+struct GpuState {
+    scene: trace::GpuScene,
+    /// Samples `auto` timed, which the next render carries on.
+    timed: Option<trace::PartialFilm>,
+}
+
+impl Renderer {
+    /// Builds `scene` for rendering on `device` at scene time `time` (the first frame to be
+    /// rendered; [`first_frame_time`] for a still). `settings` and `frames` (the number of
+    /// frames to come) tell `auto` how long the render will be; `settings.clamp` is applied.
+    pub fn new(
+        device: Device,
+        scene: &Scene,
+        builder: &BuilderChoice,
+        settings: &RenderSettings,
+        frames: usize,
+        time: f32,
+    ) -> Result<Renderer, DeviceError> {
+        let lbvh: Builder = "lbvh".parse().expect("a builder name");
+        let flat_builder = match builder {
+            BuilderChoice::Fixed(b) => *b,
+            // `auto` has no model for per-frame builds.
+            BuilderChoice::Auto => lbvh,
+        };
+        let (mut render_scene, build) = match device {
+            Device::Cpu => match builder {
+                BuilderChoice::Fixed(b) => RenderScene::build(scene, b),
+                BuilderChoice::Auto => RenderScene::build_auto_cpu(scene, settings, frames),
+            },
+            #[cfg(feature = "gpu")]
+            Device::Gpu(ctx) => return Self::new_gpu(ctx, scene, builder, settings, frames, time, flat_builder),
+        };
+        render_scene.sample_clamp = settings.clamp;
+        Ok(Renderer {
+            device,
+            render_scene,
+            build,
+            flat_builder,
+            time: first_frame_time(scene),
+            kernel_note: None,
+            compile_seconds: 0.0,
+            #[cfg(feature = "gpu")]
+            gpu: None,
+        })
+    }
+
+    #[cfg(feature = "gpu")]
+    fn new_gpu(
+        ctx: &'static GpuContext,
+        scene: &Scene,
+        builder: &BuilderChoice,
+        settings: &RenderSettings,
+        frames: usize,
+        time: f32,
+        flat_builder: Builder,
+    ) -> Result<Renderer, DeviceError> {
+        let mut timed = None;
+        let (render_scene, build) = if wants_instancing(scene) {
+            trace::flatten(scene, time, &flat_builder)
+        } else {
+            // `lbvh` and `lbvh+prbvh` build on the GPU itself; other builders on the CPU.
+            let on_gpu = match builder {
+                BuilderChoice::Fixed(b) => {
+                    let name = b.to_string();
+                    (name == "lbvh" || name == "lbvh+prbvh").then_some(name == "lbvh+prbvh")
+                }
+                BuilderChoice::Auto => None,
+            };
+            let built_on_gpu = match on_gpu {
+                Some(optimize) => crate::gpu::build_render_scene(ctx, scene, optimize).map_err(DeviceError::Build)?,
+                None => None,
+            };
+            match (built_on_gpu, builder) {
+                (Some(built), _) => built,
+                (None, BuilderChoice::Fixed(b)) => RenderScene::build(scene, b),
+                (None, BuilderChoice::Auto) => {
+                    let (rs, report, partial) = trace::build_auto(ctx, scene, settings, frames);
+                    timed = partial;
+                    (rs, report)
+                }
+            }
+        };
+        let mut renderer = Renderer {
+            device: Device::Gpu(ctx),
+            render_scene,
+            build,
+            flat_builder,
+            time,
+            kernel_note: None,
+            compile_seconds: 0.0,
+            gpu: None,
+        };
+        renderer.upload(settings.clamp, timed)?;
+        Ok(renderer)
+    }
+
+    /// Uploads the scene as it stands and compiles its kernel variant.
+    #[cfg(feature = "gpu")]
+    fn upload(&mut self, clamp: Option<f32>, timed: Option<trace::PartialFilm>) -> Result<(), DeviceError> {
+        let Device::Gpu(ctx) = self.device else { return Ok(()) };
+        self.render_scene.sample_clamp = clamp;
+        let scene = trace::GpuScene::upload(ctx, &self.render_scene).map_err(DeviceError::Upload)?;
+        let t = Instant::now();
+        trace::compile(ctx, &scene).map_err(DeviceError::Compile)?;
+        self.compile_seconds += t.elapsed().as_secs_f64();
+        if self.kernel_note.is_none() {
+            self.kernel_note = Some(format!(
+                "GPU kernel {} ready in {:.2} s, BVH depth {}",
+                scene.features.key(),
+                t.elapsed().as_secs_f64(),
+                scene.depth
+            ));
+        }
+        self.gpu = Some(GpuState { scene, timed });
+        Ok(())
+    }
+
+    pub fn device(&self) -> Device {
+        self.device
+    }
+
+    /// What building the scene's BVH cost and chose.
+    pub fn build_report(&self) -> &BuildReport {
+        &self.build
+    }
+
+    /// The scene as the CPU's integrator reads it (on the GPU, what was uploaded).
+    pub fn render_scene(&self) -> &RenderScene {
+        &self.render_scene
+    }
+
+    /// On the GPU, a line on the kernel variant compiled for the scene (once, at the build).
+    pub fn kernel_note(&self) -> Option<&str> {
+        self.kernel_note.as_deref()
+    }
+
+    /// Seconds [`Renderer::new`] spent compiling GPU kernels, which a build's time may leave
+    /// out: the pipelines are cached for the rest of the process.
+    pub fn compile_seconds(&self) -> f64 {
+        self.compile_seconds
+    }
+
+    /// Moves an animated scene to scene time `time` and returns what updating its BVH took, in
+    /// milliseconds; `None` where nothing was updated (a static scene, or the GPU's flat scene
+    /// already at `time`). The CPU updates the two-level BVH in place (delete, clean up,
+    /// reinsert); the GPU flattens and rebuilds.
+    pub fn set_time(&mut self, scene: &Scene, time: f32) -> Result<Option<f64>, DeviceError> {
+        match self.device {
+            Device::Cpu => {
+                let t = Instant::now();
+                let update = TopLevelUpdate::Dynamic(Default::default());
+                let stats = self.render_scene.set_time(scene, time, &update);
+                self.time = time;
+                Ok(stats.map(|_| t.elapsed().as_secs_f64() * 1e3))
+            }
+            #[cfg(feature = "gpu")]
+            Device::Gpu(_) => {
+                if !wants_instancing(scene) || time == self.time {
+                    return Ok(None);
+                }
+                let clamp = self.render_scene.sample_clamp;
+                let (rs, build) = trace::flatten(scene, time, &self.flat_builder);
+                self.gpu = None;
+                self.render_scene = rs;
+                self.time = time;
+                self.upload(clamp, None)?;
+                Ok(Some(build.build_ms))
+            }
+        }
+    }
+
+    /// Renders samples `0..settings.spp` of every pixel (fewer where `settings.time` runs out:
+    /// the render stops after the pass that crosses it) with `settings.seed` and
+    /// `settings.max_depth`. `progress` hears of every row (CPU) or pass (GPU) done.
+    pub fn render(
+        &mut self,
+        settings: &RenderSettings,
+        progress: &(dyn Fn(Progress) + Sync),
+    ) -> Result<RenderedFrame, DeviceError> {
+        let film = Film::new(self.render_scene.width, self.render_scene.height);
+        let start = RenderedFrame { film, rays: 0, seconds: 0.0, samples: 0, timed_seconds: 0.0 };
+        self.render_more(start, settings, progress)
+    }
+
+    /// [`Renderer::render`], carrying on from `frame`, a render of this scene with the same
+    /// seed and depth, up to `settings.spp` samples. On the CPU the film gains samples
+    /// `frame.samples..settings.spp`, the image an uninterrupted render gives; the GPU keeps no
+    /// film between renders and renders samples `0..settings.spp` again.
+    pub fn render_more(
+        &mut self,
+        frame: RenderedFrame,
+        settings: &RenderSettings,
+        progress: &(dyn Fn(Progress) + Sync),
+    ) -> Result<RenderedFrame, DeviceError> {
+        match self.device {
+            Device::Cpu => Ok(self.render_cpu(frame, settings, progress)),
+            #[cfg(feature = "gpu")]
+            Device::Gpu(ctx) => self.render_gpu(ctx, settings, progress),
+        }
+    }
+
+    fn render_cpu(
+        &self,
+        frame: RenderedFrame,
+        s: &RenderSettings,
+        progress: &(dyn Fn(Progress) + Sync),
+    ) -> RenderedFrame {
+        let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: mut done, timed_seconds } =
+            frame;
+        let rs = &self.render_scene;
+        let total = u64::from(s.spp) * u64::from(rs.height);
+        let units = AtomicU64::new(u64::from(done) * u64::from(rs.height));
+        let rays = AtomicU64::new(rays_before);
+        let start = Instant::now();
+        // Passes of a few samples each, so that a time budget can stop between passes and
+        // progress is heard of even when one pixel's samples take long (a row reports when it
+        // has done the pass). The image depends only on the samples taken, not on where passes
+        // fall.
+        let pass = if s.time.is_some() { 4 } else { 16 }.min(s.spp.max(1));
+        while done < s.spp {
+            let n = pass.min(s.spp - done);
+            rs.render(&mut film, s.seed, s.max_depth, done..done + n, &|r| {
+                let rays = rays.fetch_add(r, Ordering::Relaxed) + r;
+                let done = units.fetch_add(u64::from(n), Ordering::Relaxed) + u64::from(n);
+                progress(Progress { done, total, rays });
+            });
+            done += n;
+            if s.time.is_some_and(|t| seconds_before + start.elapsed().as_secs_f64() >= t) {
+                break;
+            }
+        }
+        let seconds = seconds_before + start.elapsed().as_secs_f64();
+        RenderedFrame { film, rays: rays.into_inner(), seconds, samples: done, timed_seconds }
+    }
+
+    #[cfg(feature = "gpu")]
+    fn render_gpu(
+        &mut self,
+        ctx: &GpuContext,
+        s: &RenderSettings,
+        progress: &(dyn Fn(Progress) + Sync),
+    ) -> Result<RenderedFrame, DeviceError> {
+        let gpu = self.gpu.as_mut().expect("a GPU renderer holds its uploaded scene");
+        let timed = gpu.timed.take();
+        let height = u64::from(self.render_scene.height);
+        let total = u64::from(s.spp) * height;
+        let start = Instant::now();
+        let budget = s.time.map(Duration::from_secs_f64);
+        let before = timed.as_ref().map_or(Duration::ZERO, |t| Duration::from_secs_f64(t.seconds()));
+        let out = trace::render_from(ctx, &gpu.scene, s.seed, s.max_depth, s.spp, timed, &mut |done| {
+            progress(Progress { done: u64::from(done) * height, total, rays: 0 });
+            budget.is_none_or(|b| before + start.elapsed() < b)
+        })
+        .map_err(DeviceError::Render)?;
+        let seconds = out.carried.1 + start.elapsed().as_secs_f64();
+        Ok(RenderedFrame {
+            film: out.film,
+            rays: out.rays,
+            seconds,
+            samples: out.samples,
+            timed_seconds: out.carried.1,
+        })
+    }
+}

@@ -1,0 +1,138 @@
+//! Scene assembly: a loaded [`Scene`] turned into the [`RenderScene`] the integrator reads, its
+//! geometry under a BVH made by a named builder (flat), one BVH per mesh under a top-level tree
+//! (instanced), or a tree made elsewhere (on the GPU, or by `auto`: [`super::auto`]).
+
+use std::time::Instant;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::camera::CameraModel;
+use super::geometry::{Flat, Geometry, Instanced, flat_lights, wants_instancing};
+use super::lights::Lights;
+use super::material::RenderMaterial;
+use crate::bvh::builders::Builder;
+use crate::bvh::instances::TopLevelUpdate;
+use crate::bvh::prbvh::PrbvhConfig;
+use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, sah_cost};
+use crate::geometry::Triangle;
+use crate::scene::Scene;
+
+/// Everything a render reads: geometry and its BVH, materials, lights, camera.
+pub struct RenderScene {
+    pub geometry: Geometry,
+    pub materials: Vec<RenderMaterial>,
+    pub lights: Lights,
+    pub environment: Option<Vec3>,
+    pub camera: CameraModel,
+    pub width: u32,
+    pub height: u32,
+    /// Firefly clamp, off (`None`) unless the user asks (`render --clamp`): a sample whose
+    /// largest channel exceeds it is scaled down to it. Biased (energy is lost), so never a
+    /// default, and no accuracy test runs with it.
+    pub sample_clamp: Option<f32>,
+}
+
+/// What building the acceleration structure cost.
+#[derive(Clone, Debug)]
+pub struct BuildReport {
+    pub build_ms: f64,
+    pub sah: f64,
+    pub triangles: usize,
+    /// The builder used (for `auto`, what it decided).
+    pub builder: String,
+}
+
+/// The time of a scene's first frame (0 for a static scene).
+pub fn first_frame_time(scene: &Scene) -> f32 {
+    scene.animation.as_ref().map_or(0.0, |a| scene.frame_time(a.frames.start))
+}
+
+impl RenderScene {
+    /// Builds the scene's geometry as it is at its first frame (static scenes: as it is).
+    ///
+    /// A static scene is flattened to world-space triangles under one BVH built with `builder`,
+    /// then the default leaf collapse. An animated or heavily instanced scene
+    /// ([`wants_instancing`]) gets one such BVH per distinct mesh, in object space, under a
+    /// top-level tree of its objects.
+    pub fn build(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
+        if wants_instancing(scene) {
+            return Self::build_instanced(scene, builder);
+        }
+        let t = Instant::now();
+        let (triangles, material_of) = scene.world_triangles();
+        let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
+        let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
+        Self::assemble(scene, triangles, material_of, &built.bvh, t, builder.to_string())
+    }
+
+    /// The two-level build (see [`RenderScene::build`]).
+    pub(super) fn build_instanced(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
+        let t = Instant::now();
+        let meshes: Vec<MeshBvh> = scene.meshes.iter().map(|m| builder.build_mesh(&m.mesh.triangles())).collect();
+        let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
+        let mut instanced = Instanced::new(scene, meshes, first_frame_time(scene));
+        let lights = instanced.lights(&materials);
+        let geometry = Geometry::Instanced(instanced);
+        let Geometry::Instanced(g) = &geometry else { unreachable!() };
+        let report = BuildReport {
+            build_ms: t.elapsed().as_secs_f64() * 1e3,
+            sah: g.two_level.top_level().sah_estimate(&Default::default()),
+            triangles: geometry.world_triangle_count(),
+            builder: format!("two levels: {builder} per mesh, binned-sah over {} objects", scene.objects.len()),
+        };
+        (Self::with_geometry(scene, geometry, materials, lights), report)
+    }
+
+    /// The rest of a flat build from a tree with one primitive per leaf over `triangles` (built
+    /// here, or on the GPU: `arbor::gpu::build_render_scene`): leaf collapse, materials, lights,
+    /// camera. The report's time runs from `start`.
+    pub fn assemble(
+        scene: &Scene,
+        triangles: Vec<Triangle>,
+        material_of: Vec<u32>,
+        leaf1: &crate::bvh::Bvh,
+        start: Instant,
+        builder: String,
+    ) -> (Self, BuildReport) {
+        let bvh = collapse_leaves(leaf1, &CollapseConfig::default());
+        let sah = sah_cost(&bvh);
+        let mesh = MeshBvh::new(bvh, &triangles);
+        let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
+        let lights = flat_lights(&triangles, &material_of, &materials);
+        let report =
+            BuildReport { build_ms: start.elapsed().as_secs_f64() * 1e3, sah, triangles: triangles.len(), builder };
+        let geometry = Geometry::Flat(Flat { mesh, triangles, material_of });
+        (Self::with_geometry(scene, geometry, materials, lights), report)
+    }
+
+    fn with_geometry(scene: &Scene, geometry: Geometry, materials: Vec<RenderMaterial>, lights: Lights) -> Self {
+        Self {
+            geometry,
+            materials,
+            lights,
+            environment: scene.environment.filter(|e| e.max_element() > 0.0),
+            camera: CameraModel::new(&scene.camera),
+            width: scene.camera.width,
+            height: scene.camera.height,
+            sample_clamp: None,
+        }
+    }
+
+    /// Moves an animated scene's objects to where they are at `time`, updating the top-level
+    /// tree by `how`, and the lights. Returns what the update cost. A flat (static) scene does
+    /// not change.
+    pub fn set_time(
+        &mut self,
+        scene: &Scene,
+        time: f32,
+        how: &TopLevelUpdate,
+    ) -> Option<crate::bvh::dynamic::UpdateStats> {
+        let Geometry::Instanced(g) = &mut self.geometry else { return None };
+        let stats = g.set_time(scene, time, how);
+        if g.moves_lights(scene) {
+            self.lights = g.lights(&self.materials);
+        }
+        Some(stats)
+    }
+}

@@ -1,0 +1,49 @@
+//! The CPU's render loop: every pixel's samples, rows in parallel, into a [`Film`].
+
+use glam::Vec2;
+use rayon::prelude::*;
+
+use super::RenderScene;
+use super::film::Film;
+use super::rng::Rng;
+
+impl RenderScene {
+    /// Adds samples `samples` of every pixel to `film`, rows in parallel; calls `progress` with
+    /// the rays of each finished row. Returns the rays traced. The result depends only on the
+    /// seed and the sample indices, not on the thread count.
+    pub fn render(
+        &self,
+        film: &mut Film,
+        seed: u64,
+        max_depth: u32,
+        samples: std::ops::Range<u32>,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> u64 {
+        let width = self.width as u64;
+        film.rows_mut()
+            .map(|(y, row)| {
+                let mut rays = 0u64;
+                for (x, px) in row.iter_mut().enumerate() {
+                    let pixel = y as u64 * width + x as u64;
+                    for s in samples.clone() {
+                        let mut rng = Rng::for_sample(seed, pixel, s as u64);
+                        let film_pos = Vec2::new(x as f32, y as f32) + rng.next_vec2();
+                        let ray = self.camera.ray(film_pos, rng.next_vec2());
+                        let (mut l, r) = self.radiance(ray, &mut rng, max_depth);
+                        if let Some(c) = self.sample_clamp {
+                            // NaN stays NaN, for the film to count.
+                            let m = l.max_element();
+                            if m > c {
+                                l *= c / m;
+                            }
+                        }
+                        px.add(l);
+                        rays += r as u64;
+                    }
+                }
+                progress(rays);
+                rays
+            })
+            .sum()
+    }
+}
