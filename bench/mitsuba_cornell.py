@@ -3,10 +3,10 @@
 and Arbor's, against the 4096-spp reference image, so both are measured in one run.
 
     cargo build --release --bin render
-    python3 benches/mitsuba_cornell.py --spp 1024 --variant scalar_rgb
+    python3 bench/mitsuba_cornell.py --spp 1024 --variant scalar_rgb
     apt-get install libllvm19   # for the llvm variant, then:
     DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 \
-        python3 benches/mitsuba_cornell.py --spp 1024 --variant llvm_ad_rgb
+        python3 bench/mitsuba_cornell.py --spp 1024 --variant llvm_ad_rgb
 
 Arbor renders scenes/cornell-box.toml with the same spp and max depth; both report wall time and
 the relative MSE, mean over pixels and channels of (x - ref)^2 / (ref^2 + 0.01).

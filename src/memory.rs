@@ -43,12 +43,12 @@ pub struct OutOfMemory {
 }
 
 /// Peak bytes per triangle of a flat scene rendered on the CPU, its BVH built and collapsed:
-/// 245 to 274 measured (a city of 2 × 10^6 triangles: binned SAH, `auto`, LBVH + PRBVH), with
+/// the peak measured on a large city with several builders (docs/benchmarks.md, "Memory"), with
 /// room to spare.
 pub const RENDER_BYTES_PER_TRIANGLE: f64 = 320.0;
 
-/// Peak bytes per triangle of `bvh-bench`'s builder comparison: 460 measured (`hairball:1M`,
-/// three builders), with room for the builders that keep more.
+/// Peak bytes per triangle of `bvh-bench`'s builder comparison: the peak measured on a large
+/// hairball (docs/benchmarks.md, "Memory"), with room for the builders that keep more.
 pub const BENCH_BYTES_PER_TRIANGLE: f64 = 600.0;
 
 /// The whole file at `path`, refusing one longer than `limit` bytes: a path that never ends

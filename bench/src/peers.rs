@@ -5,8 +5,9 @@
 //! The presets run with `max_prims_per_leaf = 1` (no leaf collapse of their own): callers apply
 //! Arbor's leaf collapse to every builder alike. They also run with `pre_split = false`: spatial
 //! pre-splits put one triangle in several leaves, which Arbor's trees do not allow (every
-//! primitive sits in exactly one leaf), so the slower presets are measured without them. obvhs may pad or share boxes, so the converted
-//! tree is refitted from our primitive boxes, which makes it pass `validate()` exactly.
+//! primitive sits in exactly one leaf), so the slower presets are measured without them. obvhs
+//! may pad or share boxes, so the converted tree is refitted from our primitive boxes, which
+//! makes it pass `validate()` exactly.
 
 use obvhs::BvhBuildParams;
 use obvhs::bvh2::Bvh2;

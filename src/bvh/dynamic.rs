@@ -105,7 +105,7 @@ pub(crate) fn best_sibling(nodes: &[BvhNode], b: &Aabb, skip: impl Fn(&BvhNode) 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DynamicConfig {
     /// Rounds of local PRBVH after the insertions. Default 1: on `scenes/instanced-field.toml` a
-    /// second round cost a third more time for no lower SAH. 0 turns it off.
+    /// second round cost more time for no lower SAH. 0 turns it off.
     pub prbvh_rounds: u32,
     pub prbvh_strategy: LockStrategy,
     /// Compare with a fresh build every this many updates. Default 30.
@@ -114,8 +114,8 @@ pub struct DynamicConfig {
     /// 0.03.
     pub rebuild_threshold: f64,
     /// When more than this fraction of the primitives moves in one update, build afresh instead:
-    /// reinsertion costs several times a build's per-primitive cost (about 5 µs against 1 to
-    /// 2 µs measured by `bvh-bench --procedural-animated`). Default 0.25.
+    /// reinsertion costs several times a build's per-primitive cost, as measured by
+    /// `bvh-bench --procedural-animated` (docs/benchmarks.md, "Animation"). Default 0.25.
     pub rebuild_fraction: f64,
     pub costs: SahCosts,
 }

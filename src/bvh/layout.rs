@@ -2,8 +2,9 @@
 //! one run of memory, optionally merging subtrees into leaves (the leaf collapse's last step).
 //!
 //! Tried and rejected: re-laying the tree out between PRBVH iterations. On the dragon it made
-//! each iteration slower (22 -> 28 ms, the pass is sequential) and the run longer (38 -> 44
-//! iterations, as the new indices change which nodes each sparse-search phase picks).
+//! each iteration slower (the pass is sequential) and the run longer (the new indices change
+//! which nodes each sparse-search phase picks), so the optimisation as a whole took longer
+//! (docs/benchmarks.md, "PRBVH: tried and dropped").
 
 use bytemuck::Zeroable;
 

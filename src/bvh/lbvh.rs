@@ -16,9 +16,10 @@
 //! the second code before the index ([`refine_equal_codes`]). Karras' codes are relative to the
 //! bounds of all centroids, so one far outlier (a stray triangle 10^7 away from a bunny, or a
 //! sky box of 10^6 around a model) put the whole model in a few cells, and the index tie-break
-//! left its tree to the file's triangle order: the bunny with one stray triangle rendered at
-//! 0.02 Mrays/s, and PRBVH took 2.8 s to repair it (now 3.5 Mrays/s and 71 ms). Inputs with no
-//! such run get Karras' tree unchanged; elsewhere only the order inside such runs changes.
+//! left its tree to the file's triangle order: the bunny with one stray triangle traced orders
+//! of magnitude slower, and PRBVH spent many times its usual time repairing it
+//! (docs/benchmarks.md, "Far outliers"). Inputs with no such run get Karras' tree unchanged;
+//! elsewhere only the order inside such runs changes.
 //! [`build_karras`] is the plain algorithm, which the GPU build reproduces node for node
 //! (`render --device gpu` takes this module's tree where [`refinable_primitives`] is large).
 //!
@@ -29,10 +30,10 @@
 //! coordination, and the result has the layout of [`Bvh`]: `2n` slots, `2n - 1` nodes, one
 //! primitive per leaf.
 //!
-//! Memory: on the 2-core CI machine, first-touching fresh memory costs about 0.5 ms per MB, as
-//! much as the build's arithmetic. [`LbvhBuilder`] keeps its scratch buffers and builds into an
-//! existing tree ([`LbvhBuilder::build_into`]) so that repeated builds (animation, benchmarks)
-//! touch no new pages, and no buffer is zero-filled only to be overwritten.
+//! Memory: first-touching fresh memory can cost as much as the build's arithmetic
+//! (docs/benchmarks.md, "Fresh memory"). [`LbvhBuilder`] keeps its scratch buffers and builds
+//! into an existing tree ([`LbvhBuilder::build_into`]) so that repeated builds (animation,
+//! benchmarks) touch no new pages, and no buffer is zero-filled only to be overwritten.
 
 use std::sync::atomic::AtomicU32;
 
@@ -114,8 +115,8 @@ impl LbvhBuilder {
             .reduce(|| Aabb::EMPTY, Aabb::union);
         let quantizer = MortonQuantizer::new(&centroid_bounds);
         // (code << 32 | index): unique keys, so an unstable sort gives one order, the same as a
-        // stable sort of the codes. Packing into u128 sorted 1.1-1.3x faster than (u64, u32)
-        // tuples and 2-3x faster than the rdst radix sort on 10^6 keys on the 2-core CI machine.
+        // stable sort of the codes. Packed into one u128, which sorted faster than (u64, u32)
+        // tuples or the rdst radix sort (docs/benchmarks.md, "The key sort").
         self.keys.clear();
         self.keys.par_extend(
             prim_aabbs

@@ -16,14 +16,14 @@
 //! 4. After each batch the SAH is measured. The run stops when `patience` batches in a row did
 //!    not lower the best SAH by `min_gain` (relative), and returns the best tree seen.
 //!
-//! Decisions where the paper leaves room, set by measurement on the bunny (leaf-1 SAH from
-//! LBVH's 115.6): batches of 10% of the internal nodes; a slot taken out is not selected again for
-//! 5 batches (without this, the same few inefficient but well-placed nodes are taken out batch
-//! after batch and the run stalls at 101.9); the run stops after 20 batches without a 0.01% gain.
-//! Smaller batches or earlier stops ended at 95.0–98.9, these settings at 94.3 (3.3 s). Boxes are
+//! Decisions where the paper leaves room, set by measurement on the bunny (docs/benchmarks.md,
+//! "RBVH settings"): batches of 10% of the internal nodes; a slot taken out is not selected again
+//! for 5 batches (without this, the same few inefficient but well-placed nodes are taken out
+//! batch after batch and the run stalls well above the SAH it can reach); the run stops after 20
+//! batches without a 0.01% gain. Smaller batches or earlier stops ended at a higher SAH. Boxes are
 //! refitted along the changed paths after every removal and insertion, so each search sees an
-//! exact tree. It runs on one thread, as the paper's does: a reference, not a production
-//! builder (about 10 s for the dragon's 2 × 10^5 triangles).
+//! exact tree. It runs on one thread, as the paper's does: a reference, not a production builder
+//! (it takes many times PRBVH's time).
 
 use std::time::{Duration, Instant};
 

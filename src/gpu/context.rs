@@ -177,8 +177,8 @@ impl GpuContext {
     }
 
     /// Time this context has spent compiling pipelines, its own and the radix sorter's: a cost
-    /// paid once per process, which build times report apart (on an H100 it was 0.6 s of the
-    /// first GPU build's 0.7 s).
+    /// paid once per process, which build times report apart (it can be most of a first GPU
+    /// build's time; docs/benchmarks.md, "Compilation").
     pub fn compile_time(&self) -> Duration {
         Duration::from_nanos(self.compile_nanos.load(Ordering::Relaxed))
     }

@@ -1,9 +1,14 @@
-//! Data shared by Rust and WGSL: one Rust definition per GPU-visible struct, mirrored in
-//! `shaders/prelude.wgsl`, and the constants both sides use, generated from Rust into the
-//! prelude ([`prelude`]) so that no number is typed twice.
+//! Data shared by Rust and WGSL: one Rust definition per GPU-visible struct, and the constants
+//! both sides use. The WGSL declarations of the structs and the constants are generated from
+//! Rust into the prelude every shader starts with ([`prelude`]), so nothing is typed twice:
+//! [`gpu_structs!`] defines each struct and lists its members (name, WGSL type and `offset_of!`)
+//! for the generator.
 //!
-//! `tests/gpu_layout.rs` parses the prelude with naga and checks every struct's size and member
-//! offsets against `size_of`/`offset_of!` here (no GPU needed).
+//! The layout test (`tests/gpu_layout.rs`) parses the prelude with naga and checks, for every
+//! struct in [`SHARED_STRUCTS`], that WGSL's size and member offsets are Rust's and that the
+//! members cover the Rust struct without gaps, so a member WGSL would lay out elsewhere (a
+//! `vec3` without its padding word), or a field missing from a hand-written list ([`BvhNode`]'s),
+//! fails it. No GPU needed.
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
@@ -19,10 +24,118 @@ pub const WORKGROUP_SIZE: u32 = 256;
 /// coordinates, each passed between threads as an atomic.
 pub const REFIT_BOX_WORDS: u32 = 6;
 
+/// A type a shared struct's member may have, and its WGSL name.
+pub trait WgslType {
+    const WGSL: &'static str;
+}
+
+impl WgslType for u32 {
+    const WGSL: &'static str = "u32";
+}
+
+impl WgslType for f32 {
+    const WGSL: &'static str = "f32";
+}
+
+impl WgslType for Vec3 {
+    const WGSL: &'static str = "vec3<f32>";
+}
+
+/// One member of a shared struct, as Rust lays it out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Member {
+    pub name: &'static str,
+    pub wgsl_type: &'static str,
+    pub offset: usize,
+    pub size: usize,
+}
+
+/// A struct shared with WGSL: its name, size and members in declaration order.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StructLayout {
+    pub name: &'static str,
+    pub size: usize,
+    pub members: Vec<Member>,
+}
+
+impl StructLayout {
+    /// The WGSL declaration.
+    pub fn wgsl(&self) -> String {
+        let members: String = self.members.iter().map(|m| format!("    {}: {},\n", m.name, m.wgsl_type)).collect();
+        format!("struct {} {{\n{members}}}\n", self.name)
+    }
+}
+
+/// A member's [`Member`] entry, for [`gpu_structs!`] and hand-written layouts.
+macro_rules! member {
+    ($owner:ty, $field:ident : $ty:ty) => {
+        Member {
+            name: stringify!($field),
+            wgsl_type: <$ty as WgslType>::WGSL,
+            offset: std::mem::offset_of!($owner, $field),
+            size: size_of::<$ty>(),
+        }
+    };
+}
+
+/// Defines GPU-visible structs (`#[repr(C)]`, `Pod`) and, for each, a `layout()` giving its
+/// [`StructLayout`], from which the WGSL declaration is generated.
+macro_rules! gpu_structs {
+    ($($(#[$meta:meta])* pub struct $name:ident { $($(#[$fmeta:meta])* pub $field:ident : $ty:ty),* $(,)? })*) => {
+        $(
+            $(#[$meta])*
+            #[repr(C)]
+            #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+            pub struct $name {
+                $($(#[$fmeta])* pub $field: $ty),*
+            }
+
+            impl $name {
+                /// Its layout, for the WGSL prelude and the layout test.
+                pub fn layout() -> StructLayout {
+                    StructLayout {
+                        name: stringify!($name),
+                        size: size_of::<$name>(),
+                        members: vec![$(member!($name, $field: $ty)),*],
+                    }
+                }
+            }
+        )*
+    };
+}
+
+/// [`BvhNode`]'s layout: it is defined with the tree (`src/bvh/node.rs`), which knows nothing of
+/// the GPU, so its members are listed here; the layout test's coverage check catches a field
+/// added there and not here.
+fn bvh_node_layout() -> StructLayout {
+    StructLayout {
+        name: "BvhNode",
+        size: size_of::<BvhNode>(),
+        members: vec![
+            member!(BvhNode, aabb_min: Vec3),
+            member!(BvhNode, first: u32),
+            member!(BvhNode, aabb_max: Vec3),
+            member!(BvhNode, prim_count: u32),
+        ],
+    }
+}
+
+/// Every struct shared with WGSL, in the order the prelude declares them.
+pub const SHARED_STRUCTS: [fn() -> StructLayout; 9] = [
+    bvh_node_layout,
+    GpuAabb::layout,
+    LbvhParams::layout,
+    PrbvhParams::layout,
+    GpuTriangle::layout,
+    GpuMaterial::layout,
+    GpuLight::layout,
+    GpuPixel::layout,
+    TraceParams::layout,
+];
+
+gpu_structs! {
 /// A primitive's box as the GPU reads it: `vec3` members align to 16 bytes in WGSL, so each
 /// corner carries a padding word.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GpuAabb {
     pub min: Vec3,
     pub pad0: u32,
@@ -30,18 +143,8 @@ pub struct GpuAabb {
     pub pad1: u32,
 }
 
-const _: () = assert!(size_of::<GpuAabb>() == 32);
-
-impl From<Aabb> for GpuAabb {
-    fn from(b: Aabb) -> Self {
-        Self { min: b.min, pad0: 0, max: b.max, pad1: 0 }
-    }
-}
-
 /// The LBVH kernels' parameters: the Morton quantizer (computed on the host from the centroid
 /// bounds, so that the codes are bit for bit the CPU's) and the primitive count.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct LbvhParams {
     pub origin: Vec3,
     pub prim_count: u32,
@@ -49,11 +152,7 @@ pub struct LbvhParams {
     pub pad: u32,
 }
 
-const _: () = assert!(size_of::<LbvhParams>() == 32);
-
 /// One PRBVH iteration's parameters (`shaders/prbvh.wgsl`).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct PrbvhParams {
     /// Nodes in the tree, padding included (`2n` for `n` primitives).
     pub node_count: u32,
@@ -70,17 +169,118 @@ pub struct PrbvhParams {
     pub pad1: u32,
 }
 
-const _: () = assert!(size_of::<PrbvhParams>() == 32);
+/// A triangle in leaf order, with what shading needs of its primitive: its material and the
+/// area density with which light sampling picks points on it (0 for a non-light), in the
+/// padding words of its `vec3` vertices.
+pub struct GpuTriangle {
+    pub v0: Vec3,
+    pub material: u32,
+    pub v1: Vec3,
+    pub light_pdf: f32,
+    pub v2: Vec3,
+    pub pad: u32,
+}
 
-/// The prelude every shader starts with: generated constants, then `shaders/prelude.wgsl`.
+/// A material ([`crate::render::bsdf::Bsdf`] plus emission). `albedo` is the diffuse albedo,
+/// the conductor's Schlick F0, or the real part of its complex index; `k` the imaginary part.
+pub struct GpuMaterial {
+    pub albedo: Vec3,
+    /// `MAT_BLACK`, `MAT_DIFFUSE`, `MAT_CONDUCTOR` or `MAT_DIELECTRIC`.
+    pub kind: u32,
+    pub k: Vec3,
+    /// GGX α (conductor, dielectric).
+    pub alpha: f32,
+    pub emission: Vec3,
+    /// Index below the surface over the one above (dielectric).
+    pub ior: f32,
+    /// `MAT_EMITS | MAT_TWO_SIDED | MAT_COMPLEX_FRESNEL`.
+    pub flags: u32,
+    pub pad0: u32,
+    pub pad1: u32,
+    pub pad2: u32,
+}
+
+/// An emissive triangle ([`crate::render::lights::Lights`]): `cdf` is the running sum of power
+/// up to and including it (the last is 1), `pdf_area` the density per unit area of sampling a
+/// point on it (selection probability over area).
+pub struct GpuLight {
+    pub v0: Vec3,
+    pub cdf: f32,
+    pub v1: Vec3,
+    pub pdf_area: f32,
+    pub v2: Vec3,
+    pub two_sided: u32,
+    /// Unit geometric normal (the front side).
+    pub normal: Vec3,
+    pub pad0: u32,
+    pub radiance: Vec3,
+    pub pad1: u32,
+}
+
+/// One pixel's running sums on the device. Sums are of `sample - shift`, where `shift` is the
+/// pixel's first finite sample: in f32, a pixel whose samples are all equal keeps exactly zero
+/// sums and so an exactly zero variance (as the f64 film on the CPU gets), and the
+/// cancellation in `Σx² − (Σx)²/n` is kept small. `rays` counts the rays the pixel's paths
+/// traced.
+pub struct GpuPixel {
+    pub shift: Vec3,
+    pub count: u32,
+    pub sum: Vec3,
+    pub non_finite: u32,
+    pub sum_sq: Vec3,
+    pub rays: u32,
+}
+
+/// The path tracer's parameters (read from a storage buffer: see `trace::render`): the camera ([`crate::render::camera::CameraModel`]),
+/// the environment, the firefly clamp (0: off), the seed as two halves, the pass's samples.
+pub struct TraceParams {
+    pub cam_origin: Vec3,
+    pub width: u32,
+    pub cam_forward: Vec3,
+    pub height: u32,
+    pub cam_right: Vec3,
+    pub tan_x: f32,
+    pub cam_up: Vec3,
+    pub tan_y: f32,
+    pub environment: Vec3,
+    pub lens_radius: f32,
+    pub focus_distance: f32,
+    pub clamp: f32,
+    pub seed_lo: u32,
+    pub seed_hi: u32,
+    pub sample_start: u32,
+    pub sample_count: u32,
+    pub max_depth: u32,
+    pub light_count: u32,
+}
+}
+
+const _: () = assert!(size_of::<GpuAabb>() == 32);
+const _: () = assert!(size_of::<LbvhParams>() == 32);
+const _: () = assert!(size_of::<PrbvhParams>() == 32);
+const _: () = assert!(size_of::<GpuTriangle>() == 48);
+const _: () = assert!(size_of::<GpuMaterial>() == 64);
+const _: () = assert!(size_of::<GpuLight>() == 80);
+const _: () = assert!(size_of::<GpuPixel>() == 48);
+const _: () = assert!(size_of::<TraceParams>() == 112);
+
+impl From<Aabb> for GpuAabb {
+    fn from(b: Aabb) -> Self {
+        Self { min: b.min, pad0: 0, max: b.max, pad1: 0 }
+    }
+}
+
+/// The prelude every shader starts with: generated constants and struct declarations, then
+/// `shaders/prelude.wgsl`.
 pub fn prelude() -> String {
+    let structs: String = SHARED_STRUCTS.iter().map(|layout| layout().wgsl()).collect::<Vec<_>>().join("\n");
     format!(
         "// Generated from src/gpu/layout.rs: do not edit here.\n\
          const WORKGROUP_SIZE: u32 = {WORKGROUP_SIZE}u;\n\
          const INVALID_INDEX: u32 = {INVALID_INDEX}u;\n\
          const REFIT_BOX_WORDS: u32 = {REFIT_BOX_WORDS}u;\n\
          const MORTON_BITS: u32 = {}u;\n\
-         const SEARCH_MAX_VISITS: u32 = {}u;\n{}\n{}",
+         const SEARCH_MAX_VISITS: u32 = {}u;\n{}\n{structs}\n{}",
         crate::geometry::morton::MORTON_BITS,
         crate::bvh::prbvh::MAX_VISITS,
         trace_constants(),
@@ -120,110 +320,10 @@ pub const MAT_TWO_SIDED: u32 = 2;
 /// with F0 = `albedo`).
 pub const MAT_COMPLEX_FRESNEL: u32 = 4;
 
-/// A triangle in leaf order, with what shading needs of its primitive: its material and the
-/// area density with which light sampling picks points on it (0 for a non-light), in the
-/// padding words of its `vec3` vertices.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct GpuTriangle {
-    pub v0: Vec3,
-    pub material: u32,
-    pub v1: Vec3,
-    pub light_pdf: f32,
-    pub v2: Vec3,
-    pub pad: u32,
-}
 
-const _: () = assert!(size_of::<GpuTriangle>() == 48);
 
-/// A material ([`crate::render::bsdf::Bsdf`] plus emission). `albedo` is the diffuse albedo,
-/// the conductor's Schlick F0, or the real part of its complex index; `k` the imaginary part.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct GpuMaterial {
-    pub albedo: Vec3,
-    /// `MAT_BLACK`, `MAT_DIFFUSE`, `MAT_CONDUCTOR` or `MAT_DIELECTRIC`.
-    pub kind: u32,
-    pub k: Vec3,
-    /// GGX α (conductor, dielectric).
-    pub alpha: f32,
-    pub emission: Vec3,
-    /// Index below the surface over the one above (dielectric).
-    pub ior: f32,
-    /// `MAT_EMITS | MAT_TWO_SIDED | MAT_COMPLEX_FRESNEL`.
-    pub flags: u32,
-    pub pad0: u32,
-    pub pad1: u32,
-    pub pad2: u32,
-}
 
-const _: () = assert!(size_of::<GpuMaterial>() == 64);
 
-/// An emissive triangle ([`crate::render::lights::Lights`]): `cdf` is the running sum of power
-/// up to and including it (the last is 1), `pdf_area` the density per unit area of sampling a
-/// point on it (selection probability over area).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct GpuLight {
-    pub v0: Vec3,
-    pub cdf: f32,
-    pub v1: Vec3,
-    pub pdf_area: f32,
-    pub v2: Vec3,
-    pub two_sided: u32,
-    /// Unit geometric normal (the front side).
-    pub normal: Vec3,
-    pub pad0: u32,
-    pub radiance: Vec3,
-    pub pad1: u32,
-}
-
-const _: () = assert!(size_of::<GpuLight>() == 80);
-
-/// One pixel's running sums on the device. Sums are of `sample - shift`, where `shift` is the
-/// pixel's first finite sample: in f32, a pixel whose samples are all equal keeps exactly zero
-/// sums and so an exactly zero variance (as the f64 film on the CPU gets), and the
-/// cancellation in `Σx² − (Σx)²/n` is kept small. `rays` counts the rays the pixel's paths
-/// traced.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct GpuPixel {
-    pub shift: Vec3,
-    pub count: u32,
-    pub sum: Vec3,
-    pub non_finite: u32,
-    pub sum_sq: Vec3,
-    pub rays: u32,
-}
-
-const _: () = assert!(size_of::<GpuPixel>() == 48);
-
-/// The path tracer's parameters (read from a storage buffer: see `trace::render`): the camera ([`crate::render::camera::CameraModel`]),
-/// the environment, the firefly clamp (0: off), the seed as two halves, the pass's samples.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct TraceParams {
-    pub cam_origin: Vec3,
-    pub width: u32,
-    pub cam_forward: Vec3,
-    pub height: u32,
-    pub cam_right: Vec3,
-    pub tan_x: f32,
-    pub cam_up: Vec3,
-    pub tan_y: f32,
-    pub environment: Vec3,
-    pub lens_radius: f32,
-    pub focus_distance: f32,
-    pub clamp: f32,
-    pub seed_lo: u32,
-    pub seed_hi: u32,
-    pub sample_start: u32,
-    pub sample_count: u32,
-    pub max_depth: u32,
-    pub light_count: u32,
-}
-
-const _: () = assert!(size_of::<TraceParams>() == 112);
 
 /// `const NAME: f32 = value;` with the shortest decimal that reads back as the same f32.
 fn wgsl_f32(name: &str, value: f32) -> String {

@@ -43,9 +43,10 @@ pub fn build_render_scene(
     let config = crate::bvh::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
     // The GPU builds Karras' LBVH, which leaves runs of equal Morton codes in file order: a
     // model far from another object (inside a sky box of 10^6) lies in a few cells, and its
-    // tree would be a list. Where such runs hold more than 1/64 of the primitives (none of the
-    // bunny's, 2 of the dragon's 202,520), the CPU's LBVH, which splits them, is built instead
-    // and optimised on the GPU all the same.
+    // tree would be a list. Where such runs hold more than 1/64 of the primitives (far more
+    // than ordinary meshes have, so they keep the GPU build; docs/benchmarks.md, "A model in a
+    // sky box"), the CPU's LBVH, which splits them, is built instead and optimised on the GPU
+    // all the same.
     let (codes, ids) = gpu.read_codes(ctx)?;
     let scrambled = crate::bvh::lbvh::refinable_primitives(&prims, &codes, &ids);
     let (tree, mut label) = if scrambled > prims.len() / 64 {

@@ -5,10 +5,10 @@
 //! pass's samples. A wavefront tracer (a kernel per stage, ray and hit queues between them)
 //! keeps SIMD lanes full when paths diverge, which pays on wide hardware GPUs; it costs a
 //! dispatch and a round trip of every path's state through memory per stage and bounce. On
-//! lavapipe a dispatch with its submission costs 0.1 to 0.3 ms (measured) and "device memory"
-//! is the same RAM, so the queues buy nothing there; and a megakernel is one kernel to write, to
-//! check against the CPU, and to specialize per scene, which also trims divergence between
-//! material kinds on real GPUs.
+//! lavapipe a dispatch with its submission is expensive (docs/benchmarks.md, "Lavapipe costs")
+//! and "device memory" is the same RAM, so the queues buy nothing there; and a megakernel is one
+//! kernel to write, to check against the CPU, and to specialize per scene, which also trims
+//! divergence between material kinds on real GPUs.
 //!
 //! **Specialization.** Each scene gets a shader variant: `HAS_DIELECTRIC`, `HAS_CONDUCTOR`,
 //! `HAS_ENVIRONMENT`, `HAS_LIGHTS` and `HAS_THIN_LENS` are generated as `const` bools in front of
@@ -504,7 +504,7 @@ fn passes(
     };
     let mut params = TraceParams { seed_lo: seed as u32, seed_hi: (seed >> 32) as u32, max_depth, ..scene.params };
     // A storage buffer, not a uniform one: lavapipe (Mesa 22) inlines uniform values into the
-    // shader at every dispatch, which cost 5 ms and leaked 0.6 MB per pass of this kernel.
+    // shader at every dispatch, which cost time and leaked memory on every pass of this kernel.
     let params_buffer = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
     let pipeline = pipeline(ctx, scene);
     let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, &film_buffer);
@@ -537,8 +537,8 @@ pub const MEASURE_SPP: u32 = 2 * PASS_SPP;
 
 /// The GPU's time per sample per pixel on `scene`, in seconds, with the kernel's compile time:
 /// what `auto` needs to judge a GPU render's length ([`crate::render::AutoDevice::Measured`]).
-/// Two passes of [`PASS_SPP`] samples are rendered and the second is timed: on an H100 the
-/// first ran at a quarter of the render's speed (110 against 450 Mrays/s on the dragon scene).
+/// Two passes of [`PASS_SPP`] samples are rendered and the second is timed: the first runs far
+/// below the render's speed (docs/benchmarks.md, "On the GPU").
 /// The passes are the render's first samples under `seed` and `max_depth`, with the firefly
 /// clamp `clamp`, and are returned for the render to carry on ([`render_from`]).
 /// `None` if the scene cannot go to the GPU.
@@ -568,10 +568,11 @@ pub fn measure_speed(
 /// [`measure_speed`] where that costs at most a sixteenth of the render (at least 16 ×
 /// [`MEASURE_SPP`] samples over all frames); shorter renders keep the LBVH unoptimised, since
 /// no optimisation is tried blind: unrepaid optimisation can cost several times the render,
-/// while the most a skipped one could have saved is the render's trace-speed gain (20% on the
-/// dragon scene on an H100). The sixteenth is of the samples, not of a time limit: the GPU's
-/// speed is not known before it is timed. The timed samples are returned with the tree, for the
-/// render's first frame to carry on ([`render_from`]; `settings.clamp` is the render's firefly clamp).
+/// while the most a skipped one could have saved is the render's trace-speed gain, a modest
+/// fraction of the render (docs/benchmarks.md, "On the GPU"). The sixteenth is of the samples,
+/// not of a time limit: the GPU's speed is not known before it is timed. The timed samples are
+/// returned with the tree, for the render's first frame to carry on ([`render_from`];
+/// `settings.clamp` is the render's firefly clamp).
 pub fn build_auto(
     ctx: &GpuContext,
     scene: &crate::scene::Scene,

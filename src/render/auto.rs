@@ -91,8 +91,8 @@ impl Judge {
 /// spp × frames) where one timing (3 × [`TIMED_PATHS`] paths) is estimated at
 /// `timing_seconds` and the LBVH took `lbvh_seconds`: only where the timing costs at most a
 /// sixteenth of the render (and of its time budget, if it has one), and no more than what is
-/// at stake, a reinsertion sweep (8 LBVH builds). On the Cornell box's 36 triangles a timing
-/// took 8 ms and every build together 1 ms.
+/// at stake, a reinsertion sweep (8 LBVH builds): on a scene as small as the Cornell box a
+/// timing costs more than every build together (docs/benchmarks.md, "The CPU thresholds").
 fn worth_timing(samples: f64, timing_seconds: f64, lbvh_seconds: f64, budget: Option<f64>) -> bool {
     samples >= 16.0 * 3.0 * f64::from(TIMED_PATHS)
         && budget.is_none_or(|b| 16.0 * timing_seconds <= b)
@@ -108,9 +108,9 @@ impl RenderScene {
     ///
     /// 1. LBVH, and the render's length with it.
     /// 2. If 16% of that render (what binned SAH saved on the dragon scene) would repay a
-    ///    binned-SAH build (estimated at 9 LBVH builds, its cost on the dragon here) and its
-    ///    probe one and a half times over, the binned-SAH tree is built and probed too, and the tree with the
-    ///    shorter estimated render is kept.
+    ///    binned-SAH build (estimated at 9 LBVH builds, its cost on the dragon) and its probe one
+    ///    and a half times over, the binned-SAH tree is built and probed too, and the tree with
+    ///    the shorter estimated render is kept.
     /// 3. Parallel reinsertion on the kept tree, in sweeps (μ iterations, which search every
     ///    node once between them), if the gain to expect (20% from the LBVH, 5% from binned
     ///    SAH) could repay a sweep (about 8 LBVH builds) and its probe. The first sweep's gain
@@ -119,9 +119,9 @@ impl RenderScene {
     ///    sweep's saving is its SAH decrease, as a fraction, times the estimated render time
     ///    times that factor, and optimisation stops when the last sweep (μ iterations) saved
     ///    less than it took. (SAH alone overstates gains: on the dragon scene LBVH + PRBVH cut
-    ///    the SAH by 66% but traced 20% faster, and reinsertion on the binned-SAH tree cost more
-    ///    than it returned. Judging single iterations stopped the dragon after 5 of its ~40:
-    ///    one iteration searches a ninth of the nodes.)
+    ///    the SAH far more than the trace time, and reinsertion on the binned-SAH tree cost more
+    ///    than it returned. Judging single iterations stopped the dragon far too early: one
+    ///    iteration searches a ninth of the nodes.)
     ///
     /// An instanced scene builds its meshes' BVHs with `lbvh+prbvh`: they are built once and
     /// serve every frame.
@@ -133,16 +133,15 @@ impl RenderScene {
     ///
     /// Each tree is judged by timing paths on it, not by the camera-ray probe: its scene is
     /// assembled and [`RenderScene::cpu_seconds_per_sample`] traces real paths from
-    /// [`TIMED_PATHS`] pixels, three times (the fastest counts: the first, on cold caches, ran
-    /// up to 20% slower on the dragon scene). The render's length is that time per sample times
-    /// the render's samples. The camera-ray estimate it replaces counted five segments and a
-    /// shadow ray for every path and priced them all as camera rays, and it compared trees by
-    /// coherent rays. On the dragon scene at 512² it overstated the render about 2.7×, and at
-    /// 32 spp it took binned SAH + PRBVH to render 2.3× as fast as the LBVH, where the render
-    /// was 1.4× as fast. Timing is done only where one timing costs at most a sixteenth of the
-    /// render (16 × 3 × [`TIMED_PATHS`] samples in all) and of its time budget, and no more
-    /// than a reinsertion sweep (8 LBVH builds); otherwise the camera-ray estimate is kept (on
-    /// the Cornell box, timing made `auto` 23% slower than the best fixed builder).
+    /// [`TIMED_PATHS`] pixels, three times (the fastest counts: the first runs on cold caches).
+    /// The render's length is that time per sample times the render's samples. The camera-ray
+    /// estimate it replaces counted five segments and a shadow ray for every path and priced
+    /// them all as camera rays, and it compared trees by coherent rays, so it overstated both
+    /// the render and the gain from a better tree (docs/benchmarks.md, "Estimates against real
+    /// renders"). Timing is done only where one timing costs at most a sixteenth of the render
+    /// (16 × 3 × [`TIMED_PATHS`] samples in all) and of its time budget, and no more than a
+    /// reinsertion sweep (8 LBVH builds); otherwise the camera-ray estimate is kept (on the
+    /// Cornell box, timing cost more than it could gain).
     ///
     /// Under a time limit (`render --time`, `settings.time` per frame) the render lasts no longer than it, and a faster
     /// tree is worth the time it saves on the samples the LBVH would render in it.
@@ -162,9 +161,9 @@ impl RenderScene {
     /// - [`AutoDevice::CpuPaths`]: each tree is timed on paths ([`RenderScene::build_auto_cpu`]),
     ///   and the scene of the last tree timed is returned if the tree did not change after it.
     /// - [`AutoDevice::Measured`]: on another device than the CPU the CPU's probe cannot tell the
-    ///   render's length: it predicts the CPU's render, and an H100 rendered the dragon scene 21
-    ///   times as fast as its machine's 16 cores, so `auto` spent up to 0.26 s optimising for GPU
-    ///   renders of 0.1 s. So the device renders a little of the LBVH scene (for a GPU,
+    ///   render's length: it predicts the CPU's render, and a GPU can render many times as fast,
+    ///   so `auto` optimised for long renders that were in fact short, spending more than the
+    ///   render itself. So the device renders a little of the LBVH scene (for a GPU,
     ///   `gpu::trace::build_auto`), and the render's length is its time per sample times the
     ///   samples, which also corrects [`RenderScene::estimated_rays`]. The CPU probes' times are
     ///   scaled to match: trees still compare by the CPU's camera-ray probe, only the render's
@@ -246,9 +245,8 @@ impl RenderScene {
         };
         let mut render_seconds = render_seconds.unwrap_or_else(|| probe(&bvh).0);
         let mut base = "lbvh";
-        // The render time binned SAH saves, 16% (the dragon scene, 256², 32 spp, timed paths:
-        // 1.50 against 1.78 s), must repay its build, 9 LBVH builds (8.5 there), and its probe,
-        // with half as much again to spare.
+        // The render time binned SAH saves, 16% (the dragon scene, timed paths), must repay its
+        // build, 9 LBVH builds (its cost there), and its probe, with half as much again to spare.
         if 0.16 * render_seconds > 1.5 * (9.0 * lbvh_seconds + probe_cost) {
             let binned = crate::bvh::binned_sah::build(&prims, &Default::default());
             // The LBVH's scene goes first: one probed scene at a time.
@@ -266,9 +264,9 @@ impl RenderScene {
         // The first sweep is measured, not predicted: SAH overstates trace gains on some scenes
         // (the dragon's room), so its real gain, from a second probe, decides whether to go on
         // and calibrates the SAH-to-time factor for the sweeps after it. A sweep costs about 8
-        // LBVH builds (dragon, 2 cores), plus its probe; none is tried when the gain to expect
-        // could not repay that: 20% from the LBVH, 5% from binned SAH (on the dragon scene, 256²,
-        // timed paths gained 1-5% from a first sweep there).
+        // LBVH builds, plus its probe; none is tried when the gain to expect could not repay
+        // that: 20% from the LBVH, 5% from binned SAH (the most a first sweep on binned SAH
+        // gained on the dragon scene).
         let mut iterations = 0;
         let expected_gain = if base == "lbvh" { 0.2 } else { 0.05 };
         if expected_gain * render_seconds > 8.0 * lbvh_seconds + probe_cost {
@@ -284,9 +282,8 @@ impl RenderScene {
             let gained = render_seconds - after;
             let sah_fraction = (s1.initial_sah - s1.sah_before_collapse) / s1.initial_sah;
             // A sweep that did not pay is kept all the same: its cost is spent, its SAH is lower,
-            // and a timing cannot tell a gain of a few percent from its noise (dragon scene, 64
-            // spp: one such sweep timed slower, yet renders of the swept tree took 10.0-10.9 s
-            // against 11.0 s unswept).
+            // and a timing cannot tell a gain of a few percent from its noise (on the dragon
+            // scene a sweep that timed slower still rendered faster).
             if gained > spent && sah_fraction > 0.0 {
                 let efficiency = (gained / render_seconds / sah_fraction).clamp(0.05, 1.0);
                 render_seconds = after;
@@ -357,8 +354,8 @@ impl RenderScene {
         start.elapsed().as_secs_f64() * pixels / f64::from(TIMED_PATHS)
     }
 
-    /// The fastest of three [`RenderScene::cpu_seconds_per_sample`]: the first, on cold caches,
-    /// ran up to 20% slower on the dragon scene.
+    /// The fastest of three [`RenderScene::cpu_seconds_per_sample`]: the first runs on cold
+    /// caches.
     fn fastest_seconds_per_sample(&self, seed: u64, max_depth: u32) -> f64 {
         (0..3).map(|_| self.cpu_seconds_per_sample(seed, max_depth)).fold(f64::INFINITY, f64::min)
     }

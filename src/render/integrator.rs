@@ -130,7 +130,8 @@ impl RenderScene {
         // bound, both measured along the ray. It stops a further 10⁻⁴ of its length short: once
         // rounded, the two triangles of a quad light are not exactly coplanar, and a ray reaching
         // one near their shared edge can clip the other (the Cornell box's light scaled by 0.1 or
-        // 10⁻⁴ lost up to 1% of its direct light that way). Both found by tests/stability.rs.
+        // 10⁻⁴ lost up to 1% of its direct light that way). Both found by the numerical stress
+        // tests (docs/testing.md, "Numerical stress").
         let cos_receiver = ng.dot(wi_world).abs();
         let clear = ng.abs().dot(p_error + p.abs() * gamma(1)) / cos_receiver;
         let from = p + wi_world * clear;
