@@ -320,11 +320,6 @@ pub const MAT_TWO_SIDED: u32 = 2;
 /// with F0 = `albedo`).
 pub const MAT_COMPLEX_FRESNEL: u32 = 4;
 
-
-
-
-
-
 /// `const NAME: f32 = value;` with the shortest decimal that reads back as the same f32.
 fn wgsl_f32(name: &str, value: f32) -> String {
     assert!(value.is_finite(), "{name}: WGSL constants must be finite");
