@@ -285,7 +285,10 @@ fn debug_validate(bvh: &Bvh, iteration: u32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::Vec3;
+    use glam::{Vec3, Vec3A};
+
+    use super::search::{Box4, search_scaled, search_with};
+    use crate::bvh::BvhNode;
 
     /// Reading the nodes' areas from [`NodeAreas`] gives every search the same output and the
     /// same decrease, to the bit, as computing them, on a fresh tree and on one that iterations
