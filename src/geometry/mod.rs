@@ -1,10 +1,13 @@
-//! Geometry: boxes, rays, triangles, Morton codes and meshes.
+//! Geometry: boxes, rays, triangles, Morton codes and meshes ([`mesh`]; built-in [`shapes`]; the
+//! OBJ/MTL reader, [`obj`]).
 
 mod aabb;
 pub mod mesh;
 pub mod morton;
+pub mod obj;
 pub mod procedural;
 mod ray;
+pub mod shapes;
 mod triangle;
 
 pub use aabb::{Aabb, ROBUST_SLAB_SCALE, RayInv, intersect_ray_packed};

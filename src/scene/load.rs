@@ -19,7 +19,7 @@ use super::{
     Animation, AnimationSettings, Camera, ConductorFresnel, Keyframe, Material, Object, RenderSettings, Scattering,
     Scene, SceneError, SceneMesh,
 };
-use crate::geometry::mesh::{ObjFile, read_obj};
+use crate::geometry::obj::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
 
 /// Most subdivisions of a built-in sphere: 20 · 4^8 ≈ 1.3 M triangles.
