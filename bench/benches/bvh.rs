@@ -1,4 +1,4 @@
-//! BVH benchmarks (issue "BVH core", section 7).
+//! BVH benchmarks.
 //!
 //! - `lbvh_build/N`: LBVH over N random triangles, in triangles/s, from scratch (every build
 //!   faults in fresh memory), and `lbvh_build_warm/N` with an [`LbvhBuilder`] building into the
@@ -19,13 +19,14 @@
 //!   its `fastest_build` preset), and `trace_dragon/*/obvhs-very-fast` (obvhs's traversal of
 //!   its `very_fast_build` tree, leaves up to 8, on the same rays).
 //!
-//! Run: `cargo bench --bench bvh` (all threads; set `RAYON_NUM_THREADS` to change).
+//! Run: `cargo bench -p arbor-bench --bench bvh` (all threads; set `RAYON_NUM_THREADS` to change).
 
 use std::path::Path;
 
 use arbor::bvh::lbvh::LbvhBuilder;
 use arbor::bvh::prbvh::{self, PrbvhConfig};
-use arbor::bvh::{self, Bvh, CollapseConfig, MeshBvh, bench_rays, binned_sah, collapse_leaves, lbvh};
+use arbor::bvh::{self, Bvh, CollapseConfig, MeshBvh, binned_sah, collapse_leaves, lbvh};
+use arbor_bench::rays as bench_rays;
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
@@ -102,7 +103,7 @@ fn build_vs_obvhs(c: &mut Criterion) {
     }
     for (name, tris) in inputs {
         let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
-        let theirs = arbor::bvh::peers::to_obvhs_triangles(&tris);
+        let theirs = arbor_bench::peers::to_obvhs_triangles(&tris);
         let mut g = c.benchmark_group(format!("build_vs_obvhs/{name}"));
         g.sample_size(10);
         g.throughput(Throughput::Elements(tris.len() as u64));
@@ -121,7 +122,7 @@ fn prbvh_vs_obvhs(c: &mut Criterion) {
     let Some(mesh) = dragon() else { return };
     let tris = mesh.triangles();
     let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
-    let theirs = arbor::bvh::peers::to_obvhs_triangles(&tris);
+    let theirs = arbor_bench::peers::to_obvhs_triangles(&tris);
     let config = PrbvhConfig { collapse: None, ..Default::default() };
     let leaf1 = lbvh::build(&prims);
     let mut g = c.benchmark_group("prbvh_vs_obvhs/dragon");
@@ -137,7 +138,7 @@ fn prbvh_vs_obvhs(c: &mut Criterion) {
             tree
         })
     });
-    let params = arbor::bvh::peers::peer_params("very-slow");
+    let params = arbor_bench::peers::peer_params("very-slow");
     g.bench_function("obvhs-very-slow", |b| b.iter(|| obvhs_build(&theirs, params)));
     g.finish();
 }
@@ -180,7 +181,7 @@ fn trace_dragon(c: &mut Criterion) {
         ("lbvh-ordered", MeshBvh::new(trees[0].1.clone(), &tris)),
         ("binned-sah-ordered", MeshBvh::new(trees[1].1.clone(), &tris)),
     ];
-    let theirs = arbor::bvh::peers::to_obvhs_triangles(&tris);
+    let theirs = arbor_bench::peers::to_obvhs_triangles(&tris);
     let theirs_bvh = obvhs_build(&theirs, obvhs::BvhBuildParams::very_fast_build());
     for (kind, rays) in [("primary", &primary), ("diffuse", &diffuse)] {
         let mut g = c.benchmark_group(format!("trace_dragon/{kind}"));

@@ -339,7 +339,7 @@ pub fn run(anim: &AnimatedInstances, config: &AnimBenchConfig) -> AnimReport {
 fn summarize(t: &Track, speeds: [f64; 2]) -> StrategyReport {
     let mut sorted = t.times.clone();
     sorted.sort_by(f64::total_cmp);
-    let median = if sorted.is_empty() { 0.0 } else { sorted[sorted.len() / 2] };
+    let median = crate::median(sorted.iter().copied());
     let ratios = t.curve.iter().map(|p| p[1]);
     StrategyReport {
         name: t.name.clone(),

@@ -13,6 +13,8 @@ use arbor::bvh::prbvh::PrbvhConfig;
 use arbor::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh, sah_cost, validate};
 use arbor::geometry::{Aabb, Ray, Triangle};
 
+use crate::median;
+
 use crate::rays as bench_rays;
 
 /// What to measure.
@@ -157,7 +159,7 @@ pub fn run_with_progress(
         }
     }
     for (r, times) in report.builders.iter_mut().zip(times) {
-        let [primary, shadow, diffuse] = times.map(median);
+        let [primary, shadow, diffuse] = times.map(median_ms);
         let mrays = |count: usize, ms: f64| (count > 0 && ms > 0.0).then(|| count as f64 / ms / 1e3);
         r.primary_mrays = mrays(rays.primary.len(), primary);
         r.shadow_mrays = mrays(rays.shadow.len(), shadow);
@@ -174,9 +176,9 @@ pub fn run_with_progress(
     Ok(report)
 }
 
-fn median(mut v: Vec<Duration>) -> f64 {
-    v.sort();
-    v[v.len() / 2].as_secs_f64() * 1e3
+/// The median of `times` in milliseconds.
+fn median_ms(times: Vec<Duration>) -> f64 {
+    median(times.iter().map(|t| t.as_secs_f64() * 1e3))
 }
 
 /// Builds with `builder` `runs` times and reports everything but the trace speeds and
@@ -200,7 +202,7 @@ fn measure(
     let built = last.expect("at least one run");
     validate(&built.bvh, prim_aabbs).map_err(|e| format!("{builder}: invalid tree: {e}"))?;
     let sah_leaf1 = sah_cost(&built.bvh);
-    let build_ms = median(builds);
+    let build_ms = median_ms(builds);
     let initial = built.prbvh.as_ref().map(|s| s.initial_sah).or(built.rbvh.as_ref().map(|s| s.initial_sah));
     let mut sah_curve = vec![[build_ms, initial.unwrap_or(sah_leaf1)]];
     if let Some(stats) = &built.prbvh {
@@ -218,7 +220,7 @@ fn measure(
     let report = BuilderReport {
         name: builder.to_string(),
         build_ms,
-        optimize_ms: median(optimizations),
+        optimize_ms: median_ms(optimizations),
         collapse_ms,
         sah,
         sah_leaf1,

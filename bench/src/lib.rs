@@ -12,3 +12,22 @@ pub mod compare;
 pub mod converge;
 pub mod peers;
 pub mod rays;
+
+/// The median of `values` (the upper one of an even count), 0 for none: every time the lab
+/// reports is the median of its runs, so that one slow spell of a shared machine does not move
+/// it.
+pub fn median(values: impl IntoIterator<Item = f64>) -> f64 {
+    let mut v: Vec<f64> = values.into_iter().collect();
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn median_takes_the_middle_value() {
+        assert_eq!(super::median([3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(super::median([4.0, 1.0, 3.0, 2.0]), 3.0);
+        assert_eq!(super::median([]), 0.0);
+    }
+}

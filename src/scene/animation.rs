@@ -131,7 +131,7 @@ impl Scene {
         Scene {
             path: self.path.clone(),
             camera: self.camera.clone(),
-            render: self.render.clone(),
+            render: self.render,
             environment: self.environment,
             materials: self.materials.clone(),
             meshes: self.meshes.clone(),

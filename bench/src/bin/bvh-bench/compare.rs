@@ -1,0 +1,129 @@
+//! The builder comparison, the default mode: build time, SAH and trace speed.
+
+use anyhow::{Context, Result, bail};
+use arbor::bvh::builders::Builder;
+use arbor::bvh::prbvh::PrbvhConfig;
+use arbor_bench::compare::{self as bench, BenchConfig, Report};
+use indicatif::ProgressBar;
+use std::io::{IsTerminal, Write};
+
+use crate::cli::outln;
+use crate::options::load_input;
+use crate::plot::Series;
+use crate::report::write_outputs;
+use crate::{Args, default_builders};
+
+/// The builder comparison (the default mode): every builder builds the same triangles and
+/// traces the same rays; a table, and JSON, CSV and a plot where asked.
+pub(crate) fn run(args: &Args) -> Result<()> {
+    let builders = args
+        .builders
+        .clone()
+        .unwrap_or_else(default_builders)
+        .iter()
+        .map(|b| b.trim().parse::<Builder>())
+        .collect::<Result<Vec<_>, _>>()
+        .context("--builders")?;
+    let (name, mesh) = load_input(args)?;
+    let triangles = mesh.triangles();
+    eprintln!("{name}: {} triangles, {} threads", triangles.len(), rayon::current_num_threads());
+    let config = BenchConfig {
+        builders,
+        runs: args.runs,
+        resolution: args.resolution,
+        prbvh: PrbvhConfig { mu: args.mu, epsilon: args.epsilon, ..Default::default() },
+        ..Default::default()
+    };
+    // On a terminal, a spinner says what runs: large meshes take minutes.
+    let spinner = if std::io::stderr().is_terminal() { ProgressBar::new_spinner() } else { ProgressBar::hidden() };
+    spinner.enable_steady_tick(std::time::Duration::from_millis(200));
+    let report = bench::run_with_progress(&triangles, &config, |what| spinner.set_message(what.to_owned()));
+    spinner.finish_and_clear();
+    let report = report.map_err(anyhow::Error::msg)?;
+    print_table(&report);
+    let series: Vec<Series> =
+        report.builders.iter().map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect())).collect();
+    let plot = (format!("SAH against time: {name}"), ("build + optimisation time (ms)", "SAH, one primitive per leaf"));
+    write_outputs(args, &report, |f| write_csv(f, &report), plot, &series, false)?;
+    if !report.mismatches.is_empty() {
+        bail!("builders disagree on hits:\n  {}", report.mismatches.join("\n  "));
+    }
+    Ok(())
+}
+
+pub(crate) fn print_table(r: &Report) {
+    outln!(
+        "{} triangles, {} threads; rays: {} primary, {} shadow, {} diffuse",
+        r.triangles,
+        r.threads,
+        r.rays.primary,
+        r.rays.shadow,
+        r.rays.diffuse
+    );
+    outln!(
+        "{:<26} {:>10} {:>12} {:>10} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9}",
+        "builder",
+        "build ms",
+        "optimize ms",
+        "SAH leaf1",
+        "SAH",
+        "nodes",
+        "leaves",
+        "primary",
+        "shadow",
+        "diffuse"
+    );
+    let speed = |v: Option<f64>| v.map_or_else(|| "n/a".to_string(), |v| format!("{v:.2}"));
+    for b in &r.builders {
+        outln!(
+            "{:<26} {:>10.1} {:>12.1} {:>10.2} {:>8.2} {:>9} {:>9} {:>9} {:>9} {:>9}",
+            b.name,
+            b.build_ms,
+            b.optimize_ms,
+            b.sah_leaf1,
+            b.sah,
+            b.nodes,
+            b.leaves,
+            speed(b.primary_mrays),
+            speed(b.shadow_mrays),
+            speed(b.diffuse_mrays)
+        );
+    }
+    outln!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
+    if r.rays.shadow == 0 {
+        outln!(
+            "(no primary ray hit the mesh, so there are no shadow or diffuse rays: n/a, null in the JSON; a thin or flat mesh seen edge-on)"
+        );
+    }
+}
+
+pub(crate) fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {
+    writeln!(
+        f,
+        "name,build_ms,optimize_ms,collapse_ms,sah,sah_leaf1,nodes,leaves,depth,primary_mrays,shadow_mrays,diffuse_mrays"
+    )?;
+    for b in &r.builders {
+        writeln!(
+            f,
+            "{},{},{},{},{},{},{},{},{},{},{},{}",
+            b.name,
+            b.build_ms,
+            b.optimize_ms,
+            b.collapse_ms,
+            b.sah,
+            b.sah_leaf1,
+            b.nodes,
+            b.leaves,
+            b.depth,
+            csv_speed(b.primary_mrays),
+            csv_speed(b.shadow_mrays),
+            csv_speed(b.diffuse_mrays)
+        )?;
+    }
+    Ok(())
+}
+
+/// A trace speed in the CSV: empty where there were no rays.
+pub(crate) fn csv_speed(v: Option<f64>) -> String {
+    v.map_or_else(String::new, |v| v.to_string())
+}
