@@ -14,13 +14,16 @@
 //! Without the `gpu` feature only [`Device::Cpu`] exists.
 
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::{Duration, Instant};
+#[cfg(feature = "gpu")]
+use std::time::Duration;
+use std::time::Instant;
 
 use crate::bvh::builders::{Builder, UnknownBuilder};
 use crate::bvh::instances::TopLevelUpdate;
 #[cfg(feature = "gpu")]
 use crate::gpu::{GpuContext, GpuError, trace};
 use crate::render::film::Film;
+#[cfg(feature = "gpu")]
 use crate::render::geometry::wants_instancing;
 use crate::render::{BuildReport, RenderScene, first_frame_time};
 use crate::scene::{RenderSettings, Scene};
@@ -159,6 +162,7 @@ pub struct Renderer {
     render_scene: RenderScene,
     build: BuildReport,
     /// The builder an instanced scene is flattened with on the GPU, per frame.
+    #[cfg_attr(not(feature = "gpu"), allow(dead_code))]
     flat_builder: Builder,
     /// The scene time the geometry stands at.
     time: f32,
@@ -195,6 +199,8 @@ impl Renderer {
             // `auto` has no model for per-frame builds.
             BuilderChoice::Auto => lbvh,
         };
+        #[cfg(not(feature = "gpu"))]
+        let _ = time; // the CPU builds at the scene's first frame and moves with `set_time`
         let (mut render_scene, build) = match device {
             Device::Cpu => match builder {
                 BuilderChoice::Fixed(b) => RenderScene::build(scene, b),

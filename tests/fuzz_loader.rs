@@ -26,7 +26,7 @@
 //! all; a long run:
 //!
 //! ```sh
-//! PROPTEST_CASES=20000 cargo test --test fuzz_loader
+//! PROPTEST_CASES=20000 cargo test --test tests fuzz_loader
 //! ```
 
 use std::panic::{AssertUnwindSafe, catch_unwind};

@@ -24,7 +24,7 @@
 //! for every pixel of its block) are written to `target/golden-failures/`, and the worst blocks
 //! are printed with their p-values.
 //!
-//! `ARBOR_BLESS=1 cargo test --test golden` rewrites the goldens instead of comparing.
+//! `ARBOR_BLESS=1 cargo test --test tests golden` rewrites the goldens instead of comparing.
 //!
 //! The GPU path tracer (`src/gpu/trace.rs`) is checked against the same goldens by the same
 //! comparison ([`scenes_match_their_golden_images_on_the_gpu`]), at the same size, spp and seed;
@@ -163,7 +163,7 @@ fn read_golden(stem: &str) -> Result<Estimate, String> {
     let read = |path: &Path| {
         if !path.exists() {
             return Err(format!(
-                "{stem}: golden image {} is missing; create it with `ARBOR_BLESS=1 cargo test --test golden`",
+                "{stem}: golden image {} is missing; create it with `ARBOR_BLESS=1 cargo test --test tests golden`",
                 path.display()
             ));
         }
@@ -400,7 +400,7 @@ fn check(path: &Path, device: &Device) -> Result<(), String> {
     for image in [&golden.mean, &golden.stderr] {
         if (image.width, image.height) != (w, h) {
             return Err(format!(
-                "{stem}: golden is {}x{}, the render {w}x{h}; re-bless with `ARBOR_BLESS=1 cargo test --test golden`",
+                "{stem}: golden is {}x{}, the render {w}x{h}; re-bless with `ARBOR_BLESS=1 cargo test --test tests golden`",
                 image.width, image.height
             ));
         }

@@ -359,7 +359,7 @@ fn process_cpu_seconds() -> f64 {
 /// What specialization saves: each scene rendered by its own variant and by the all-features
 /// variant, alternately, three times each; compilation is left out. Prints the best wall time
 /// and CPU time of each and their ratios; asserts nothing about speed (timings are for people,
-/// not for tests). `cargo test --release --test gpu_render -- --ignored --nocapture specialization`
+/// not for tests). `cargo test --release --test tests specialization_speedup -- --ignored --nocapture`
 #[test]
 #[ignore]
 fn specialization_speedup() {

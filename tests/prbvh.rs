@@ -262,7 +262,7 @@ fn result_does_not_depend_on_thread_count() {
 }
 
 /// Also prints the SAH ratio on each shared mesh:
-/// `cargo test --release --test prbvh shared_meshes -- --nocapture`.
+/// `cargo test --release --test tests prbvh::shared_meshes -- --nocapture`.
 #[test]
 fn shared_meshes() {
     for (name, mesh) in all_shared_models() {

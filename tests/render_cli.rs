@@ -213,7 +213,7 @@ fn job(spp: u32, frames: usize, time: Option<f64>) -> (arbor::scene::RenderSetti
 /// `TIMED_PATHS` samples in all (frames included), on a scene whose builds cost more than a
 /// timing (the dragon's 202k triangles: its LBVH takes 7-10 times what a timing is estimated
 /// at, so a busy machine slows both alike). A shorter render keeps the camera-ray estimate.
-/// (The rule itself, budget and build cost included, is unit-tested in the integrator.)
+/// (The rule itself, budget and build cost included, is unit-tested in `render::auto`.)
 #[test]
 fn cpu_auto_times_paths_where_the_render_affords_it() {
     use arbor::render::RenderScene;

@@ -3,6 +3,8 @@
 //! documented, scatter makes its instances by the documented rule, and every kind of bad input is
 //! an error naming the file, the line and the key.
 
+use crate::common;
+
 use std::path::{Path, PathBuf};
 
 use arbor::geometry::TriangleMesh;
@@ -632,4 +634,62 @@ fn bad_input_names_file_line_and_key() {
 fn a_missing_scene_file_is_an_error() {
     let err = Scene::load(Path::new("/nonexistent/scene.toml")).unwrap_err().to_string();
     assert!(err.starts_with("/nonexistent/scene.toml: cannot read"), "{err}");
+}
+
+/// NaN and infinite vertex coordinates in an OBJ: `Scene::load` fails, and the message names
+/// the scene file with the line and key of the object's `mesh`, the OBJ file, and the vertex
+/// (by OBJ line and vertex number, or by object name and index).
+#[test]
+fn non_finite_obj_vertices_are_named() {
+    for bad in ["nan", "inf", "-inf"] {
+        let dir = common::temp_dir("nan-obj");
+        // The bad vertex is the 7th `v` line of the file, the 4th of object `broken`.
+        let obj = format!(
+            "o good\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n\
+             o broken\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 {bad} 1\nf 4 5 6\nf 5 7 6\nf 5 7 6\n"
+        );
+        std::fs::write(dir.join("broken.obj"), &obj).unwrap();
+        let text = "[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\n\
+                    [materials.m]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\n\
+                    [[objects]]\nmesh = \"broken.obj\"\nmaterial = \"m\"\n";
+        let path = dir.join("scene.toml");
+        std::fs::write(&path, text).unwrap();
+        let e = Scene::load(&path).expect_err("a non-finite vertex must not load").to_string();
+        eprintln!("{bad}: {e}");
+        let scene_key = format!("{}:12: objects[0].mesh: ", path.display());
+        assert!(e.starts_with(&scene_key), "{bad}: the error must start with {scene_key:?}: {e}");
+        assert!(e.contains(&dir.join("broken.obj").display().to_string()), "{bad}: the error must name the OBJ: {e}");
+        // Either form names the vertex unambiguously: the OBJ's line and the file's 1-based
+        // vertex number, or the object's name and the vertex's 0-based index within it (in the
+        // order its faces first use them).
+        let by_line = e.contains("broken.obj:10: vertex 7");
+        let by_object = e.contains("object `broken`") && e.contains("vertex 3");
+        assert!(by_line || by_object, "{bad}: the error must locate the vertex: {e}");
+    }
+}
+
+/// `nan` and `inf` (TOML allows both) in an object's transform: the error names the file, the
+/// line and the key.
+#[test]
+fn non_finite_toml_numbers_are_named() {
+    let base = "[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\n\
+                [materials.m]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\n\
+                [[objects]]\nshape = \"box\"\nmaterial = \"m\"\n";
+    let cases = [
+        ("translate = [nan, 0, 0]", "objects[0].translate"),
+        ("translate = [0, -inf, 0]", "objects[0].translate"),
+        ("rotate = [0, 0, nan]", "objects[0].rotate"),
+        ("scale = inf", "objects[0].scale"),
+        ("scale = [1, nan, 1]", "objects[0].scale"),
+        ("matrix = [[1, 0, 0, 0], [0, 1, 0, inf], [0, 0, 1, 0], [0, 0, 0, 1]]", "objects[0].matrix"),
+    ];
+    for (line, key) in cases {
+        let dir = common::temp_dir("nan-toml");
+        let path = dir.join("scene.toml");
+        std::fs::write(&path, format!("{base}{line}\n")).unwrap();
+        let e = Scene::load(&path).expect_err("a non-finite number must not load").to_string();
+        eprintln!("{line}: {e}");
+        let want = format!("{}:14: {key}:", path.display());
+        assert!(e.starts_with(&want), "{line}: expected an error starting {want:?}, got {e}");
+    }
 }

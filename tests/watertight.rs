@@ -4,8 +4,9 @@
 //!   their shared edges, must all hit (a closed surface cannot be left without crossing it).
 //!   At least 10^6 rays per placement of the meshes: as built, translated to 10^5 from the
 //!   origin, and scaled by 10^-3 and 10^4.
-//! - Self-intersection: rays spawned from hit points with the Wächter-Binder offset never hit
-//!   their own triangle, and rays leaving a convex mesh never hit it again.
+//! - Self-intersection: rays spawned from hit points with the ray-origin offset
+//!   (`geometry::spawn_ray`) never hit their own triangle, and rays leaving a convex mesh never hit
+//!   it again.
 
 use crate::common;
 

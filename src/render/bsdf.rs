@@ -731,6 +731,51 @@ mod tests {
 
     /// `|cos²θt|` for the refraction of `a` and of `b` through the microfacet joining them, the
     /// smaller of the two: how far the pair is from the critical angle.
+    /// Every kind of BSDF at outgoing directions from grazing (cos θo 0.05) to normal, from
+    /// inside too for glass: the directional albedo from 40000 importance samples (transmission
+    /// counted by energy) is at most 1 + 3 SE; for white diffuse, the white smooth conductor
+    /// and smooth glass it is 1 within 3 SE, or 1e-6 where the standard error is 0. Every sample
+    /// of those carries energy exactly 1, except that a diffuse sample drawn on the edge of the
+    /// unit square lies in the tangent plane and returns `None`, as `cosine_hemisphere`
+    /// documents (about one in 8·10⁶ with 24-bit uniforms). The losses are printed.
+    #[test]
+    fn every_material_at_every_angle_keeps_at_most_its_energy() {
+        let mut cases = vec![
+            (Bsdf::Diffuse { albedo: Vec3::ONE }, true),
+            (Bsdf::Diffuse { albedo: vec3(0.8, 0.5, 0.2) }, false),
+            (Bsdf::Conductor { alpha: 0.0, fresnel: WHITE_SCHLICK }, true),
+            (Bsdf::Conductor { alpha: 0.0, fresnel: GOLD }, false),
+            (Bsdf::Dielectric { alpha: 0.0, ior: 1.5 }, true),
+            (Bsdf::Dielectric { alpha: 0.0, ior: 1.0 / 1.33 }, true),
+        ];
+        for alpha in [0.05, 0.3, 0.6, 1.0] {
+            cases.push((Bsdf::Conductor { alpha, fresnel: WHITE_SCHLICK }, false));
+            cases.push((Bsdf::Conductor { alpha, fresnel: GOLD }, false));
+            cases.push((Bsdf::Dielectric { alpha, ior: 1.5 }, false));
+        }
+        let mut failures = Vec::new();
+        for (k, (bsdf, lossless)) in cases.into_iter().enumerate() {
+            let mut line = format!("{bsdf:?}:");
+            let inside = matches!(bsdf, Bsdf::Dielectric { .. });
+            for (j, cos) in [0.05f32, 0.1, 0.25, 0.5, 0.75, 1.0].into_iter().enumerate() {
+                let theta = cos.acos().to_degrees();
+                for below in [false, true].into_iter().filter(|&b| !b || inside) {
+                    let wo = dir(theta, 0.9, below);
+                    let (a, se) = albedo_by_sampling(&bsdf, wo, 40_000, (k * 100 + 2 * j + usize::from(below)) as u64);
+                    line += &format!(" {:+.2}: {a:.4}", wo.z);
+                    if a > 1.0 + 3.0 * se {
+                        failures.push(format!("{bsdf:?}, cos θo {}: albedo {a} ± {se} above 1", wo.z));
+                    }
+                    if lossless && (a - 1.0).abs() > (3.0 * se).max(1e-6) {
+                        failures.push(format!("{bsdf:?}, cos θo {}: albedo {a} ± {se}, expected 1", wo.z));
+                    }
+                }
+            }
+            eprintln!("{line}");
+        }
+        assert!(failures.is_empty(), "{}", failures.join("\n"));
+    }
+
     fn critical_margin(ior: f32, a: Vec3, b: Vec3) -> f32 {
         let Some((m, _)) = dielectric_half_vector(ior, a, b) else {
             return 1.0;

@@ -161,3 +161,72 @@ pub fn erfc(x: f64) -> f64 {
     let r = t * (-x * x + poly).exp();
     if x >= 0.0 { r } else { 2.0 - r }
 }
+
+/// A fresh temporary folder, one per call: tests run in parallel and may make the same scene.
+pub fn temp_dir(name: &str) -> PathBuf {
+    static CALLS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("arbor-test-{name}-{}-{call}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Ordinary triangles mixed with every kind of degenerate one, all in the unit cube (some
+/// reach a little outside): exactly collinear (axis-aligned) and nearly collinear (diagonal)
+/// zero-area triangles, all three vertices equal, two vertices equal, needles 1 long and 1e-6
+/// wide, five identical copies of one triangle, and 30 partially overlapping triangles in one
+/// axis-aligned plane and 30 in one oblique plane (there rounding leaves them only nearly
+/// coplanar).
+pub fn degenerate_triangles(seed: u64) -> Vec<Triangle> {
+    let mut r = rng(seed);
+    let mut t = random_triangles(400, 0.1, &mut r);
+    for _ in 0..50 {
+        let a = unit_vec3(&mut r);
+        let d = r.random_range(0.01..0.3f32);
+        let axis = [Vec3::X, Vec3::Y, Vec3::Z][r.random_range(0..3usize)] * d;
+        t.push(Triangle::new(a, a + axis, a + 2.0 * axis));
+        let diag = (unit_vec3(&mut r) - 0.5) * d;
+        t.push(Triangle::new(a, a + diag, a + diag * 0.37));
+        t.push(Triangle::new(a, a, a));
+        let b = unit_vec3(&mut r);
+        t.push(Triangle::new(a, a, b));
+        t.push(Triangle::new(b, a, b));
+        let u = random_dir(&mut r);
+        let v = u.any_orthonormal_vector() * 1e-6;
+        t.push(Triangle::new(a - u * 0.5, a + u * 0.5, a + v));
+    }
+    let base = Triangle::new(Vec3::new(0.2, 0.2, 0.5), Vec3::new(0.8, 0.3, 0.5), Vec3::new(0.4, 0.9, 0.5));
+    t.extend(std::iter::repeat_n(base, 5));
+    let (o, e1, e2) = (Vec3::new(0.5, 0.1, 0.2), Vec3::new(0.6, 0.3, 0.5).normalize(), Vec3::new(-0.2, 0.9, 0.1));
+    let e2 = (e2 - e1 * e1.dot(e2)).normalize();
+    for _ in 0..30 {
+        let c = Vec3::new(r.random_range(0.3..0.7), r.random_range(0.3..0.7), 0.5);
+        let s = r.random_range(0.1..0.3f32);
+        t.push(Triangle::new(c, c + Vec3::new(s, 0.0, 0.0), c + Vec3::new(0.0, s, 0.0)));
+        let (p, q) = (r.random_range(0.0..0.4f32), r.random_range(0.0..0.4f32));
+        let c = o + e1 * p + e2 * q;
+        t.push(Triangle::new(c, c + e1 * s, c + e2 * s));
+    }
+    t
+}
+
+/// Rays for [`degenerate_triangles`]: those of `common::rays_at` (a quarter aimed exactly at
+/// vertices), plus rays straight down onto the axis-aligned coplanar pile and along the
+/// oblique plane's normal onto its pile, where hits tie.
+pub fn degenerate_rays(tris: &[Triangle], n: usize, seed: u64) -> Vec<Ray> {
+    let mut r = rng(seed);
+    let bounds = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
+    let targets: Vec<Vec3> = tris.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect();
+    let mut rays = rays_at(&bounds, &targets, n / 2, &mut r);
+    let normal = Vec3::new(0.6, 0.3, 0.5).normalize().cross(Vec3::new(-0.2, 0.9, 0.1)).normalize();
+    for k in 0..n - n / 2 {
+        let p = Vec3::new(r.random_range(0.2..0.9), r.random_range(0.2..0.9), 2.0);
+        if k % 2 == 0 {
+            rays.push(Ray::new(p, Vec3::new(0.0, 0.0, -1.0)));
+        } else {
+            let target = Vec3::new(0.5, 0.1, 0.2) + (unit_vec3(&mut r) - 0.5) * 0.6;
+            rays.push(Ray::new(target + normal * 2.0, -normal));
+        }
+    }
+    rays
+}

@@ -62,6 +62,7 @@ pub use refit::{RefitScratch, changed_slots, refit_above};
 use refit::{TrackedSah, refit_tracking};
 use reinsert::lock_and_apply;
 pub use reinsert::{Reinsertion, reinsert, reinsert_candidates};
+#[cfg(feature = "gpu")]
 pub(crate) use search::search_scale;
 pub use search::{MAX_VISITS, find_best_output};
 use search::{NodeAreas, search};
