@@ -70,6 +70,25 @@ pub const TIMED_PATHS: u32 = 64 * 64;
 /// The sample index of the timed paths' random numbers: no render reaches it.
 const TIMING_SAMPLE: u64 = 1 << 63;
 
+/// A tree's assembled scene and its report, kept while it is the tree `auto` holds.
+type Assembled = (RenderScene, BuildReport);
+
+/// What `auto` knows of the render on its device before it chooses a tree
+/// ([`RenderScene::build_auto_for`]).
+struct Baseline {
+    judge: Judge,
+    /// The render's estimated length with the LBVH, where the device's step estimated it.
+    render_seconds: Option<f64>,
+    /// The scene assembled for the last tree timed, while the tree is still that one.
+    timed: Option<Assembled>,
+    /// What one probe costs beyond the camera rays: assembling and timing paths.
+    probe_cost: f64,
+    /// How the render was timed, for the label.
+    measured: String,
+    /// Time to leave out of the build's (a GPU kernel's compilation).
+    excluded: std::time::Duration,
+}
+
 /// How `auto` judges a tree's render time.
 #[derive(Clone, Copy)]
 enum Judge {
@@ -183,58 +202,12 @@ impl RenderScene {
         let assemble = |b: &crate::bvh::Bvh| {
             Self::assemble(scene, triangles.clone(), material_of.clone(), b, Instant::now(), String::new())
         };
-        let mut judge = Judge::Camera { speedup: 1.0 };
-        let mut measured = String::new();
-        // The scene assembled for the last tree timed, while `bvh` is still that tree.
-        let mut timed: Option<(Self, BuildReport)> = None;
-        // What one probe costs beyond the camera rays: assembling and timing paths.
-        let mut probe_cost = 0.0;
-        let mut render_seconds = None;
-        match device {
-            AutoDevice::Cpu => {}
-            AutoDevice::CpuPaths { samples, seed, max_depth, budget } => {
-                let camera_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
-                let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
-                // One timing's cost (3 × TIMED_PATHS paths), priced by the camera estimate, which
-                // overstates it.
-                let timing_seconds = camera_seconds / samples / pixels * 3.0 * f64::from(TIMED_PATHS);
-                if worth_timing(pixels * samples, timing_seconds, lbvh_seconds, budget) {
-                    let start = Instant::now();
-                    let lbvh_scene = assemble(&bvh);
-                    let per_sample = lbvh_scene.0.fastest_seconds_per_sample(seed, max_depth);
-                    probe_cost = start.elapsed().as_secs_f64();
-                    // Under a time budget, the samples the LBVH renders in it: a faster tree is
-                    // worth the time it saves on those.
-                    let samples = budget.map_or(samples, |b| samples.min(b / per_sample.max(1e-12)));
-                    judge = Judge::Paths { samples, seed, max_depth };
-                    render_seconds = Some(per_sample * samples);
-                    measured = format!(", paths timed at {:.1} ms per sample", per_sample * 1e3);
-                    timed = Some(lbvh_scene);
-                } else {
-                    let capped = budget.map_or(camera_seconds, |b| camera_seconds.min(b));
-                    judge = Judge::Camera { speedup: camera_seconds / capped.max(1e-12) };
-                    render_seconds = Some(capped);
-                }
-            }
-            AutoDevice::Unmeasured => {
-                let label = "auto: lbvh, a render too short to time on the device".to_owned();
-                return Self::assemble(scene, triangles, material_of, &bvh, t, label);
-            }
-            AutoDevice::Measured { samples, budget, measure } => {
-                let cpu_seconds = rays / probe_trace_speed(&bvh, &triangles, &scene.camera);
-                let lbvh_scene = assemble(&bvh);
-                let mut device_seconds = cpu_seconds;
-                if let Some((seconds_per_sample, excluded)) = measure(&lbvh_scene.0) {
-                    t += excluded;
-                    device_seconds = seconds_per_sample * samples;
-                    measured = format!(", timed at {:.1} ms per sample", seconds_per_sample * 1e3);
-                    timed = Some(lbvh_scene);
-                }
-                let device_seconds = budget.map_or(device_seconds, |b| device_seconds.min(b));
-                judge = Judge::Camera { speedup: cpu_seconds / device_seconds.max(1e-12) };
-                render_seconds = Some(device_seconds);
-            }
-        }
+        let Some(baseline) = Self::auto_baseline(scene, rays, device, &bvh, &triangles, lbvh_seconds, &assemble) else {
+            let label = "auto: lbvh, a render too short to time on the device".to_owned();
+            return Self::assemble(scene, triangles, material_of, &bvh, t, label);
+        };
+        t += baseline.excluded;
+        let Baseline { judge, render_seconds, mut timed, probe_cost, measured, .. } = baseline;
         // A tree's estimated render time, and its scene where it was assembled to time paths.
         let probe = |b: &crate::bvh::Bvh| match judge {
             Judge::Camera { speedup } => (rays / (probe_trace_speed(b, &triangles, &scene.camera) * speedup), None),
@@ -260,6 +233,98 @@ impl RenderScene {
                 timed = lbvh_scene;
             }
         }
+        let iterations =
+            Self::auto_sweeps(&mut bvh, &probe, &mut render_seconds, &mut timed, base, lbvh_seconds, probe_cost);
+        let label = format!(
+            "auto: {base}+prbvh, {iterations} iterations for a render estimated at {render_seconds:.2} s{measured}"
+        );
+        match timed {
+            Some((rs, mut report)) => {
+                (report.builder, report.build_ms) = (label, t.elapsed().as_secs_f64() * 1e3);
+                (rs, report)
+            }
+            None => Self::assemble(scene, triangles, material_of, &bvh, t, label),
+        }
+    }
+
+    /// `auto`'s first step, on `device`: how trees will be judged (camera-ray probes, or paths
+    /// timed on the CPU), the render's length with the LBVH `bvh` where that step estimates it,
+    /// and the LBVH's scene where it was assembled to time it. `None` where the device's render
+    /// is too short to time ([`AutoDevice::Unmeasured`]): the LBVH is kept.
+    fn auto_baseline(
+        scene: &Scene,
+        rays: f64,
+        device: AutoDevice<'_>,
+        bvh: &crate::bvh::Bvh,
+        triangles: &[Triangle],
+        lbvh_seconds: f64,
+        assemble: &dyn Fn(&crate::bvh::Bvh) -> Assembled,
+    ) -> Option<Baseline> {
+        let mut b = Baseline {
+            judge: Judge::Camera { speedup: 1.0 },
+            render_seconds: None,
+            timed: None,
+            probe_cost: 0.0,
+            measured: String::new(),
+            excluded: std::time::Duration::ZERO,
+        };
+        match device {
+            AutoDevice::Cpu => {}
+            AutoDevice::CpuPaths { samples, seed, max_depth, budget } => {
+                let camera_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera);
+                let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
+                // One timing's cost (3 × TIMED_PATHS paths), priced by the camera estimate, which
+                // overstates it.
+                let timing_seconds = camera_seconds / samples / pixels * 3.0 * f64::from(TIMED_PATHS);
+                if worth_timing(pixels * samples, timing_seconds, lbvh_seconds, budget) {
+                    let start = Instant::now();
+                    let lbvh_scene = assemble(bvh);
+                    let per_sample = lbvh_scene.0.fastest_seconds_per_sample(seed, max_depth);
+                    b.probe_cost = start.elapsed().as_secs_f64();
+                    // Under a time budget, the samples the LBVH renders in it: a faster tree is
+                    // worth the time it saves on those.
+                    let samples = budget.map_or(samples, |b| samples.min(b / per_sample.max(1e-12)));
+                    b.judge = Judge::Paths { samples, seed, max_depth };
+                    b.render_seconds = Some(per_sample * samples);
+                    b.measured = format!(", paths timed at {:.1} ms per sample", per_sample * 1e3);
+                    b.timed = Some(lbvh_scene);
+                } else {
+                    let capped = budget.map_or(camera_seconds, |b| camera_seconds.min(b));
+                    b.judge = Judge::Camera { speedup: camera_seconds / capped.max(1e-12) };
+                    b.render_seconds = Some(capped);
+                }
+            }
+            AutoDevice::Unmeasured => return None,
+            AutoDevice::Measured { samples, budget, measure } => {
+                let cpu_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera);
+                let lbvh_scene = assemble(bvh);
+                let mut device_seconds = cpu_seconds;
+                if let Some((seconds_per_sample, excluded)) = measure(&lbvh_scene.0) {
+                    b.excluded = excluded;
+                    device_seconds = seconds_per_sample * samples;
+                    b.measured = format!(", timed at {:.1} ms per sample", seconds_per_sample * 1e3);
+                    b.timed = Some(lbvh_scene);
+                }
+                let device_seconds = budget.map_or(device_seconds, |b| device_seconds.min(b));
+                b.judge = Judge::Camera { speedup: cpu_seconds / device_seconds.max(1e-12) };
+                b.render_seconds = Some(device_seconds);
+            }
+        }
+        Some(b)
+    }
+
+    /// `auto`'s reinsertion sweeps on `bvh` (its base builder `base`), judged by `probe`;
+    /// updates the render's estimate and the scene kept for the tree, and returns the
+    /// iterations run.
+    fn auto_sweeps(
+        bvh: &mut crate::bvh::Bvh,
+        probe: &dyn Fn(&crate::bvh::Bvh) -> (f64, Option<Assembled>),
+        render_seconds: &mut f64,
+        timed: &mut Option<Assembled>,
+        base: &str,
+        lbvh_seconds: f64,
+        probe_cost: f64,
+    ) -> usize {
         let config = PrbvhConfig { collapse: None, ..Default::default() };
         // The first sweep is measured, not predicted: SAH overstates trace gains on some scenes
         // (the dragon's room), so its real gain, from a second probe, decides whether to go on
@@ -269,27 +334,28 @@ impl RenderScene {
         // gained on the dragon scene).
         let mut iterations = 0;
         let expected_gain = if base == "lbvh" { 0.2 } else { 0.05 };
-        if expected_gain * render_seconds > 8.0 * lbvh_seconds + probe_cost {
+        if expected_gain * *render_seconds > 8.0 * lbvh_seconds + probe_cost {
             let first = PrbvhConfig { max_iterations: config.mu, ..config };
             // The probe below assembles its own scene: one at a time.
             drop(timed.take());
             let sweep_start = Instant::now();
-            let s1 = prbvh::optimize_while(&mut bvh, &first, |_| true);
+            let s1 = prbvh::optimize_while(bvh, &first, |_| true);
             let spent = sweep_start.elapsed().as_secs_f64();
             iterations += s1.iterations.len();
-            let (after, swept_scene) = probe(&bvh);
-            timed = swept_scene;
-            let gained = render_seconds - after;
+            let (after, swept_scene) = probe(bvh);
+            *timed = swept_scene;
+            let gained = *render_seconds - after;
             let sah_fraction = (s1.initial_sah - s1.sah_before_collapse) / s1.initial_sah;
             // A sweep that did not pay is kept all the same: its cost is spent, its SAH is lower,
             // and a timing cannot tell a gain of a few percent from its noise (on the dragon
             // scene a sweep that timed slower still rendered faster).
             if gained > spent && sah_fraction > 0.0 {
-                let efficiency = (gained / render_seconds / sah_fraction).clamp(0.05, 1.0);
-                render_seconds = after;
+                let efficiency = (gained / *render_seconds / sah_fraction).clamp(0.05, 1.0);
+                *render_seconds = after;
+                let estimate = *render_seconds;
                 let mut sweep: std::collections::VecDeque<(f64, f64)> = std::collections::VecDeque::new();
-                let rest = prbvh::optimize_while(&mut bvh, &config, |p| {
-                    let saved = (p.previous_sah - p.sah) / p.initial_sah * render_seconds * efficiency;
+                let rest = prbvh::optimize_while(bvh, &config, |p| {
+                    let saved = (p.previous_sah - p.sah) / p.initial_sah * estimate * efficiency;
                     sweep.push_back((saved, p.iteration_time.as_secs_f64()));
                     if sweep.len() > config.mu as usize {
                         sweep.pop_front();
@@ -302,25 +368,16 @@ impl RenderScene {
                 });
                 iterations += rest.iterations.len();
                 if !rest.iterations.is_empty() {
-                    timed = None;
+                    *timed = None;
                     // The label's estimate, for the tree as it ends.
-                    render_seconds *=
+                    *render_seconds *=
                         1.0 - (rest.initial_sah - rest.sah_before_collapse) / rest.initial_sah * efficiency;
                 }
             } else {
-                render_seconds = after;
+                *render_seconds = after;
             }
         }
-        let label = format!(
-            "auto: {base}+prbvh, {iterations} iterations for a render estimated at {render_seconds:.2} s{measured}"
-        );
-        match timed {
-            Some((rs, mut report)) => {
-                (report.builder, report.build_ms) = (label, t.elapsed().as_secs_f64() * 1e3);
-                (rs, report)
-            }
-            None => Self::assemble(scene, triangles, material_of, &bvh, t, label),
-        }
+        iterations
     }
 
     /// The rays a render of `scene` traces, roughly, for [`RenderScene::build_auto`]: each path
