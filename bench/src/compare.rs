@@ -106,9 +106,20 @@ fn ray_sets(triangles: &[Triangle], prim_aabbs: &[Aabb], resolution: u32) -> Ray
     RaySets { primary, shadow, diffuse }
 }
 
+/// A builder's tree that does not validate: a bug in the builder.
+#[derive(Debug, thiserror::Error)]
+#[error("{builder}: invalid {stage}tree: {error}")]
+pub struct InvalidTree {
+    pub builder: String,
+    /// Which tree: "" for the built one, "collapsed " for it after leaf collapse.
+    pub stage: &'static str,
+    /// Part of the message, not a `source`, so that a report of the whole chain says it once.
+    pub error: arbor::bvh::ValidationError,
+}
+
 /// Runs the comparison. Fails only on a tree that does not validate (a bug); checksum
 /// disagreements are listed in the report.
-pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, String> {
+pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, InvalidTree> {
     run_with_progress(triangles, config, |_| {})
 }
 
@@ -118,7 +129,7 @@ pub fn run_with_progress(
     triangles: &[Triangle],
     config: &BenchConfig,
     progress: impl Fn(&str),
-) -> Result<Report, String> {
+) -> Result<Report, InvalidTree> {
     progress("tracing the reference rays");
     let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let rays = ray_sets(triangles, &prim_aabbs, config.resolution);
@@ -188,7 +199,7 @@ fn measure(
     triangles: &[Triangle],
     prim_aabbs: &[Aabb],
     config: &BenchConfig,
-) -> Result<(BuilderReport, MeshBvh), String> {
+) -> Result<(BuilderReport, MeshBvh), InvalidTree> {
     let runs = config.runs.max(1);
     let mut builds = Vec::with_capacity(runs);
     let mut optimizations = Vec::with_capacity(runs);
@@ -200,7 +211,7 @@ fn measure(
         last = Some(built);
     }
     let built = last.expect("at least one run");
-    validate(&built.bvh, prim_aabbs).map_err(|e| format!("{builder}: invalid tree: {e}"))?;
+    validate(&built.bvh, prim_aabbs).map_err(|error| InvalidTree { builder: builder.to_string(), stage: "", error })?;
     let sah_leaf1 = sah_cost(&built.bvh);
     let build_ms = median_ms(builds);
     let initial = built.prbvh.as_ref().map(|s| s.initial_sah).or(built.rbvh.as_ref().map(|s| s.initial_sah));
@@ -214,7 +225,11 @@ fn measure(
     let t = Instant::now();
     let collapsed = collapse_leaves(&built.bvh, &config.collapse);
     let collapse_ms = t.elapsed().as_secs_f64() * 1e3;
-    let stats = validate(&collapsed, prim_aabbs).map_err(|e| format!("{builder}: invalid collapsed tree: {e}"))?;
+    let stats = validate(&collapsed, prim_aabbs).map_err(|error| InvalidTree {
+        builder: builder.to_string(),
+        stage: "collapsed ",
+        error,
+    })?;
     let sah = sah_cost(&collapsed);
     let mesh = MeshBvh::new(collapsed, triangles);
     let report = BuilderReport {

@@ -592,96 +592,140 @@ impl DynamicBvh {
     /// tree and `leaf_of` pointing at it, holes only under dirty nodes, dirty nodes' ancestors
     /// dirty, every box containing its children's and equal to their union unless dirty, and the
     /// running area sums. A clean tree holding every primitive also passes [`super::validate`].
-    pub fn validate(&self, boxes: &[Aabb]) -> Result<(), String> {
+    pub fn validate(&self, boxes: &[Aabb]) -> Result<(), DynamicValidationError> {
+        use DynamicValidationError as E;
         let nodes = &self.bvh.nodes;
         let parents = &self.bvh.parents;
         if nodes.len() != parents.len() || nodes.len() != self.dirty.len() {
-            return Err("nodes, parents and dirty flags differ in length".into());
+            return Err(E::LengthMismatch);
         }
         for (p, &l) in self.leaf_of.iter().enumerate() {
             if l != INVALID_INDEX {
-                let n = nodes.get(l as usize).ok_or(format!("primitive {p}: leaf {l} out of range"))?;
+                let n = nodes.get(l as usize).ok_or(E::LeafOfOutOfRange { prim: p, leaf: l })?;
                 if !n.is_leaf() || n.first != p as u32 || is_hole(n) {
-                    return Err(format!("primitive {p}: leaf_of says {l}, which does not hold it"));
+                    return Err(E::LeafOfWrong { prim: p, leaf: l });
                 }
             }
         }
         if nodes.is_empty() {
-            return if self.prim_count() == 0 { Ok(()) } else { Err("empty tree with primitives".into()) };
+            return if self.prim_count() == 0 { Ok(()) } else { Err(E::EmptyWithPrimitives) };
         }
         if nodes.len() > 1 && (nodes[1] != BvhNode::zeroed() || parents[1] != INVALID_INDEX || self.dirty[1]) {
-            return Err("padding node is not zeroed".into());
+            return Err(E::BadPadding);
         }
         if parents[0] != INVALID_INDEX {
-            return Err("root has a parent".into());
+            return Err(E::RootHasParent);
         }
         let mut seen = vec![false; nodes.len()];
         let mut leaves = 0;
         let mut stack = vec![0usize];
         while let Some(i) = stack.pop() {
             if std::mem::replace(&mut seen[i], true) {
-                return Err(format!("node {i} reached twice"));
+                return Err(E::Revisited(i));
             }
             let n = nodes[i];
             let parent_dirty = i == 0 || self.dirty[parents[i] as usize];
             if self.dirty[i] && !parent_dirty {
-                return Err(format!("node {i} is dirty but its parent {} is not", parents[i]));
+                return Err(E::DirtyUnderClean { node: i, parent: parents[i] });
             }
             if is_hole(&n) {
                 if !(parent_dirty && (i != 0 || self.dirty[0])) {
-                    return Err(format!("hole {i} under a clean node"));
+                    return Err(E::HoleUnderClean(i));
                 }
                 continue;
             }
             if n.is_leaf() {
                 if self.dirty[i] && i != 0 {
-                    return Err(format!("leaf {i} is marked dirty"));
+                    return Err(E::DirtyLeaf(i));
                 }
                 let p = n.first as usize;
                 if n.prim_count != 1 || self.leaf_of.get(p) != Some(&(i as u32)) {
-                    return Err(format!("leaf {i}: primitive {p} does not map back to it"));
+                    return Err(E::LeafNotMapped { node: i, prim: p });
                 }
                 if boxes.get(p).is_none_or(|b| *b != n.aabb()) {
-                    return Err(format!("leaf {i}: box differs from primitive {p}'s"));
+                    return Err(E::LeafBox { node: i, prim: p });
                 }
                 leaves += 1;
                 continue;
             }
             let f = n.first as usize;
             if f % 2 != 0 || f < 2 || f + 1 >= nodes.len() {
-                return Err(format!("node {i}: child pair {f} out of range"));
+                return Err(E::ChildOutOfRange { node: i, child: f });
             }
             if parents[f] != i as u32 || parents[f + 1] != i as u32 {
-                return Err(format!("node {i}: children's parent links disagree"));
+                return Err(E::ParentLinks(i));
             }
             let union = nodes[f].aabb().union(nodes[f + 1].aabb());
             if !n.aabb().contains_box(&union) {
-                return Err(format!("node {i}: box does not contain its children"));
+                return Err(E::BoxNotContaining(i));
             }
             if !self.dirty[i] && n.aabb() != union {
-                return Err(format!("node {i}: clean but its box is not the union of its children's"));
+                return Err(E::CleanBoxNotUnion(i));
             }
             stack.extend([f, f + 1]);
         }
         if let Some(i) = (0..nodes.len()).find(|&i| i != PAD_INDEX as usize && !seen[i]) {
-            return Err(format!("node {i} is not reachable"));
+            return Err(E::Unreachable(i));
         }
         if leaves != self.prim_count() {
-            return Err(format!("{leaves} leaves for {} primitives", self.prim_count()));
+            return Err(E::LeafCount { leaves, prims: self.prim_count() });
         }
         let (internal, leaf) = self.exact_areas();
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1e-30);
         if !close(internal, self.area_internal) || !close(leaf, self.area_leaves) {
-            return Err(format!(
-                "running area sums ({}, {}) drifted from the tree's ({internal}, {leaf})",
-                self.area_internal, self.area_leaves
-            ));
+            return Err(E::AreaDrift { running: (self.area_internal, self.area_leaves), exact: (internal, leaf) });
         }
         if !self.is_dirty() && self.prim_count() == self.leaf_of.len() {
-            super::validate(&self.bvh, boxes).map_err(|e| e.to_string())?;
+            super::validate(&self.bvh, boxes)?;
         }
         Ok(())
     }
+}
+
+/// What [`DynamicBvh::validate`] finds wrong: the first broken invariant.
+#[derive(Debug, thiserror::Error)]
+pub enum DynamicValidationError {
+    #[error("nodes, parents and dirty flags differ in length")]
+    LengthMismatch,
+    #[error("primitive {prim}: leaf {leaf} out of range")]
+    LeafOfOutOfRange { prim: usize, leaf: u32 },
+    #[error("primitive {prim}: leaf_of says {leaf}, which does not hold it")]
+    LeafOfWrong { prim: usize, leaf: u32 },
+    #[error("empty tree with primitives")]
+    EmptyWithPrimitives,
+    #[error("padding node is not zeroed")]
+    BadPadding,
+    #[error("root has a parent")]
+    RootHasParent,
+    #[error("node {0} reached twice")]
+    Revisited(usize),
+    #[error("node {node} is dirty but its parent {parent} is not")]
+    DirtyUnderClean { node: usize, parent: u32 },
+    #[error("hole {0} under a clean node")]
+    HoleUnderClean(usize),
+    #[error("leaf {0} is marked dirty")]
+    DirtyLeaf(usize),
+    #[error("leaf {node}: primitive {prim} does not map back to it")]
+    LeafNotMapped { node: usize, prim: usize },
+    #[error("leaf {node}: box differs from primitive {prim}'s")]
+    LeafBox { node: usize, prim: usize },
+    #[error("node {node}: child pair {child} out of range")]
+    ChildOutOfRange { node: usize, child: usize },
+    #[error("node {0}: children's parent links disagree")]
+    ParentLinks(usize),
+    #[error("node {0}: box does not contain its children")]
+    BoxNotContaining(usize),
+    #[error("node {0}: clean but its box is not the union of its children's")]
+    CleanBoxNotUnion(usize),
+    #[error("node {0} is not reachable")]
+    Unreachable(usize),
+    #[error("{leaves} leaves for {prims} primitives")]
+    LeafCount { leaves: usize, prims: usize },
+    #[error("running area sums {running:?} drifted from the tree's {exact:?}")]
+    AreaDrift { running: (f64, f64), exact: (f64, f64) },
+    /// A clean tree holding every primitive fails the static tree's validation.
+    #[error(transparent)]
+    Tree(#[from] super::ValidationError),
 }
 
 /// The build the monitor compares with and falls back to: binned SAH, one primitive per leaf.

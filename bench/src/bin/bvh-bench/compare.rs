@@ -39,7 +39,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
     spinner.enable_steady_tick(std::time::Duration::from_millis(200));
     let report = bench::run_with_progress(&triangles, &config, |what| spinner.set_message(what.to_owned()));
     spinner.finish_and_clear();
-    let report = report.map_err(anyhow::Error::msg)?;
+    let report = report?;
     print_table(&report);
     let series: Vec<Series> =
         report.builders.iter().map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect())).collect();
