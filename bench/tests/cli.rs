@@ -8,29 +8,8 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-mod common {
-    /// Runs `cmd` with its standard output closed before it writes (as `| head` does once it
-    /// has read enough): the tool must neither panic nor stop its work and files.
-    pub fn output_with_stdout_closed(cmd: &mut std::process::Command) -> std::process::Output {
-        use std::process::Stdio;
-        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-        drop(child.stdout.take());
-        child.wait_with_output().unwrap()
-    }
-
-    /// The shared GPU context, or `None` with a printed reason; under `CI=true` a missing
-    /// adapter fails the test.
-    pub fn gpu_or_skip(test: &str) -> Option<&'static arbor::gpu::GpuContext> {
-        match arbor::gpu::GpuContext::shared() {
-            Ok(ctx) => Some(ctx),
-            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("{test}: no GPU under CI=true: {e}"),
-            Err(e) => {
-                eprintln!("skipping {test}: {e}");
-                None
-            }
-        }
-    }
-}
+#[path = "../../tests/common/tools.rs"]
+mod common;
 
 fn bench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_bvh-bench"))

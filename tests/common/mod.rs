@@ -3,6 +3,9 @@
 #![allow(dead_code)]
 
 pub mod analytic;
+mod tools;
+
+pub use tools::{gpu_or_skip, output_with_stdout_closed};
 
 use std::path::PathBuf;
 
@@ -12,15 +15,6 @@ use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 pub type Rng = Pcg64Mcg;
-
-/// Runs `cmd` with its standard output closed before it writes (as `| head` does once it has
-/// read enough): the tools must neither panic nor stop their work and files.
-pub fn output_with_stdout_closed(cmd: &mut std::process::Command) -> std::process::Output {
-    use std::process::Stdio;
-    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-    drop(child.stdout.take());
-    child.wait_with_output().unwrap()
-}
 
 pub fn rng(seed: u64) -> Rng {
     Pcg64Mcg::seed_from_u64(seed)
@@ -109,19 +103,6 @@ pub fn all_shared_models() -> Vec<(String, TriangleMesh)> {
         dir.filter_map(|e| e.ok()?.file_name().into_string().ok()).filter(|n| n.ends_with(".obj")).collect();
     names.sort();
     names.into_iter().filter_map(|n| shared_model(&n).map(|m| (n, m))).collect()
-}
-
-/// The shared GPU context, or `None` with the reason printed where there is no adapter; under
-/// `CI=true` a missing adapter fails the test instead (CI installs lavapipe).
-pub fn gpu_or_skip(test: &str) -> Option<&'static arbor::gpu::GpuContext> {
-    match arbor::gpu::GpuContext::shared() {
-        Ok(ctx) => Some(ctx),
-        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("{test}: no GPU under CI=true: {e}"),
-        Err(e) => {
-            eprintln!("skipping {test}: {e}");
-            None
-        }
-    }
 }
 
 /// The two-sided normal p-value of `z`.
