@@ -110,6 +110,24 @@ impl std::str::FromStr for BuilderChoice {
     }
 }
 
+impl BuilderChoice {
+    /// The builder where none is named: `lbvh+prbvh`, but `lbvh` for a scene the GPU rebuilds
+    /// flat every frame (animated or instanced), where PRBVH over every world-space triangle
+    /// would cost each frame far more than it saves, and `auto` has no model for per-frame
+    /// builds.
+    pub fn default_for(device: Device, scene: &Scene) -> BuilderChoice {
+        let name = match device {
+            #[cfg(feature = "gpu")]
+            Device::Gpu(_) if wants_instancing(scene) => "lbvh",
+            _ => {
+                let _ = scene;
+                "lbvh+prbvh"
+            }
+        };
+        BuilderChoice::Fixed(name.parse().expect("a builder name"))
+    }
+}
+
 /// What can go wrong on a device.
 #[derive(Debug, thiserror::Error)]
 pub enum DeviceError {

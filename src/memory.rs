@@ -47,10 +47,6 @@ pub struct OutOfMemory {
 /// room to spare.
 pub const RENDER_BYTES_PER_TRIANGLE: f64 = 320.0;
 
-/// Peak bytes per triangle of `bvh-bench`'s builder comparison: the peak measured on a large
-/// hairball (docs/benchmarks.md, "Memory"), with room for the builders that keep more.
-pub const BENCH_BYTES_PER_TRIANGLE: f64 = 600.0;
-
 /// The whole file at `path`, refusing one longer than `limit` bytes: a path that never ends
 /// (`/dev/zero`, a FIFO fed without end) is an error once past it, not a read until memory runs
 /// out.

@@ -54,7 +54,7 @@ struct Args {
     /// Where to render.
     #[arg(long, value_enum, default_value_t = Device::Auto)]
     device: Device,
-    /// BVH builder: auto, or a name bvh-bench takes (lbvh, lbvh+prbvh, binned-sah, ...). `auto`
+    /// BVH builder: auto, or a builder's name (lbvh, lbvh+prbvh, binned-sah, ploc, ...). `auto`
     /// optimises the LBVH only while that pays for itself in this render's estimated time.
     /// Default lbvh+prbvh; but on the GPU an animated or instanced scene is rebuilt flat every
     /// frame, with lbvh unless a builder other than auto is given.
@@ -100,10 +100,9 @@ fn main() {
 
 fn run() -> Result<()> {
     let args = Args::parse();
-    let builder: BuilderChoice = match args.builder.as_deref() {
-        None => BuilderChoice::Fixed("lbvh+prbvh".parse().expect("a builder name")),
-        Some(name) => name.parse().context("--builder (or auto)")?,
-    };
+    // A bad name fails before any work; the default depends on the device and the scene.
+    let named: Option<BuilderChoice> =
+        args.builder.as_deref().map(str::parse).transpose().context("--builder (or auto)")?;
     cli::init_threads(args.threads)?;
     let scene = Scene::load(&args.scene)?;
     // The film's sums, the tiles' and the image written: about three times a pixel's sums.
@@ -180,6 +179,7 @@ fn run() -> Result<()> {
         None => vec![(args.output.clone(), arbor::render::first_frame_time(&scene))],
         Some(frames) => frames.map(|f| (frame_path(&args.output, f), scene.frame_time(f))).collect(),
     };
+    let builder = named.unwrap_or_else(|| BuilderChoice::default_for(device, &scene));
     let mut renderer = Renderer::new(device, &scene, &builder, &settings, list.len(), list[0].1)?;
     if !args.quiet {
         print_build(&args.scene, renderer.build_report());

@@ -68,7 +68,6 @@ pub use search::{MAX_VISITS, find_best_output};
 use search::{NodeAreas, search};
 
 use crate::bvh::{Bvh, CollapseConfig, SahCosts, collapse_leaves};
-use crate::geometry::Aabb;
 use rayon::prelude::*;
 use std::sync::atomic::AtomicU64;
 use std::time::{Duration, Instant};
@@ -270,7 +269,7 @@ fn iterate(
 /// Validates the tree's structure and boxes; each primitive's box is taken from its leaf.
 #[cfg(debug_assertions)]
 fn debug_validate(bvh: &Bvh, iteration: u32) {
-    let mut prim_aabbs = vec![Aabb::EMPTY; bvh.prim_ids.len()];
+    let mut prim_aabbs = vec![crate::geometry::Aabb::EMPTY; bvh.prim_ids.len()];
     for (i, n) in bvh.nodes.iter().enumerate() {
         if n.is_leaf() && i != super::PAD_INDEX as usize {
             for &p in &bvh.prim_ids[n.prim_range()] {
@@ -290,6 +289,7 @@ mod tests {
 
     use super::search::{Box4, search_scaled, search_with};
     use crate::bvh::BvhNode;
+    use crate::geometry::Aabb;
 
     /// Reading the nodes' areas from [`NodeAreas`] gives every search the same output and the
     /// same decrease, to the bit, as computing them, on a fresh tree and on one that iterations
