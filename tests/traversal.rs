@@ -1,8 +1,10 @@
 //! Closest-hit and any-hit traversal against brute force: the same primitive id, and the same t,
-//! u and v to the bit, for every builder, on random and real meshes.
+//! u and v to the bit, for every builder, on random and real meshes, through the binary trees
+//! and the 4- and 8-wide trees collapsed from them.
 
 use crate::common;
 
+use arbor::bvh::wide::{Bvh4, Bvh8, WideBvh};
 use arbor::bvh::{
     Bvh, CollapseConfig, Hit, MeshBvh, binned_sah, brute_force_any, brute_force_closest, collapse_leaves, lbvh,
 };
@@ -87,6 +89,12 @@ fn check(name: &str, tris: &[Triangle], rays: &[Ray]) -> usize {
             })
             .count();
         assert_eq!(bad_ordered, 0, "{name}/{tree_name}: leaf-ordered traversal differs from brute force");
+        let prims = aabbs(tris);
+        let (w4, w8) = (Bvh4::from_binary(&bvh), Bvh8::from_binary(&bvh));
+        w4.validate(&prims).unwrap_or_else(|e| panic!("{name}/{tree_name}, 4 wide: {e}"));
+        w8.validate(&prims).unwrap_or_else(|e| panic!("{name}/{tree_name}, 8 wide: {e}"));
+        assert_eq!(wide_mismatches(&w4, tris, rays, &expected), 0, "{name}/{tree_name}: 4-wide traversal differs");
+        assert_eq!(wide_mismatches(&w8, tris, rays, &expected), 0, "{name}/{tree_name}: 8-wide traversal differs");
         if let Some(&i) = bad.first() {
             let r = &rays[i];
             panic!(
@@ -99,6 +107,26 @@ fn check(name: &str, tris: &[Triangle], rays: &[Ray]) -> usize {
         }
     }
     expected.iter().filter(|e| e.full.is_some()).count()
+}
+
+/// Rays on which the wide tree's closest hits (unbounded and bounded) or any hits differ from
+/// brute force.
+fn wide_mismatches<const N: usize>(w: &WideBvh<N>, tris: &[Triangle], rays: &[Ray], expected: &[Expected]) -> usize {
+    rays.par_iter()
+        .zip(expected)
+        .filter(|(r, e)| {
+            let Some(full) = e.full else {
+                return w.closest_hit_triangles(tris, r, f32::INFINITY).is_some()
+                    || w.any_hit_triangles(tris, r, f32::INFINITY);
+            };
+            let half_t = full.t * 0.5;
+            !same_hit(w.closest_hit_triangles(tris, r, f32::INFINITY), e.full)
+                || !same_hit(w.closest_hit_triangles(tris, r, full.t), e.full)
+                || !w.any_hit_triangles(tris, r, full.t)
+                || !same_hit(w.closest_hit_triangles(tris, r, half_t), e.half)
+                || w.any_hit_triangles(tris, r, half_t) != e.any_half
+        })
+        .count()
 }
 
 /// `triangles` random triangles (seeded by `seed`) and `rays` rays aimed at their vertices.

@@ -15,6 +15,7 @@ pub mod rbvh;
 pub mod sah;
 mod traverse;
 mod validate;
+pub mod wide;
 
 pub use mesh_bvh::MeshBvh;
 pub use node::{Bvh, BvhNode, INVALID_INDEX, NodePair, Nodes, PAD_INDEX};

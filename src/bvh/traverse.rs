@@ -30,14 +30,14 @@ pub const CULL_ABS_ULPS: f32 = 64.0;
 /// squares overflow for scenes beyond about 10^19 (and underflow below 10^-19), which made the
 /// slack NaN and culled every box.
 #[inline]
-fn cull_slack(bounds: &crate::geometry::Aabb, ray: &Ray) -> f32 {
+pub(super) fn cull_slack(bounds: &crate::geometry::Aabb, ray: &Ray) -> f32 {
     let far = (bounds.min - ray.origin).abs().max((bounds.max - ray.origin).abs());
     (f64::from(CULL_ABS_ULPS * f32::EPSILON) * far.as_dvec3().length() / ray.dir.as_dvec3().length()) as f32
 }
 
 /// The box-culling limit for a best distance `t` (see the module docs).
 #[inline]
-fn cull_limit(t: f32, slack: f32) -> f32 {
+pub(super) fn cull_limit(t: f32, slack: f32) -> f32 {
     t * CULL_SCALE + slack
 }
 

@@ -168,6 +168,23 @@ pub fn intersect_ray_packed(b: &[f32; 8], ray: &RayInv, t_max: f32) -> Option<f3
     let far_x = (b[(ix ^ 4) & 7] - ray.origin.x) * ray.inv_dir.x;
     let far_y = (b[(iy ^ 4) & 7] - ray.origin.y) * ray.inv_dir.y;
     let far_z = (b[(iz ^ 4) & 7] - ray.origin.z) * ray.inv_dir.z;
+    slab_interval(near_x, near_y, near_z, far_x, far_y, far_z, t_max)
+}
+
+/// The end of every slab test: given the distances to a box's near and far planes on each
+/// axis, its entry distance if the ray enters it within `[0, t_max]`, with Ize's conservative
+/// widening ([`ROBUST_SLAB_SCALE`]) and NaN planes ignored (see [`Aabb::intersect_ray`]). Shared
+/// by the binary and the wide traversal, so that both open the same boxes.
+#[inline(always)]
+pub fn slab_interval(
+    near_x: f32,
+    near_y: f32,
+    near_z: f32,
+    far_x: f32,
+    far_y: f32,
+    far_z: f32,
+    t_max: f32,
+) -> Option<f32> {
     let t_enter = nan_ignoring_max(nan_ignoring_max(nan_ignoring_max(0.0, near_x), near_y), near_z);
     let t_exit = nan_ignoring_min(nan_ignoring_min(nan_ignoring_min(t_max, far_x), far_y), far_z);
     (t_enter <= t_exit * ROBUST_SLAB_SCALE).then_some(t_enter)

@@ -10,7 +10,7 @@ mod ray;
 pub mod shapes;
 mod triangle;
 
-pub use aabb::{Aabb, ROBUST_SLAB_SCALE, RayInv, intersect_ray_packed};
+pub use aabb::{Aabb, ROBUST_SLAB_SCALE, RayInv, intersect_ray_packed, slab_interval};
 pub use mesh::{MeshError, TriangleMesh};
 pub use ray::{Ray, offset_ray_origin, spawn_ray};
 pub use triangle::{Triangle, TriangleHit, WatertightRay, gamma};

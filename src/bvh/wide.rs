@@ -1,0 +1,484 @@
+//! Wide BVHs for tracing: 4 or 8 children per node, collapsed from a binary tree.
+//!
+//! The builders, PRBVH and the dynamic BVH work on the binary tree ([`Bvh`]); a wide tree is
+//! derived from it for tracing, as Embree and tinybvh derive theirs. The collapse is the
+//! largest-area pull-up of Wald, Benthin & Boulos 2008 ("Getting Rid of Packets", section 3):
+//! a wide node starts with its binary node's two children, and the child of largest surface area
+//! that is not a leaf is replaced by its own two children until the node has `N` children or
+//! only leaves. Opening the largest child first removes the boxes rays are most likely to enter,
+//! which is what the SAH charges a node for. It is a single top-down pass, linear in the tree's
+//! size; the optimal collapse by dynamic programming (Ylitie et al. 2017) costs a table per node
+//! and is left for when a measurement shows the greedy one falling short.
+//!
+//! Layout (structure of arrays, one lane per child, so that one node's boxes load as six
+//! vectors of `N` floats):
+//!
+//! ```text
+//!   WideNode<4>: min_x[4] min_y[4] min_z[4] max_x[4] max_y[4] max_z[4] child[4] count[4]
+//!                 16 B each, 128 B in all: two 64-byte lines
+//!   WideNode<8>: the same with 8 lanes, 32 B each, 256 B in all: four lines
+//! ```
+//! A lane is a leaf when `count > 0` (it holds `prim_ids[child .. child + count]`, the binary
+//! leaf's range, so leaf-ordered triangles serve both trees), an inner node when `count == 0`
+//! (`child` indexes `nodes`), and empty when `child == INVALID_INDEX`. Lanes are filled from
+//! the first, so the first empty lane ends a node. Node 0 is the root. The nodes are 64-byte
+//! aligned, so no node straddles more lines than its size needs.
+//!
+//! Traversal tests each lane with the same conservative slab test as the binary tree
+//! ([`crate::geometry::intersect_ray_packed`]'s arithmetic, Ize 2013), visits hit lanes near to
+//! far, and culls with the same slack, so closest hits equal brute force exactly as the binary
+//! tree's do (ties to the lowest primitive id).
+
+use crate::geometry::{Aabb, Ray, RayInv, Triangle, WatertightRay};
+
+use super::traverse::{cull_limit, cull_slack};
+use super::{Bvh, Hit, INVALID_INDEX, SahCosts};
+
+/// One wide node: `N` child boxes, structure of arrays (see the module docs).
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WideNode<const N: usize> {
+    pub min_x: [f32; N],
+    pub min_y: [f32; N],
+    pub min_z: [f32; N],
+    pub max_x: [f32; N],
+    pub max_y: [f32; N],
+    pub max_z: [f32; N],
+    /// Inner lane: the child's index in `nodes`. Leaf lane: the first position in `prim_ids`.
+    /// Empty lane: [`INVALID_INDEX`].
+    pub child: [u32; N],
+    /// 0 for an inner or empty lane; the number of primitives of a leaf lane.
+    pub count: [u32; N],
+}
+
+const _: () = assert!(size_of::<WideNode<4>>() == 128);
+const _: () = assert!(size_of::<WideNode<8>>() == 256);
+
+impl<const N: usize> WideNode<N> {
+    /// A node whose every lane is empty.
+    fn empty() -> Self {
+        Self {
+            min_x: [f32::INFINITY; N],
+            min_y: [f32::INFINITY; N],
+            min_z: [f32::INFINITY; N],
+            max_x: [f32::NEG_INFINITY; N],
+            max_y: [f32::NEG_INFINITY; N],
+            max_z: [f32::NEG_INFINITY; N],
+            child: [INVALID_INDEX; N],
+            count: [0; N],
+        }
+    }
+
+    /// The box of lane `i`.
+    #[inline]
+    pub fn lane_box(&self, i: usize) -> Aabb {
+        Aabb::new(
+            glam::Vec3::new(self.min_x[i], self.min_y[i], self.min_z[i]),
+            glam::Vec3::new(self.max_x[i], self.max_y[i], self.max_z[i]),
+        )
+    }
+
+    fn set_lane(&mut self, i: usize, b: Aabb, child: u32, count: u32) {
+        (self.min_x[i], self.min_y[i], self.min_z[i]) = (b.min.x, b.min.y, b.min.z);
+        (self.max_x[i], self.max_y[i], self.max_z[i]) = (b.max.x, b.max.y, b.max.z);
+        (self.child[i], self.count[i]) = (child, count);
+    }
+
+    /// Lanes in use: the first empty lane ends the node.
+    #[inline]
+    pub fn lanes(&self) -> usize {
+        self.child.iter().position(|&c| c == INVALID_INDEX).unwrap_or(N)
+    }
+
+    /// Lane `i`'s entry distance if the ray enters its box before `t_max`: the arithmetic of
+    /// [`crate::geometry::intersect_ray_packed`], lane by lane.
+    #[inline(always)]
+    fn intersect_lane(&self, i: usize, ray: &RayInv, t_max: f32) -> Option<f32> {
+        let pick = |neg: bool, min: &[f32; N], max: &[f32; N]| if neg { (max[i], min[i]) } else { (min[i], max[i]) };
+        let (nx, fx) = pick(ray.negative.x, &self.min_x, &self.max_x);
+        let (ny, fy) = pick(ray.negative.y, &self.min_y, &self.max_y);
+        let (nz, fz) = pick(ray.negative.z, &self.min_z, &self.max_z);
+        let near_x = (nx - ray.origin.x) * ray.inv_dir.x;
+        let near_y = (ny - ray.origin.y) * ray.inv_dir.y;
+        let near_z = (nz - ray.origin.z) * ray.inv_dir.z;
+        let far_x = (fx - ray.origin.x) * ray.inv_dir.x;
+        let far_y = (fy - ray.origin.y) * ray.inv_dir.y;
+        let far_z = (fz - ray.origin.z) * ray.inv_dir.z;
+        crate::geometry::slab_interval(near_x, near_y, near_z, far_x, far_y, far_z, t_max)
+    }
+}
+
+/// Entries a traversal keeps before spilling to the heap: a path of depth `d` leaves at most
+/// `d × (N − 1)` entries, and collapsed trees are shallow.
+const STACK_SIZE: usize = 128;
+
+/// The traversal stack: a fixed array, spilling to a `Vec` only for unusually deep trees (PRBVH
+/// can deepen a tree without bound), so that no traversal allocates in the common case.
+struct WideStack {
+    fixed: [(u32, u32, f32); STACK_SIZE],
+    len: usize,
+    spill: Vec<(u32, u32, f32)>,
+}
+
+impl WideStack {
+    #[inline]
+    fn new() -> Self {
+        Self { fixed: [(0, 0, 0.0); STACK_SIZE], len: 0, spill: Vec::new() }
+    }
+
+    #[inline]
+    fn push(&mut self, entry: (u32, u32, f32)) {
+        if self.len < STACK_SIZE {
+            self.fixed[self.len] = entry;
+            self.len += 1;
+        } else {
+            self.spill.push(entry);
+        }
+    }
+
+    #[inline]
+    fn pop(&mut self) -> Option<(u32, u32, f32)> {
+        if let Some(e) = self.spill.pop() {
+            return Some(e);
+        }
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        Some(self.fixed[self.len])
+    }
+}
+
+/// A wide BVH of `N`-child nodes over the primitives of the binary tree it was collapsed from.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WideBvh<const N: usize> {
+    pub nodes: Vec<WideNode<N>>,
+    /// The binary tree's `prim_ids`: leaf lanes index ranges of it.
+    pub prim_ids: Vec<u32>,
+}
+
+/// The 4-wide form (SSE, NEON).
+pub type Bvh4 = WideBvh<4>;
+/// The 8-wide form (AVX2).
+pub type Bvh8 = WideBvh<8>;
+
+/// What [`WideBvh::validate`] finds wrong: the first broken invariant.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum WideValidationError {
+    #[error("node {node}: lane {lane} follows an empty lane")]
+    LaneAfterEmpty { node: usize, lane: usize },
+    #[error("node {node}: no lane in use")]
+    EmptyNode { node: usize },
+    #[error("node {node}, lane {lane}: child {child} out of range")]
+    ChildOutOfRange { node: usize, lane: usize, child: u32 },
+    #[error("node {0} is referenced {1} times, expected once (the root never)")]
+    References(usize, u32),
+    #[error("node {node}, lane {lane}: primitive range {first}..{end} outside prim_ids ({len})")]
+    LeafRange { node: usize, lane: usize, first: u32, end: u64, len: usize },
+    #[error("prim_ids position {0} is in {1} leaves, expected exactly one")]
+    Position(usize, u32),
+    #[error("node {node}, lane {lane}: box {found:?} is not exactly the union of its contents {expected:?}")]
+    Box { node: usize, lane: usize, found: Aabb, expected: Aabb },
+    #[error("node {node}, lane {lane}: primitive id {prim} out of range")]
+    PrimOutOfRange { node: usize, lane: usize, prim: u32 },
+}
+
+impl<const N: usize> WideBvh<N> {
+    /// Collapses `bvh` (any builder's, after the leaf collapse or not) into `N`-wide nodes by
+    /// the largest-area pull-up (see the module docs). Leaves stay the binary tree's leaves.
+    pub fn from_binary(bvh: &Bvh) -> Self {
+        const { assert!(N >= 2, "a wide node holds at least two children") };
+        let mut wide = Self { nodes: Vec::new(), prim_ids: bvh.prim_ids.clone() };
+        let Some(root) = bvh.nodes.first() else { return wide };
+        wide.nodes.push(WideNode::empty());
+        if root.is_leaf() {
+            wide.nodes[0].set_lane(0, root.aabb(), root.first, root.prim_count);
+            return wide;
+        }
+        // (binary node, its wide node): each wide node gathers the binary node's subtree.
+        let mut queue = std::collections::VecDeque::from([(0u32, 0usize)]);
+        let mut children: Vec<u32> = Vec::with_capacity(N);
+        while let Some((b, w)) = queue.pop_front() {
+            let first = bvh.nodes[b as usize].first;
+            children.clear();
+            children.extend([first, first + 1]);
+            while children.len() < N {
+                // The inner child of largest area; ties to the first, so the result does not
+                // depend on anything but the tree.
+                let widest = children.iter().enumerate().filter(|&(_, &c)| !bvh.nodes[c as usize].is_leaf()).fold(
+                    None,
+                    |best: Option<(usize, f32)>, (k, &c)| {
+                        let area = bvh.nodes[c as usize].aabb().half_area();
+                        if best.is_none_or(|(_, a)| area > a) { Some((k, area)) } else { best }
+                    },
+                );
+                let Some((k, _)) = widest else { break };
+                let c = children[k];
+                let grand = bvh.nodes[c as usize].first;
+                children[k] = grand;
+                children.push(grand + 1);
+            }
+            for (lane, &c) in children.iter().enumerate() {
+                let n = &bvh.nodes[c as usize];
+                if n.is_leaf() {
+                    wide.nodes[w].set_lane(lane, n.aabb(), n.first, n.prim_count);
+                } else {
+                    let index = wide.nodes.len();
+                    wide.nodes.push(WideNode::empty());
+                    wide.nodes[w].set_lane(lane, n.aabb(), index as u32, 0);
+                    queue.push_back((c, index));
+                }
+            }
+        }
+        wide
+    }
+
+    /// The box of everything in the tree.
+    pub fn bounds(&self) -> Aabb {
+        self.nodes.first().map_or(Aabb::EMPTY, |n| (0..n.lanes()).fold(Aabb::EMPTY, |b, i| b.union(n.lane_box(i))))
+    }
+
+    /// Bytes of the nodes and `prim_ids`, by length.
+    pub fn memory_bytes(&self) -> usize {
+        size_of_val(self.nodes.as_slice()) + size_of_val(self.prim_ids.as_slice())
+    }
+
+    /// The SAH cost of the wide tree: `cT` for every node a ray enters (weighted by the area of
+    /// the box it enters it by, the root's for the root) plus `cI` per primitive of every leaf
+    /// entered, over the root's area, as [`super::sah_cost`] charges the binary tree.
+    pub fn sah(&self, costs: &SahCosts) -> f64 {
+        let root_area = f64::from(self.bounds().half_area());
+        if self.nodes.is_empty() || root_area <= 0.0 {
+            return 0.0;
+        }
+        let mut cost = f64::from(costs.traversal) * root_area;
+        for n in &self.nodes {
+            for i in 0..n.lanes() {
+                let area = f64::from(n.lane_box(i).half_area());
+                cost += area
+                    * if n.count[i] > 0 {
+                        f64::from(costs.intersection) * f64::from(n.count[i])
+                    } else {
+                        f64::from(costs.traversal)
+                    };
+            }
+        }
+        cost / root_area
+    }
+
+    /// Checks every invariant: lanes filled from the first, every node but the root referenced
+    /// exactly once, every `prim_ids` position in exactly one leaf, and every lane's box exactly
+    /// the union of its contents (its child node's lanes, or its primitives' boxes, taken from
+    /// `prim_aabbs` by primitive id).
+    pub fn validate(&self, prim_aabbs: &[Aabb]) -> Result<(), WideValidationError> {
+        use WideValidationError as E;
+        let mut references = vec![0u32; self.nodes.len()];
+        let mut positions = vec![0u32; self.prim_ids.len()];
+        for (k, n) in self.nodes.iter().enumerate() {
+            let lanes = n.lanes();
+            if lanes == 0 {
+                return Err(E::EmptyNode { node: k });
+            }
+            if let Some(lane) = (lanes..N).find(|&i| n.child[i] != INVALID_INDEX || n.count[i] != 0) {
+                return Err(E::LaneAfterEmpty { node: k, lane });
+            }
+            for lane in 0..lanes {
+                let (child, count) = (n.child[lane], n.count[lane]);
+                let expected = if count > 0 {
+                    let end = u64::from(child) + u64::from(count);
+                    if end > self.prim_ids.len() as u64 {
+                        return Err(E::LeafRange { node: k, lane, first: child, end, len: self.prim_ids.len() });
+                    }
+                    let mut b = Aabb::EMPTY;
+                    let range = child as usize..end as usize;
+                    for (seen, &prim) in positions[range.clone()].iter_mut().zip(&self.prim_ids[range]) {
+                        *seen += 1;
+                        let pb = prim_aabbs.get(prim as usize).ok_or(E::PrimOutOfRange { node: k, lane, prim })?;
+                        b = b.union(*pb);
+                    }
+                    b
+                } else {
+                    let c = self.nodes.get(child as usize).ok_or(E::ChildOutOfRange { node: k, lane, child })?;
+                    references[child as usize] += 1;
+                    (0..c.lanes()).fold(Aabb::EMPTY, |b, i| b.union(c.lane_box(i)))
+                };
+                let found = n.lane_box(lane);
+                if found != expected {
+                    return Err(E::Box { node: k, lane, found, expected });
+                }
+            }
+        }
+        for (k, &r) in references.iter().enumerate() {
+            if r != u32::from(k != 0) {
+                return Err(E::References(k, r));
+            }
+        }
+        if let Some((pos, &c)) = positions.iter().enumerate().find(|(_, c)| **c != 1) {
+            return Err(E::Position(pos, c));
+        }
+        Ok(())
+    }
+
+    /// Closest primitive hit by `ray` with `0 < t <= t_max`, ties going to the lowest id: the
+    /// contract of [`Bvh::closest_hit`], whose `intersect` it takes.
+    pub fn closest_hit<H>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        mut intersect: impl FnMut(u32, u32, f32) -> Option<(f32, H)>,
+    ) -> Option<(u32, f32, H)> {
+        let inv = ray.inv();
+        let mut best: Option<(u32, f32, H)> = None;
+        let slack = cull_slack(&self.bounds(), ray);
+        let mut limit = cull_limit(t_max, slack);
+        self.traverse(&inv, &mut limit, |first, count, prim_ids, limit| {
+            for pos in first..first + count {
+                let prim = prim_ids[pos as usize];
+                let t_limit = best.as_ref().map_or(t_max, |b| b.1);
+                let Some((t, payload)) = intersect(pos, prim, t_limit) else { continue };
+                let better = best.as_ref().is_none_or(|&(bp, bt, _)| t < bt || (t == bt && prim < bp));
+                if better {
+                    best = Some((prim, t, payload));
+                    *limit = cull_limit(t, slack);
+                }
+            }
+            false
+        });
+        best
+    }
+
+    /// Whether any primitive is hit with `0 < t <= t_max`; stops at the first one found. The
+    /// contract of [`Bvh::any_hit`].
+    pub fn any_hit(&self, ray: &Ray, t_max: f32, mut intersect: impl FnMut(u32, u32, f32) -> bool) -> bool {
+        let inv = ray.inv();
+        let mut limit = cull_limit(t_max, cull_slack(&self.bounds(), ray));
+        let mut found = false;
+        self.traverse(&inv, &mut limit, |first, count, prim_ids, _| {
+            found = (first..first + count).any(|pos| intersect(pos, prim_ids[pos as usize], t_max));
+            found
+        });
+        found
+    }
+
+    /// The shared loop: calls `leaf(first, count, prim_ids, &mut limit)` for every leaf whose
+    /// box the ray enters before `limit`, nearer boxes first; stops when `leaf` returns true.
+    #[inline(always)]
+    fn traverse(&self, ray: &RayInv, limit: &mut f32, mut leaf: impl FnMut(u32, u32, &[u32], &mut f32) -> bool) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        // Entries (child, count, entry distance) still to visit; the nearest on top.
+        let mut stack = WideStack::new();
+        stack.push((0, 0, 0.0));
+        let mut hits: [(f32, u32, u32); N] = [(0.0, 0, 0); N];
+        while let Some((child, count, t_enter)) = stack.pop() {
+            if t_enter > *limit {
+                continue;
+            }
+            if count > 0 {
+                if leaf(child, count, &self.prim_ids, limit) {
+                    return;
+                }
+                continue;
+            }
+            let node = &self.nodes[child as usize];
+            let mut hit_count = 0;
+            for i in 0..node.lanes() {
+                if let Some(t) = node.intersect_lane(i, ray, *limit) {
+                    // Insertion by entry distance, farthest first, so the nearest is pushed last.
+                    let mut j = hit_count;
+                    while j > 0 && hits[j - 1].0 < t {
+                        hits[j] = hits[j - 1];
+                        j -= 1;
+                    }
+                    hits[j] = (t, node.child[i], node.count[i]);
+                    hit_count += 1;
+                }
+            }
+            for &(t, c, n) in &hits[..hit_count] {
+                stack.push((c, n, t));
+            }
+        }
+    }
+
+    /// Closest triangle hit with the watertight test, over `triangles` indexed by primitive id:
+    /// the same answer as [`Bvh::closest_hit_triangles`] on the tree it was collapsed from.
+    pub fn closest_hit_triangles(&self, triangles: &[Triangle], ray: &Ray, t_max: f32) -> Option<Hit> {
+        let wr = WatertightRay::new(ray);
+        self.closest_hit(ray, t_max, |_, prim, t_limit| {
+            triangles[prim as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
+        })
+        .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
+    }
+
+    /// Whether any triangle of `triangles` (indexed by primitive id) is hit with
+    /// `0 < t <= t_max`.
+    pub fn any_hit_triangles(&self, triangles: &[Triangle], ray: &Ray, t_max: f32) -> bool {
+        let wr = WatertightRay::new(ray);
+        self.any_hit(ray, t_max, |_, prim, t_max| triangles[prim as usize].intersect(&wr, t_max).is_some())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::{CollapseConfig, collapse_leaves, lbvh, sah_cost_with};
+
+    fn tree(n: usize) -> (Vec<Aabb>, Bvh) {
+        let boxes = crate::bvh::scattered_boxes(n, 0.8);
+        let bvh = collapse_leaves(&lbvh::build(&boxes), &CollapseConfig::default());
+        (boxes, bvh)
+    }
+
+    /// Every tree size from one leaf up collapses to a valid 4- and 8-wide tree holding every
+    /// primitive once, with lanes of the expected node sizes.
+    #[test]
+    fn collapsed_trees_are_valid() {
+        for n in [1, 2, 3, 5, 17, 1000] {
+            let (boxes, bvh) = tree(n);
+            let w4 = Bvh4::from_binary(&bvh);
+            let w8 = Bvh8::from_binary(&bvh);
+            w4.validate(&boxes).unwrap_or_else(|e| panic!("{n} boxes, 4 wide: {e}"));
+            w8.validate(&boxes).unwrap_or_else(|e| panic!("{n} boxes, 8 wide: {e}"));
+            assert_eq!(w4.bounds(), bvh.bounds());
+            assert!(w8.nodes.len() <= w4.nodes.len() && w4.nodes.len() <= bvh.nodes.len().max(1));
+        }
+        assert_eq!(Bvh4::from_binary(&Bvh::default()), Bvh4::default());
+    }
+
+    /// A wide tree's SAH is below its binary tree's: it charges a subset of the binary tree's
+    /// inner nodes (those that head a wide node) and the same leaves.
+    #[test]
+    fn collapsing_lowers_the_sah() {
+        let (_, bvh) = tree(5000);
+        let costs = SahCosts::default();
+        let binary = sah_cost_with(&bvh, &costs);
+        let (w4, w8) = (Bvh4::from_binary(&bvh).sah(&costs), Bvh8::from_binary(&bvh).sah(&costs));
+        assert!(w4 < binary && w8 < binary, "binary {binary}, 4 wide {w4}, 8 wide {w8}");
+    }
+
+    /// The check fails on a broken tree: a box grown by one ULP, a leaf lane pointing past
+    /// `prim_ids`, and a node referenced twice.
+    #[test]
+    fn validate_rejects_broken_trees() {
+        let (boxes, bvh) = tree(200);
+        let good = Bvh4::from_binary(&bvh);
+        let mut grown = good.clone();
+        grown.nodes[0].max_x[0] = grown.nodes[0].max_x[0].next_up();
+        assert!(matches!(grown.validate(&boxes), Err(WideValidationError::Box { node: 0, lane: 0, .. })));
+        let mut leaf = good.clone();
+        let (k, lane) = leaf
+            .nodes
+            .iter()
+            .enumerate()
+            .find_map(|(k, n)| (0..n.lanes()).find(|&i| n.count[i] > 0).map(|i| (k, i)))
+            .expect("a leaf lane");
+        leaf.nodes[k].child[lane] = leaf.prim_ids.len() as u32;
+        assert!(matches!(leaf.validate(&boxes), Err(WideValidationError::LeafRange { .. })));
+        let mut shared = good;
+        let inner = (0..shared.nodes[0].lanes()).filter(|&i| shared.nodes[0].count[i] == 0).collect::<Vec<_>>();
+        assert!(inner.len() >= 2, "the root needs two inner lanes for this case");
+        shared.nodes[0].child[inner[1]] = shared.nodes[0].child[inner[0]];
+        assert!(shared.validate(&boxes).is_err());
+    }
+}
