@@ -200,9 +200,11 @@ struct GpuState {
 }
 
 impl Renderer {
-    /// Builds `scene` for rendering on `device` at scene time `time` (the first frame to be
-    /// rendered; [`first_frame_time`] for a still). `settings` and `frames` (the number of
-    /// frames to come) tell `auto` how long the render will be; `settings.clamp` is applied.
+    /// Builds `scene` for rendering on `device`. `time` is the scene time of the first frame to
+    /// be rendered ([`first_frame_time`] for a still): the GPU's flat scene is built there, while
+    /// the CPU builds at the scene's first frame and moves with [`Renderer::set_time`].
+    /// `settings` and `frames` (the number of frames to come) tell `auto` how long the render
+    /// will be; `settings.clamp` is applied.
     pub fn new(
         device: Device,
         scene: &Scene,
