@@ -55,21 +55,25 @@ pub struct Hit {
     pub v: f32,
 }
 
-struct Stack {
-    fixed: [(u32, f32); STACK_SIZE],
+/// A traversal stack of `SIZE` entries in place, spilling to the heap only for unusually deep
+/// trees, so that no traversal allocates in the common case. Shared by the binary and the wide
+/// traversal.
+pub(super) struct Stack<T: Copy, const SIZE: usize> {
+    fixed: [T; SIZE],
     len: usize,
-    spill: Vec<(u32, f32)>,
+    spill: Vec<T>,
 }
 
-impl Stack {
+impl<T: Copy, const SIZE: usize> Stack<T, SIZE> {
+    /// An empty stack; `fill` only initialises the unused slots.
     #[inline]
-    fn new() -> Self {
-        Self { fixed: [(0, 0.0); STACK_SIZE], len: 0, spill: Vec::new() }
+    pub(super) fn new(fill: T) -> Self {
+        Self { fixed: [fill; SIZE], len: 0, spill: Vec::new() }
     }
 
     #[inline]
-    fn push(&mut self, entry: (u32, f32)) {
-        if self.len < STACK_SIZE {
+    pub(super) fn push(&mut self, entry: T) {
+        if self.len < SIZE {
             self.fixed[self.len] = entry;
             self.len += 1;
         } else {
@@ -78,7 +82,7 @@ impl Stack {
     }
 
     #[inline]
-    fn pop(&mut self) -> Option<(u32, f32)> {
+    pub(super) fn pop(&mut self) -> Option<T> {
         if let Some(e) = self.spill.pop() {
             return Some(e);
         }
@@ -87,6 +91,31 @@ impl Stack {
         }
         self.len -= 1;
         Some(self.fixed[self.len])
+    }
+}
+
+/// One leaf of a closest-hit traversal: intersects the primitives at `range` of `prim_ids` and
+/// keeps the closest hit in `best` (`t` below the best so far, or equal with a lower id), the
+/// culling `limit` following it; `(t_max, slack)` are the ray's. Shared by the binary and the
+/// wide traversal, so that both resolve ties alike.
+#[inline(always)]
+pub(super) fn closest_in_leaf<H>(
+    range: std::ops::Range<u32>,
+    prim_ids: &[u32],
+    (t_max, slack): (f32, f32),
+    best: &mut Option<(u32, f32, H)>,
+    limit: &mut f32,
+    intersect: &mut impl FnMut(u32, u32, f32) -> Option<(f32, H)>,
+) {
+    for pos in range {
+        let prim = prim_ids[pos as usize];
+        let t_limit = best.as_ref().map_or(t_max, |b| b.1);
+        let Some((t, payload)) = intersect(pos, prim, t_limit) else { continue };
+        let better = best.as_ref().is_none_or(|&(bp, bt, _)| t < bt || (t == bt && prim < bp));
+        if better {
+            *best = Some((prim, t, payload));
+            *limit = cull_limit(t, slack);
+        }
     }
 }
 
@@ -108,16 +137,8 @@ impl Bvh {
         let slack = cull_slack(&self.bounds(), ray);
         let mut limit = cull_limit(t_max, slack);
         self.traverse(&inv, &mut limit, |n, bvh, limit| {
-            for pos in n.prim_range() {
-                let prim = bvh.prim_ids[pos];
-                let t_limit = best.as_ref().map_or(t_max, |b| b.1);
-                let Some((t, payload)) = intersect(pos as u32, prim, t_limit) else { continue };
-                let better = best.as_ref().is_none_or(|&(bp, bt, _)| t < bt || (t == bt && prim < bp));
-                if better {
-                    best = Some((prim, t, payload));
-                    *limit = cull_limit(t, slack);
-                }
-            }
+            let range = n.first..n.first + n.prim_count;
+            closest_in_leaf(range, &bvh.prim_ids, (t_max, slack), &mut best, limit, &mut intersect);
             false
         });
         best
@@ -146,7 +167,7 @@ impl Bvh {
         if root.aabb().intersect_ray(ray, *limit).is_none() {
             return;
         }
-        let mut stack = Stack::new();
+        let mut stack = Stack::<(u32, f32), STACK_SIZE>::new((0, 0.0));
         let mut node = root;
         loop {
             if node.is_leaf() {

@@ -31,7 +31,7 @@
 
 use crate::geometry::{Aabb, Ray, RayInv, Triangle, WatertightRay};
 
-use super::traverse::{cull_limit, cull_slack};
+use super::traverse::{Stack, closest_in_leaf, cull_limit, cull_slack};
 use super::{Bvh, Hit, INVALID_INDEX, SahCosts};
 
 /// One wide node: `N` child boxes, structure of arrays (see the module docs).
@@ -111,43 +111,6 @@ impl<const N: usize> WideNode<N> {
 /// Entries a traversal keeps before spilling to the heap: a path of depth `d` leaves at most
 /// `d × (N − 1)` entries, and collapsed trees are shallow.
 const STACK_SIZE: usize = 128;
-
-/// The traversal stack: a fixed array, spilling to a `Vec` only for unusually deep trees (PRBVH
-/// can deepen a tree without bound), so that no traversal allocates in the common case.
-struct WideStack {
-    fixed: [(u32, u32, f32); STACK_SIZE],
-    len: usize,
-    spill: Vec<(u32, u32, f32)>,
-}
-
-impl WideStack {
-    #[inline]
-    fn new() -> Self {
-        Self { fixed: [(0, 0, 0.0); STACK_SIZE], len: 0, spill: Vec::new() }
-    }
-
-    #[inline]
-    fn push(&mut self, entry: (u32, u32, f32)) {
-        if self.len < STACK_SIZE {
-            self.fixed[self.len] = entry;
-            self.len += 1;
-        } else {
-            self.spill.push(entry);
-        }
-    }
-
-    #[inline]
-    fn pop(&mut self) -> Option<(u32, u32, f32)> {
-        if let Some(e) = self.spill.pop() {
-            return Some(e);
-        }
-        if self.len == 0 {
-            return None;
-        }
-        self.len -= 1;
-        Some(self.fixed[self.len])
-    }
-}
 
 /// A wide BVH of `N`-child nodes over the primitives of the binary tree it was collapsed from.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -332,16 +295,7 @@ impl<const N: usize> WideBvh<N> {
         let slack = cull_slack(&self.bounds(), ray);
         let mut limit = cull_limit(t_max, slack);
         self.traverse(&inv, &mut limit, |first, count, prim_ids, limit| {
-            for pos in first..first + count {
-                let prim = prim_ids[pos as usize];
-                let t_limit = best.as_ref().map_or(t_max, |b| b.1);
-                let Some((t, payload)) = intersect(pos, prim, t_limit) else { continue };
-                let better = best.as_ref().is_none_or(|&(bp, bt, _)| t < bt || (t == bt && prim < bp));
-                if better {
-                    best = Some((prim, t, payload));
-                    *limit = cull_limit(t, slack);
-                }
-            }
+            closest_in_leaf(first..first + count, prim_ids, (t_max, slack), &mut best, limit, &mut intersect);
             false
         });
         best
@@ -368,7 +322,7 @@ impl<const N: usize> WideBvh<N> {
             return;
         }
         // Entries (child, count, entry distance) still to visit; the nearest on top.
-        let mut stack = WideStack::new();
+        let mut stack = Stack::<(u32, u32, f32), STACK_SIZE>::new((0, 0, 0.0));
         stack.push((0, 0, 0.0));
         let mut hits: [(f32, u32, u32); N] = [(0.0, 0, 0); N];
         while let Some((child, count, t_enter)) = stack.pop() {
