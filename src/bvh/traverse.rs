@@ -119,6 +119,22 @@ pub(super) fn closest_in_leaf<H>(
     }
 }
 
+/// The watertight test on `triangles` (indexed by primitive id) as a traversal's `intersect`,
+/// with the barycentrics as payload.
+pub(super) fn triangle_by_id<'a>(
+    triangles: &'a [Triangle],
+    wr: &'a WatertightRay,
+) -> impl FnMut(u32, u32, f32) -> Option<(f32, (f32, f32))> + 'a {
+    |_, prim, t_limit| triangles[prim as usize].intersect(wr, t_limit).map(|h| (h.t, (h.u, h.v)))
+}
+
+impl Hit {
+    /// The hit a traversal with [`triangle_by_id`]'s payload returns.
+    pub(super) fn from_traversal((prim_id, t, (u, v)): (u32, f32, (f32, f32))) -> Self {
+        Hit { t, prim_id, u, v }
+    }
+}
+
 impl Bvh {
     /// Closest primitive hit by `ray` with `0 < t <= t_max`, ties going to the lowest id.
     ///
@@ -212,10 +228,7 @@ impl Bvh {
     /// triangles the tree was built on (indexed by primitive id).
     pub fn closest_hit_triangles(&self, triangles: &[Triangle], ray: &Ray, t_max: f32) -> Option<Hit> {
         let wr = WatertightRay::new(ray);
-        self.closest_hit(ray, t_max, |_, prim, t_limit| {
-            triangles[prim as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
-        })
-        .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
+        self.closest_hit(ray, t_max, triangle_by_id(triangles, &wr)).map(Hit::from_traversal)
     }
 
     /// Whether any triangle is hit with `0 < t <= t_max` (shadow rays).

@@ -31,7 +31,7 @@
 
 use crate::geometry::{Aabb, Ray, RayInv, Triangle, WatertightRay};
 
-use super::traverse::{Stack, closest_in_leaf, cull_limit, cull_slack};
+use super::traverse::{Stack, closest_in_leaf, cull_limit, cull_slack, triangle_by_id};
 use super::{Bvh, Hit, INVALID_INDEX, SahCosts};
 
 /// One wide node: `N` child boxes, structure of arrays (see the module docs).
@@ -359,10 +359,7 @@ impl<const N: usize> WideBvh<N> {
     /// the same answer as [`Bvh::closest_hit_triangles`] on the tree it was collapsed from.
     pub fn closest_hit_triangles(&self, triangles: &[Triangle], ray: &Ray, t_max: f32) -> Option<Hit> {
         let wr = WatertightRay::new(ray);
-        self.closest_hit(ray, t_max, |_, prim, t_limit| {
-            triangles[prim as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
-        })
-        .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
+        self.closest_hit(ray, t_max, triangle_by_id(triangles, &wr)).map(Hit::from_traversal)
     }
 
     /// Whether any triangle of `triangles` (indexed by primitive id) is hit with
