@@ -77,19 +77,29 @@ fn check(name: &str, tris: &[Triangle], rays: &[Ray]) -> usize {
             })
             .map(|(i, _)| i)
             .collect();
-        // The same queries through the leaf-ordered triangles.
-        let mesh_bvh = MeshBvh::new(bvh.clone(), tris);
-        let bad_ordered = rays
-            .par_iter()
-            .zip(&expected)
-            .filter(|(r, e)| {
-                !same_hit(mesh_bvh.closest_hit(r, f32::INFINITY), e.full)
-                    || mesh_bvh.any_hit(r, f32::INFINITY) != e.full.is_some()
-                    || e.full.is_some_and(|h| mesh_bvh.any_hit(r, h.t * 0.5) != e.any_half)
-            })
-            .count();
-        assert_eq!(bad_ordered, 0, "{name}/{tree_name}: leaf-ordered traversal differs from brute force");
+        // The same queries through the leaf-ordered triangles, in every form and on every SIMD
+        // path this CPU has.
         let prims = aabbs(tris);
+        for tracing in tracings() {
+            let mesh_bvh = MeshBvh::with_tracing(bvh.clone(), tris, tracing);
+            mesh_bvh.validate_wide(&prims).unwrap_or_else(|e| panic!("{name}/{tree_name}, {tracing}: {e}"));
+            let bad_ordered = rays
+                .par_iter()
+                .zip(&expected)
+                .filter(|(r, e)| {
+                    let Some(full) = e.full else {
+                        return mesh_bvh.closest_hit(r, f32::INFINITY).is_some() || mesh_bvh.any_hit(r, f32::INFINITY);
+                    };
+                    let half_t = full.t * 0.5;
+                    !same_hit(mesh_bvh.closest_hit(r, f32::INFINITY), e.full)
+                        || !same_hit(mesh_bvh.closest_hit(r, full.t), e.full)
+                        || !mesh_bvh.any_hit(r, full.t)
+                        || !same_hit(mesh_bvh.closest_hit(r, half_t), e.half)
+                        || mesh_bvh.any_hit(r, half_t) != e.any_half
+                })
+                .count();
+            assert_eq!(bad_ordered, 0, "{name}/{tree_name}, {tracing}: traversal differs from brute force");
+        }
         let (w4, w8) = (Bvh4::from_binary(&bvh), Bvh8::from_binary(&bvh));
         w4.validate(&prims).unwrap_or_else(|e| panic!("{name}/{tree_name}, 4 wide: {e}"));
         w8.validate(&prims).unwrap_or_else(|e| panic!("{name}/{tree_name}, 8 wide: {e}"));

@@ -10,7 +10,7 @@
 
 use crate::common;
 
-use arbor::bvh::{Bvh, CollapseConfig, collapse_leaves, hit_point_and_normal, lbvh};
+use arbor::bvh::{Bvh, CollapseConfig, MeshBvh, TraceLayout, Tracing, collapse_leaves, hit_point_and_normal, lbvh};
 use arbor::geometry::{Ray, Triangle, TriangleMesh, spawn_ray};
 use common::*;
 use glam::{Mat4, Vec3};
@@ -59,10 +59,10 @@ fn tree(tris: &[Triangle]) -> Bvh {
 }
 
 /// Fires `n` rays from interior points at vertices and edge points; returns the misses.
-fn count_leaks(c: &Closed, world_from_object: Mat4, n: usize, seed: u64) -> usize {
+fn count_leaks(c: &Closed, world_from_object: Mat4, n: usize, seed: u64, tracing: Tracing) -> usize {
     let mesh = c.mesh.transformed(world_from_object);
     let tris = mesh.triangles();
-    let bvh = tree(&tris);
+    let bvh = MeshBvh::with_tracing(tree(&tris), &tris, tracing);
     let edges: Vec<(Vec3, Vec3)> = mesh
         .indices
         .iter()
@@ -85,23 +85,28 @@ fn count_leaks(c: &Closed, world_from_object: Mat4, n: usize, seed: u64) -> usiz
                         a.lerp(b, r.random())
                     };
                     let ray = Ray::new(origin, target - origin);
-                    bvh.closest_hit_triangles(&tris, &ray, f32::INFINITY).is_none()
+                    bvh.closest_hit(&ray, f32::INFINITY).is_none()
                 })
                 .count()
         })
         .sum()
 }
 
+/// 2^20 rays per placement through the binary tree, and 2^17 through each wide form on each
+/// SIMD path this CPU has.
 #[test]
 fn no_leaks_through_edges_and_vertices() {
     const RAYS: usize = 1 << 20;
     let mut report = Vec::new();
     for (placement, m) in placements() {
         let mut leaks = 0;
-        for (k, c) in closed_meshes().iter().enumerate() {
-            let l = count_leaks(c, m, RAYS / 2, 0x5eed + k as u64);
-            report.push(format!("{} {placement}: {l} leaks in {} rays", c.name, RAYS / 2));
-            leaks += l;
+        for tracing in tracings() {
+            let rays = if tracing.layout == TraceLayout::Binary { RAYS } else { RAYS / 8 };
+            for (k, c) in closed_meshes().iter().enumerate() {
+                let l = count_leaks(c, m, rays / 2, 0x5eed + k as u64, tracing);
+                report.push(format!("{} {placement}, {tracing}: {l} leaks in {} rays", c.name, rays / 2));
+                leaks += l;
+            }
         }
         assert_eq!(leaks, 0, "{report:#?}");
     }
@@ -128,7 +133,7 @@ fn leak_test_detects_a_hole() {
 }
 
 /// Rays spawned off a convex sphere: outward ones never hit it again, inward ones never hit the
-/// triangle they start on.
+/// triangle they start on, in every traced form on every SIMD path.
 #[test]
 fn spawned_rays_do_not_self_intersect() {
     let sphere = TriangleMesh::uv_sphere(Vec3::ZERO, 1.0, 32, 64);
@@ -136,6 +141,7 @@ fn spawned_rays_do_not_self_intersect() {
         let mesh = sphere.transformed(m);
         let tris = mesh.triangles();
         let bvh = tree(&tris);
+        let traced: Vec<MeshBvh> = tracings().into_iter().map(|t| MeshBvh::with_tracing(bvh.clone(), &tris, t)).collect();
         let center = m.transform_point3(Vec3::ZERO);
         let radius = m.transform_vector3(Vec3::X).length();
         let mut r = rng(2);
@@ -151,11 +157,15 @@ fn spawned_rays_do_not_self_intersect() {
                 dir = -dir;
             }
             spawned += 1;
-            if bvh.closest_hit_triangles(&tris, &spawn_ray(p, err, n, dir), f32::INFINITY).is_some() {
+            let (out, inward) = (spawn_ray(p, err, n, dir), spawn_ray(p, err, n, -dir));
+            if bvh.closest_hit_triangles(&tris, &out, f32::INFINITY).is_some()
+                || traced.iter().any(|t| t.closest_hit(&out, f32::INFINITY).is_some())
+            {
                 outward_hits += 1;
             }
-            if let Some(h) = bvh.closest_hit_triangles(&tris, &spawn_ray(p, err, n, -dir), f32::INFINITY) {
-                self_hits += (h.prim_id == hit.prim_id) as u32;
+            let mut inward_hits = traced.iter().map(|t| t.closest_hit(&inward, f32::INFINITY));
+            if let Some(h) = bvh.closest_hit_triangles(&tris, &inward, f32::INFINITY) {
+                self_hits += (h.prim_id == hit.prim_id || inward_hits.any(|t| t != Some(h))) as u32;
             }
         }
         assert!(spawned > 90_000, "{placement}: only {spawned} primary hits");

@@ -1,41 +1,162 @@
-//! A triangle mesh's BVH with the triangles stored in leaf order.
+//! A triangle mesh's BVH with the triangles stored in leaf order, and the form it is traced in.
 //!
 //! Traversal through `prim_ids` fetches each triangle of a leaf from wherever it sits in the
 //! mesh; storing them in leaf order makes a leaf's triangles contiguous, one or two cache lines
 //! instead of one miss each. Hits still report the mesh's own triangle ids.
+//!
+//! The binary tree stays what builders, PRBVH and refits work on. Unless told otherwise
+//! ([`Tracing::current`]) a mesh is traced through a wide tree collapsed from it, with its
+//! triangles in packets ([`WideMesh`]): 8 wide on AVX2, 4 wide elsewhere. Every form returns the
+//! same hits, bit for bit.
 
 use rayon::prelude::*;
 
-use super::{Bvh, Hit};
+use super::simd::{TraceLayout, Tracing};
+use super::wide::WideBvh;
+use super::wide_mesh::WideMesh;
+use super::{Bvh, Hit, INVALID_INDEX, SahCosts};
 use crate::geometry::{Ray, Triangle, WatertightRay};
 
-/// A [`Bvh`] over triangles, with `triangles[k]` the triangle whose id is `bvh.prim_ids[k]`.
-#[derive(Clone, Debug, Default, PartialEq)]
+/// A [`Bvh`] over triangles, with `triangles[k]` the triangle whose id is `bvh.prim_ids[k]`, and
+/// the wide form it is traced through, if any.
+#[derive(Clone, Debug, PartialEq)]
 pub struct MeshBvh {
     pub bvh: Bvh,
     pub triangles: Vec<Triangle>,
+    wide: Wide,
+    tracing: Tracing,
+    collapse_seconds: f64,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+enum Wide {
+    None,
+    Four(WideMesh<4>),
+    Eight(WideMesh<8>),
+}
+
+impl Default for MeshBvh {
+    fn default() -> Self {
+        Self::with_tracing(Bvh::default(), &[], Tracing::current())
+    }
 }
 
 impl MeshBvh {
-    /// Pairs `bvh`, built over `triangles` (indexed by id), with a leaf-ordered copy of them.
+    /// Pairs `bvh`, built over `triangles` (indexed by id), with a leaf-ordered copy of them, and
+    /// derives the form [`Tracing::current`] names.
     pub fn new(bvh: Bvh, triangles: &[Triangle]) -> Self {
-        let ordered = bvh.prim_ids.par_iter().with_min_len(4096).map(|&p| triangles[p as usize]).collect();
-        Self { bvh, triangles: ordered }
+        Self::with_tracing(bvh, triangles, Tracing::current())
+    }
+
+    /// [`MeshBvh::new`] traced as `tracing` says (a path this CPU lacks is replaced by the best
+    /// one it has).
+    pub fn with_tracing(bvh: Bvh, triangles: &[Triangle], tracing: Tracing) -> Self {
+        let ordered: Vec<Triangle> =
+            bvh.prim_ids.par_iter().with_min_len(4096).map(|&p| triangles[p as usize]).collect();
+        let start = std::time::Instant::now();
+        let wide = match tracing.layout {
+            TraceLayout::Binary => Wide::None,
+            TraceLayout::Wide4 => Wide::Four(WideMesh::new(WideBvh::from_binary(&bvh), &ordered, tracing.simd)),
+            TraceLayout::Wide8 => Wide::Eight(WideMesh::new(WideBvh::from_binary(&bvh), &ordered, tracing.simd)),
+        };
+        let simd = match &wide {
+            Wide::None => tracing.simd,
+            Wide::Four(w) => w.simd(),
+            Wide::Eight(w) => w.simd(),
+        };
+        let collapse_seconds = start.elapsed().as_secs_f64();
+        Self { bvh, triangles: ordered, wide, tracing: Tracing { simd, ..tracing }, collapse_seconds }
+    }
+
+    /// How this mesh is traced. The binary form runs scalar code whatever `simd` says.
+    pub fn tracing(&self) -> Tracing {
+        self.tracing
+    }
+
+    /// Seconds spent collapsing the binary tree into the wide one and packing its triangles
+    /// (zero for the binary form): part of every render's BVH time.
+    pub fn collapse_seconds(&self) -> f64 {
+        self.collapse_seconds
+    }
+
+    /// The SAH of the traced form: the wide tree's ([`WideBvh::sah`]) or the binary tree's.
+    pub fn traced_sah(&self, costs: &SahCosts) -> f64 {
+        match &self.wide {
+            Wide::None => super::sah_cost_with(&self.bvh, costs),
+            Wide::Four(w) => w.sah(costs),
+            Wide::Eight(w) => w.sah(costs),
+        }
+    }
+
+    /// Bytes of the wide form (nodes and triangle packets); zero for the binary form.
+    pub fn wide_memory_bytes(&self) -> usize {
+        match &self.wide {
+            Wide::None => 0,
+            Wide::Four(w) => w.memory_bytes(),
+            Wide::Eight(w) => w.memory_bytes(),
+        }
+    }
+
+    /// Bytes of everything kept to trace: the binary tree, the leaf-ordered triangles and the
+    /// wide form.
+    pub fn memory_bytes(&self) -> usize {
+        self.bvh.memory_bytes() + size_of_val(self.triangles.as_slice()) + self.wide_memory_bytes()
+    }
+
+    /// Checks the wide form against the triangles' boxes (by id); `Ok` for the binary form.
+    pub fn validate_wide(&self, prim_aabbs: &[crate::geometry::Aabb]) -> Result<(), super::wide::WideValidationError> {
+        match &self.wide {
+            Wide::None => Ok(()),
+            Wide::Four(w) => w.validate(prim_aabbs),
+            Wide::Eight(w) => w.validate(prim_aabbs),
+        }
     }
 
     /// Closest hit with `0 < t <= t_max`; the same answer as [`Bvh::closest_hit_triangles`].
+    #[inline]
     pub fn closest_hit(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
-        let wr = WatertightRay::new(ray);
-        self.bvh
-            .closest_hit(ray, t_max, |pos, _, t_limit| {
-                self.triangles[pos as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
-            })
-            .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
+        self.closest_hit_skipping(ray, t_max, INVALID_INDEX)
+    }
+
+    /// [`MeshBvh::closest_hit`] without testing triangle `skip` (the one a spawned ray leaves,
+    /// which it cannot hit: see [`super::wide_mesh`]); [`INVALID_INDEX`] skips none.
+    #[inline]
+    pub fn closest_hit_skipping(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        match &self.wide {
+            Wide::Eight(w) => w.closest_hit(ray, t_max, skip),
+            Wide::Four(w) => w.closest_hit(ray, t_max, skip),
+            Wide::None => {
+                let wr = WatertightRay::new(ray);
+                self.bvh
+                    .closest_hit(ray, t_max, |pos, prim, t_limit| {
+                        if prim == skip {
+                            return None;
+                        }
+                        self.triangles[pos as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
+                    })
+                    .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
+            }
+        }
     }
 
     /// Whether any triangle is hit with `0 < t <= t_max`.
+    #[inline]
     pub fn any_hit(&self, ray: &Ray, t_max: f32) -> bool {
-        let wr = WatertightRay::new(ray);
-        self.bvh.any_hit(ray, t_max, |pos, _, t_limit| self.triangles[pos as usize].intersect(&wr, t_limit).is_some())
+        self.any_hit_skipping(ray, t_max, INVALID_INDEX)
+    }
+
+    /// [`MeshBvh::any_hit`] without testing triangle `skip`.
+    #[inline]
+    pub fn any_hit_skipping(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        match &self.wide {
+            Wide::Eight(w) => w.any_hit(ray, t_max, skip),
+            Wide::Four(w) => w.any_hit(ray, t_max, skip),
+            Wide::None => {
+                let wr = WatertightRay::new(ray);
+                self.bvh.any_hit(ray, t_max, |pos, prim, t_limit| {
+                    prim != skip && self.triangles[pos as usize].intersect(&wr, t_limit).is_some()
+                })
+            }
+        }
     }
 }

@@ -59,22 +59,23 @@ pub struct Hit {
 /// trees, so that no traversal allocates in the common case. Shared by the binary and the wide
 /// traversal.
 pub(super) struct Stack<T: Copy, const SIZE: usize> {
-    fixed: [T; SIZE],
+    fixed: [std::mem::MaybeUninit<T>; SIZE],
     len: usize,
     spill: Vec<T>,
 }
 
 impl<T: Copy, const SIZE: usize> Stack<T, SIZE> {
-    /// An empty stack; `fill` only initialises the unused slots.
+    /// An empty stack. Its slots are left uninitialised: filling them cost as much as a
+    /// short traversal.
     #[inline]
-    pub(super) fn new(fill: T) -> Self {
-        Self { fixed: [fill; SIZE], len: 0, spill: Vec::new() }
+    pub(super) fn new() -> Self {
+        Self { fixed: [const { std::mem::MaybeUninit::uninit() }; SIZE], len: 0, spill: Vec::new() }
     }
 
     #[inline]
     pub(super) fn push(&mut self, entry: T) {
         if self.len < SIZE {
-            self.fixed[self.len] = entry;
+            self.fixed[self.len].write(entry);
             self.len += 1;
         } else {
             self.spill.push(entry);
@@ -90,7 +91,8 @@ impl<T: Copy, const SIZE: usize> Stack<T, SIZE> {
             return None;
         }
         self.len -= 1;
-        Some(self.fixed[self.len])
+        // SAFETY: every slot below `len` was written by `push` (`len` only grows there).
+        Some(unsafe { self.fixed[self.len].assume_init() })
     }
 }
 
@@ -183,7 +185,7 @@ impl Bvh {
         if root.aabb().intersect_ray(ray, *limit).is_none() {
             return;
         }
-        let mut stack = Stack::<(u32, f32), STACK_SIZE>::new((0, 0.0));
+        let mut stack = Stack::<(u32, f32), STACK_SIZE>::new();
         let mut node = root;
         loop {
             if node.is_leaf() {

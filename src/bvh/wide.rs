@@ -93,7 +93,7 @@ impl<const N: usize> WideNode<N> {
     /// Lane `i`'s entry distance if the ray enters its box before `t_max`: the arithmetic of
     /// [`crate::geometry::intersect_ray_packed`], lane by lane.
     #[inline(always)]
-    fn intersect_lane(&self, i: usize, ray: &RayInv, t_max: f32) -> Option<f32> {
+    pub(crate) fn intersect_lane(&self, i: usize, ray: &RayInv, t_max: f32) -> Option<f32> {
         let pick = |neg: bool, min: &[f32; N], max: &[f32; N]| if neg { (max[i], min[i]) } else { (min[i], max[i]) };
         let (nx, fx) = pick(ray.negative.x, &self.min_x, &self.max_x);
         let (ny, fy) = pick(ray.negative.y, &self.min_y, &self.max_y);
@@ -144,6 +144,12 @@ pub enum WideValidationError {
     Box { node: usize, lane: usize, found: Aabb, expected: Aabb },
     #[error("node {node}, lane {lane}: primitive id {prim} out of range")]
     PrimOutOfRange { node: usize, lane: usize, prim: u32 },
+    #[error("node {node}, lane {lane}: triangle packets {first}..{end} outside the {len} packets")]
+    PacketRange { node: usize, lane: usize, first: u32, end: u64, len: usize },
+    #[error("primitive {0} is in {1} packet lanes, expected exactly one")]
+    Primitive(u32, u32),
+    #[error("node {node}, lane {lane}: packed triangle of primitive {prim} has box {found:?}, expected {expected:?}")]
+    PackedTriangle { node: usize, lane: usize, prim: u32, found: Aabb, expected: Aabb },
 }
 
 impl<const N: usize> WideBvh<N> {
@@ -152,44 +158,58 @@ impl<const N: usize> WideBvh<N> {
     pub fn from_binary(bvh: &Bvh) -> Self {
         const { assert!(N >= 2, "a wide node holds at least two children") };
         let mut wide = Self { nodes: Vec::new(), prim_ids: bvh.prim_ids.clone() };
-        let Some(root) = bvh.nodes.first() else { return wide };
+        // Dereferenced once: each `Nodes` dereference rebuilds the slice.
+        let nodes: &[super::BvhNode] = &bvh.nodes;
+        let Some(root) = nodes.first() else { return wide };
+        // About one wide node per N - 1 binary inner nodes.
+        wide.nodes.reserve(nodes.len() / (2 * (N - 1)) + 1);
         wide.nodes.push(WideNode::empty());
         if root.is_leaf() {
             wide.nodes[0].set_lane(0, root.aabb(), root.first, root.prim_count);
             return wide;
         }
-        // (binary node, its wide node): each wide node gathers the binary node's subtree.
-        let mut queue = std::collections::VecDeque::from([(0u32, 0usize)]);
-        let mut children: Vec<u32> = Vec::with_capacity(N);
-        while let Some((b, w)) = queue.pop_front() {
-            let first = bvh.nodes[b as usize].first;
-            children.clear();
-            children.extend([first, first + 1]);
-            while children.len() < N {
+        // (binary node, its wide node), depth first: each wide node gathers the binary node's
+        // subtree.
+        let mut stack = vec![(0u32, 0usize)];
+        while let Some((b, w)) = stack.pop() {
+            let first = nodes[b as usize].first;
+            // The lanes' binary nodes, and the half area of each inner one (-1 for a leaf).
+            let mut children = [0u32; N];
+            let mut areas = [-1.0f32; N];
+            let mut len = 0;
+            let add = |c: u32, children: &mut [u32; N], areas: &mut [f32; N], at: usize| {
+                let n = &nodes[c as usize];
+                children[at] = c;
+                areas[at] = if n.is_leaf() { -1.0 } else { n.aabb().half_area() };
+            };
+            for c in [first, first + 1] {
+                add(c, &mut children, &mut areas, len);
+                len += 1;
+            }
+            while len < N {
                 // The inner child of largest area; ties to the first, so the result does not
                 // depend on anything but the tree.
-                let widest = children.iter().enumerate().filter(|&(_, &c)| !bvh.nodes[c as usize].is_leaf()).fold(
-                    None,
-                    |best: Option<(usize, f32)>, (k, &c)| {
-                        let area = bvh.nodes[c as usize].aabb().half_area();
-                        if best.is_none_or(|(_, a)| area > a) { Some((k, area)) } else { best }
-                    },
-                );
-                let Some((k, _)) = widest else { break };
-                let c = children[k];
-                let grand = bvh.nodes[c as usize].first;
-                children[k] = grand;
-                children.push(grand + 1);
+                let mut widest = None;
+                for k in 0..len {
+                    if areas[k] >= 0.0 && widest.is_none_or(|j: usize| areas[k] > areas[j]) {
+                        widest = Some(k);
+                    }
+                }
+                let Some(k) = widest else { break };
+                let grand = nodes[children[k] as usize].first;
+                add(grand, &mut children, &mut areas, k);
+                add(grand + 1, &mut children, &mut areas, len);
+                len += 1;
             }
-            for (lane, &c) in children.iter().enumerate() {
-                let n = &bvh.nodes[c as usize];
+            for (lane, &c) in children[..len].iter().enumerate() {
+                let n = &nodes[c as usize];
                 if n.is_leaf() {
                     wide.nodes[w].set_lane(lane, n.aabb(), n.first, n.prim_count);
                 } else {
                     let index = wide.nodes.len();
                     wide.nodes.push(WideNode::empty());
                     wide.nodes[w].set_lane(lane, n.aabb(), index as u32, 0);
-                    queue.push_back((c, index));
+                    stack.push((c, index));
                 }
             }
         }
@@ -198,7 +218,7 @@ impl<const N: usize> WideBvh<N> {
 
     /// The box of everything in the tree.
     pub fn bounds(&self) -> Aabb {
-        self.nodes.first().map_or(Aabb::EMPTY, |n| (0..n.lanes()).fold(Aabb::EMPTY, |b, i| b.union(n.lane_box(i))))
+        nodes_bounds(&self.nodes)
     }
 
     /// Bytes of the nodes and `prim_ids`, by length.
@@ -210,23 +230,7 @@ impl<const N: usize> WideBvh<N> {
     /// the box it enters it by, the root's for the root) plus `cI` per primitive of every leaf
     /// entered, over the root's area, as [`super::sah_cost`] charges the binary tree.
     pub fn sah(&self, costs: &SahCosts) -> f64 {
-        let root_area = f64::from(self.bounds().half_area());
-        if self.nodes.is_empty() || root_area <= 0.0 {
-            return 0.0;
-        }
-        let mut cost = f64::from(costs.traversal) * root_area;
-        for n in &self.nodes {
-            for i in 0..n.lanes() {
-                let area = f64::from(n.lane_box(i).half_area());
-                cost += area
-                    * if n.count[i] > 0 {
-                        f64::from(costs.intersection) * f64::from(n.count[i])
-                    } else {
-                        f64::from(costs.traversal)
-                    };
-            }
-        }
-        cost / root_area
+        nodes_sah(&self.nodes, costs)
     }
 
     /// Checks every invariant: lanes filled from the first, every node but the root referenced
@@ -235,47 +239,20 @@ impl<const N: usize> WideBvh<N> {
     /// `prim_aabbs` by primitive id).
     pub fn validate(&self, prim_aabbs: &[Aabb]) -> Result<(), WideValidationError> {
         use WideValidationError as E;
-        let mut references = vec![0u32; self.nodes.len()];
         let mut positions = vec![0u32; self.prim_ids.len()];
-        for (k, n) in self.nodes.iter().enumerate() {
-            let lanes = n.lanes();
-            if lanes == 0 {
-                return Err(E::EmptyNode { node: k });
+        validate_nodes(&self.nodes, |node, lane, first, count| {
+            let end = u64::from(first) + u64::from(count);
+            if end > self.prim_ids.len() as u64 {
+                return Err(E::LeafRange { node, lane, first, end, len: self.prim_ids.len() });
             }
-            if let Some(lane) = (lanes..N).find(|&i| n.child[i] != INVALID_INDEX || n.count[i] != 0) {
-                return Err(E::LaneAfterEmpty { node: k, lane });
+            let range = first as usize..end as usize;
+            let mut b = Aabb::EMPTY;
+            for (seen, &prim) in positions[range.clone()].iter_mut().zip(&self.prim_ids[range]) {
+                *seen += 1;
+                b = b.union(*prim_aabbs.get(prim as usize).ok_or(E::PrimOutOfRange { node, lane, prim })?);
             }
-            for lane in 0..lanes {
-                let (child, count) = (n.child[lane], n.count[lane]);
-                let expected = if count > 0 {
-                    let end = u64::from(child) + u64::from(count);
-                    if end > self.prim_ids.len() as u64 {
-                        return Err(E::LeafRange { node: k, lane, first: child, end, len: self.prim_ids.len() });
-                    }
-                    let mut b = Aabb::EMPTY;
-                    let range = child as usize..end as usize;
-                    for (seen, &prim) in positions[range.clone()].iter_mut().zip(&self.prim_ids[range]) {
-                        *seen += 1;
-                        let pb = prim_aabbs.get(prim as usize).ok_or(E::PrimOutOfRange { node: k, lane, prim })?;
-                        b = b.union(*pb);
-                    }
-                    b
-                } else {
-                    let c = self.nodes.get(child as usize).ok_or(E::ChildOutOfRange { node: k, lane, child })?;
-                    references[child as usize] += 1;
-                    (0..c.lanes()).fold(Aabb::EMPTY, |b, i| b.union(c.lane_box(i)))
-                };
-                let found = n.lane_box(lane);
-                if found != expected {
-                    return Err(E::Box { node: k, lane, found, expected });
-                }
-            }
-        }
-        for (k, &r) in references.iter().enumerate() {
-            if r != u32::from(k != 0) {
-                return Err(E::References(k, r));
-            }
-        }
+            Ok(b)
+        })?;
         if let Some((pos, &c)) = positions.iter().enumerate().find(|(_, c)| **c != 1) {
             return Err(E::Position(pos, c));
         }
@@ -322,7 +299,7 @@ impl<const N: usize> WideBvh<N> {
             return;
         }
         // Entries (child, count, entry distance) still to visit; the nearest on top.
-        let mut stack = Stack::<(u32, u32, f32), STACK_SIZE>::new((0, 0, 0.0));
+        let mut stack = Stack::<(u32, u32, f32), STACK_SIZE>::new();
         stack.push((0, 0, 0.0));
         let mut hits: [(f32, u32, u32); N] = [(0.0, 0, 0); N];
         while let Some((child, count, t_enter)) = stack.pop() {
@@ -368,6 +345,71 @@ impl<const N: usize> WideBvh<N> {
         let wr = WatertightRay::new(ray);
         self.any_hit(ray, t_max, |_, prim, t_max| triangles[prim as usize].intersect(&wr, t_max).is_some())
     }
+}
+
+/// The box of everything under `nodes[0]`.
+pub(crate) fn nodes_bounds<const N: usize>(nodes: &[WideNode<N>]) -> Aabb {
+    nodes.first().map_or(Aabb::EMPTY, |n| (0..n.lanes()).fold(Aabb::EMPTY, |b, i| b.union(n.lane_box(i))))
+}
+
+/// [`WideBvh::sah`] over any wide nodes: a leaf lane's cost is its primitive count.
+pub(crate) fn nodes_sah<const N: usize>(nodes: &[WideNode<N>], costs: &SahCosts) -> f64 {
+    let root_area = f64::from(nodes_bounds(nodes).half_area());
+    if nodes.is_empty() || root_area <= 0.0 {
+        return 0.0;
+    }
+    let mut cost = f64::from(costs.traversal) * root_area;
+    for n in nodes {
+        for i in 0..n.lanes() {
+            let area = f64::from(n.lane_box(i).half_area());
+            cost += area
+                * if n.count[i] > 0 {
+                    f64::from(costs.intersection) * f64::from(n.count[i])
+                } else {
+                    f64::from(costs.traversal)
+                };
+        }
+    }
+    cost / root_area
+}
+
+/// The invariants every wide tree keeps, whatever its leaves point to: lanes filled from the
+/// first, every node but the root referenced exactly once, every lane's box exactly the union of
+/// its contents. `leaf(node, lane, first, count)` checks a leaf lane's contents and returns their
+/// box.
+pub(crate) fn validate_nodes<const N: usize>(
+    nodes: &[WideNode<N>],
+    mut leaf: impl FnMut(usize, usize, u32, u32) -> Result<Aabb, WideValidationError>,
+) -> Result<(), WideValidationError> {
+    use WideValidationError as E;
+    let mut references = vec![0u32; nodes.len()];
+    for (k, n) in nodes.iter().enumerate() {
+        let lanes = n.lanes();
+        if lanes == 0 {
+            return Err(E::EmptyNode { node: k });
+        }
+        if let Some(lane) = (lanes..N).find(|&i| n.child[i] != INVALID_INDEX || n.count[i] != 0) {
+            return Err(E::LaneAfterEmpty { node: k, lane });
+        }
+        for lane in 0..lanes {
+            let (child, count) = (n.child[lane], n.count[lane]);
+            let expected = if count > 0 {
+                leaf(k, lane, child, count)?
+            } else {
+                let c = nodes.get(child as usize).ok_or(E::ChildOutOfRange { node: k, lane, child })?;
+                references[child as usize] += 1;
+                (0..c.lanes()).fold(Aabb::EMPTY, |b, i| b.union(c.lane_box(i)))
+            };
+            let found = n.lane_box(lane);
+            if found != expected {
+                return Err(E::Box { node: k, lane, found, expected });
+            }
+        }
+    }
+    if let Some((k, &r)) = references.iter().enumerate().find(|&(k, &r)| r != u32::from(k != 0)) {
+        return Err(E::References(k, r));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

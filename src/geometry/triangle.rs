@@ -307,6 +307,7 @@ pub struct WatertightRay {
 }
 
 impl WatertightRay {
+    #[inline]
     pub fn new(ray: &Ray) -> Self {
         let d = ray.dir;
         let ad = d.abs();
@@ -324,6 +325,12 @@ impl WatertightRay {
             std::mem::swap(&mut kx, &mut ky);
         }
         Self { origin: ray.origin, kx, ky, kz, sx: d[kx] / d[kz], sy: d[ky] / d[kz], sz: 1.0 / d[kz] }
+    }
+
+    /// The axis permutation `[kx, ky, kz]` and the shear `[sx, sy, sz]`, for kernels that run
+    /// the same test on several triangles at once.
+    pub fn permutation(&self) -> ([usize; 3], [f32; 3]) {
+        ([self.kx, self.ky, self.kz], [self.sx, self.sy, self.sz])
     }
 }
 

@@ -211,3 +211,15 @@ pub fn degenerate_rays(tris: &[Triangle], n: usize, seed: u64) -> Vec<Ray> {
     }
     rays
 }
+
+/// Every way the CPU can trace a mesh on this machine: the binary tree, and the 4- and 8-wide
+/// trees on each SIMD path the CPU has (the scalar one always), so that each test that compares
+/// hits runs under every dispatch path.
+pub fn tracings() -> Vec<arbor::bvh::Tracing> {
+    use arbor::bvh::{SimdPath, TraceLayout, Tracing};
+    let mut all = vec![Tracing { layout: TraceLayout::Binary, simd: SimdPath::Scalar }];
+    for simd in SimdPath::available() {
+        all.extend([TraceLayout::Wide4, TraceLayout::Wide8].map(|layout| Tracing { layout, simd }));
+    }
+    all
+}

@@ -1,0 +1,517 @@
+//! How rays are traced on the CPU: which tree form ([`TraceLayout`]) and which instruction set
+//! ([`SimdPath`]), chosen once per process, plus the kernels each path runs: one wide node's
+//! child boxes against a ray, and one packet of four triangles against a ray.
+//!
+//! Dispatch is at run time, so the release build stays for plain x86-64 as users get it: the
+//! SSE4.1 and AVX2 kernels are compiled with those features enabled for their functions only,
+//! and taken only where the CPU reports them. `ARBOR_SIMD=scalar|sse4|avx2` forces a path (for
+//! tests and benchmarks); a path the CPU lacks is refused, not emulated.
+//!
+//! Every kernel computes what the scalar code computes, operation for operation (no fused
+//! multiply-adds, the same order of operations, IEEE division), so each path gives the same
+//! floats:
+//! - the box test is the slab test of [`crate::geometry::slab_interval`] lane by lane. `maxps`
+//!   and `minps` return their second operand when the first is NaN, which is the scalar code's
+//!   NaN-ignoring `max`/`min` with the accumulator second;
+//! - the triangle kernel is a *filter* over four triangles: it runs the watertight test's f32
+//!   part (the shear, the edge functions, `T` and `det`) and rejects a lane only where
+//!   [`crate::geometry::Triangle::intersect`] would return no hit on the same floats (edge
+//!   functions of mixed sign, or a distance past `t_max`, with every quantity a normal float).
+//!   Every other lane, which the scalar test would send to its error bound or its f64 paths, is
+//!   a candidate and goes to the scalar test, so hits are exactly the scalar test's.
+
+use std::sync::atomic::{AtomicU8, Ordering};
+
+use crate::geometry::{RayInv, ROBUST_SLAB_SCALE, WatertightRay};
+
+use super::wide::WideNode;
+
+/// The instruction set the CPU traversal uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum SimdPath {
+    /// Portable Rust, one lane at a time: every CPU.
+    Scalar,
+    /// SSE4.1: four boxes or four triangles per instruction (x86-64).
+    Sse4,
+    /// AVX2: eight boxes per instruction, triangles four at a time (x86-64).
+    Avx2,
+}
+
+/// `ARBOR_SIMD` names no path, or one this CPU lacks.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum SimdError {
+    #[error("ARBOR_SIMD={0:?} is not a SIMD path: expected scalar, sse4 or avx2")]
+    Unknown(String),
+    #[error("ARBOR_SIMD={0}: this CPU does not support it (available: {1})")]
+    Unavailable(&'static str, String),
+}
+
+impl SimdPath {
+    /// Every path, slowest first.
+    pub const ALL: [SimdPath; 3] = [SimdPath::Scalar, SimdPath::Sse4, SimdPath::Avx2];
+
+    /// The name `ARBOR_SIMD` and reports use.
+    pub fn name(self) -> &'static str {
+        match self {
+            SimdPath::Scalar => "scalar",
+            SimdPath::Sse4 => "sse4",
+            SimdPath::Avx2 => "avx2",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|p| p.name() == name)
+    }
+
+    /// Whether this CPU runs the path.
+    pub fn is_available(self) -> bool {
+        match self {
+            SimdPath::Scalar => true,
+            #[cfg(target_arch = "x86_64")]
+            SimdPath::Sse4 => std::arch::is_x86_feature_detected!("sse4.1"),
+            #[cfg(target_arch = "x86_64")]
+            SimdPath::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => false,
+        }
+    }
+
+    /// The paths this CPU runs, slowest first.
+    pub fn available() -> Vec<SimdPath> {
+        Self::ALL.into_iter().filter(|p| p.is_available()).collect()
+    }
+
+    /// The fastest path this CPU runs.
+    pub fn best() -> Self {
+        Self::ALL.into_iter().rev().find(|p| p.is_available()).unwrap_or(SimdPath::Scalar)
+    }
+
+    /// The path `ARBOR_SIMD` asks for, or the best one when it is unset or empty.
+    pub fn from_env() -> Result<Self, SimdError> {
+        match std::env::var("ARBOR_SIMD") {
+            Ok(name) if !name.trim().is_empty() => {
+                let path = Self::parse(name.trim()).ok_or_else(|| SimdError::Unknown(name.clone()))?;
+                if !path.is_available() {
+                    let names: Vec<_> = Self::available().iter().map(|p| p.name()).collect();
+                    return Err(SimdError::Unavailable(path.name(), names.join(", ")));
+                }
+                Ok(path)
+            }
+            _ => Ok(Self::best()),
+        }
+    }
+}
+
+/// The tree form the CPU traces: the binary tree itself, or a 4- or 8-wide tree collapsed from
+/// it with its triangles in packets of four ([`super::wide_mesh::WideMesh`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum TraceLayout {
+    Binary,
+    Wide4,
+    Wide8,
+}
+
+impl TraceLayout {
+    pub const ALL: [TraceLayout; 3] = [TraceLayout::Binary, TraceLayout::Wide4, TraceLayout::Wide8];
+
+    /// The name `render --trace` and reports use.
+    pub fn name(self) -> &'static str {
+        match self {
+            TraceLayout::Binary => "binary",
+            TraceLayout::Wide4 => "wide4",
+            TraceLayout::Wide8 => "wide8",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|l| l.name() == name)
+    }
+
+    /// The form that suits a path: 8-wide where one instruction tests eight boxes, else 4-wide.
+    pub fn default_for(path: SimdPath) -> Self {
+        match path {
+            SimdPath::Avx2 => TraceLayout::Wide8,
+            SimdPath::Sse4 | SimdPath::Scalar => TraceLayout::Wide4,
+        }
+    }
+}
+
+/// A tree form and the path that traces it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Tracing {
+    pub layout: TraceLayout,
+    pub simd: SimdPath,
+}
+
+impl std::fmt::Display for Tracing {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} tree, {} kernels", self.layout.name(), self.simd.name())
+    }
+}
+
+/// The process's choice, set by [`Tracing::set_default`]; 0 while unset.
+static DEFAULT_LAYOUT: AtomicU8 = AtomicU8::new(0);
+static DEFAULT_SIMD: AtomicU8 = AtomicU8::new(0);
+
+impl Tracing {
+    /// The best path this CPU has with its layout.
+    pub fn best() -> Self {
+        let simd = SimdPath::best();
+        Self { layout: TraceLayout::default_for(simd), simd }
+    }
+
+    /// `layout` (or the path's default) on the path `ARBOR_SIMD` names (or the best).
+    pub fn from_env(layout: Option<TraceLayout>) -> Result<Self, SimdError> {
+        let simd = SimdPath::from_env()?;
+        Ok(Self { layout: layout.unwrap_or(TraceLayout::default_for(simd)), simd })
+    }
+
+    /// What trees built from now on trace with, unless told otherwise
+    /// ([`super::MeshBvh::with_tracing`]): as [`Tracing::set_default`] last set it, else as
+    /// `ARBOR_SIMD` says (a bad value there falls back to the best path; `render` reports it as
+    /// an error before it builds anything), else the best this CPU has.
+    pub fn current() -> Self {
+        let (l, s) = (DEFAULT_LAYOUT.load(Ordering::Relaxed), DEFAULT_SIMD.load(Ordering::Relaxed));
+        if l != 0 && s != 0 {
+            return Self { layout: TraceLayout::ALL[l as usize - 1], simd: SimdPath::ALL[s as usize - 1] };
+        }
+        Self::from_env(None).unwrap_or_else(|_| Self::best())
+    }
+
+    /// Sets what [`Tracing::current`] returns for the rest of the process. A path this CPU lacks
+    /// is replaced by the best one it has.
+    pub fn set_default(self) {
+        let simd = if self.simd.is_available() { self.simd } else { SimdPath::best() };
+        let index = |k: usize| k as u8 + 1;
+        let l = TraceLayout::ALL.iter().position(|&x| x == self.layout).unwrap_or(0);
+        let s = SimdPath::ALL.iter().position(|&x| x == simd).unwrap_or(0);
+        DEFAULT_LAYOUT.store(index(l), Ordering::Relaxed);
+        DEFAULT_SIMD.store(index(s), Ordering::Relaxed);
+    }
+}
+
+/// A ray prepared for the box kernels: its origin and reciprocal direction per axis, and where
+/// each axis's near and far planes sit among a node's six plane arrays
+/// (`min_x min_y min_z max_x max_y max_z`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct BoxRay {
+    pub origin: [f32; 3],
+    pub inv_dir: [f32; 3],
+    pub near: [usize; 3],
+    pub far: [usize; 3],
+    pub inv: RayInv,
+}
+
+impl BoxRay {
+    #[inline(always)]
+    pub fn new(inv: RayInv) -> Self {
+        let neg = [inv.negative.x, inv.negative.y, inv.negative.z].map(usize::from);
+        Self {
+            origin: inv.origin.to_array(),
+            inv_dir: inv.inv_dir.to_array(),
+            near: [neg[0] * 3, 1 + neg[1] * 3, 2 + neg[2] * 3],
+            far: [(1 - neg[0]) * 3, 1 + (1 - neg[1]) * 3, 2 + (1 - neg[2]) * 3],
+            inv,
+        }
+    }
+}
+
+/// Four triangles by vertex, axis and lane, laid out for the watertight test: each of the nine
+/// coordinate rows loads as one vector. 160 bytes: the rows (144) and the lanes' primitive ids
+/// (16). A leaf holds `ceil(count / 4)` packets; the lanes past its count repeat its first
+/// triangle and are masked off by the count, never tested.
+#[repr(C, align(16))]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrianglePacket {
+    /// `v[vertex][axis][lane]`.
+    pub v: [[[f32; 4]; 3]; 3],
+    /// The lanes' primitive ids.
+    pub prim: [u32; 4],
+}
+
+const _: () = assert!(size_of::<TrianglePacket>() == 160);
+
+impl TrianglePacket {
+    /// Lane `i`'s triangle, the same floats it was packed from.
+    #[inline(always)]
+    pub fn triangle(&self, i: usize) -> crate::geometry::Triangle {
+        let vertex = |k: usize| glam::Vec3::new(self.v[k][0][i], self.v[k][1][i], self.v[k][2][i]);
+        crate::geometry::Triangle::new(vertex(0), vertex(1), vertex(2))
+    }
+}
+
+/// A ray prepared for the triangle kernel: the watertight test's permutation and shear, with the
+/// origin's coordinates in the permuted order.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct PacketRay {
+    pub wr: WatertightRay,
+    /// `[kx, ky, kz]`.
+    pub k: [usize; 3],
+    /// The origin's coordinates on `kx`, `ky`, `kz`.
+    pub o: [f32; 3],
+    pub sx: f32,
+    pub sy: f32,
+    pub sz: f32,
+}
+
+impl PacketRay {
+    #[inline(always)]
+    pub fn new(wr: WatertightRay) -> Self {
+        let (k, [sx, sy, sz]) = wr.permutation();
+        Self { wr, k, o: k.map(|a| wr.origin[a]), sx, sy, sz }
+    }
+}
+
+/// A path's kernels. Each method is the whole of one test; the traversals in
+/// [`super::wide_mesh`] are written once over this trait and instantiated per path inside a
+/// function compiled for that path's features. The kernels are `inline(always)` functions
+/// without target features of their own (a `target_feature` function cannot be
+/// `inline(always)`, and as a plain `inline` one it stayed a call), so they compile into that
+/// function with its features.
+pub(crate) trait Kernel {
+    /// Lanes of `node` (in use) whose box the ray enters before `limit`, as a bit mask, with
+    /// every lane's entry distance in `dist`.
+    fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32;
+    /// Lanes of `p` among `valid` that the scalar watertight test might hit within `t_max`.
+    fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> u32;
+}
+
+/// Portable kernels: a lane at a time.
+pub(crate) struct Scalar;
+
+impl Kernel for Scalar {
+    #[inline(always)]
+    fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+        let mut mask = 0;
+        for (i, d) in dist.iter_mut().enumerate().take(node.lanes()) {
+            if let Some(t) = node.intersect_lane(i, &ray.inv, limit) {
+                *d = t;
+                mask |= 1 << i;
+            }
+        }
+        mask
+    }
+
+    #[inline(always)]
+    fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> u32 {
+        let mut mask = 0;
+        for i in 0..4 {
+            if valid & (1 << i) != 0 && scalar_candidate(p, i, ray, t_max) {
+                mask |= 1 << i;
+            }
+        }
+        mask
+    }
+}
+
+/// The triangle filter for one lane (module docs).
+#[inline(always)]
+fn scalar_candidate(p: &TrianglePacket, i: usize, r: &PacketRay, t_max: f32) -> bool {
+    let [kx, ky, kz] = r.k;
+    let rel = |vertex: usize, axis: usize, o: f32| p.v[vertex][axis][i] - o;
+    let (az, bz, cz) = (rel(0, kz, r.o[2]), rel(1, kz, r.o[2]), rel(2, kz, r.o[2]));
+    let ax = rel(0, kx, r.o[0]) - r.sx * az;
+    let ay = rel(0, ky, r.o[1]) - r.sy * az;
+    let bx = rel(1, kx, r.o[0]) - r.sx * bz;
+    let by = rel(1, ky, r.o[1]) - r.sy * bz;
+    let cx = rel(2, kx, r.o[0]) - r.sx * cz;
+    let cy = rel(2, ky, r.o[1]) - r.sy * cz;
+    let u = cx * by - cy * bx;
+    let v = ax * cy - ay * cx;
+    let w = bx * ay - by * ax;
+    if !(u.is_normal() && v.is_normal() && w.is_normal()) {
+        return true;
+    }
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return false;
+    }
+    let det = u + v + w;
+    let t_scaled = u * (r.sz * az) + v * (r.sz * bz) + w * (r.sz * cz);
+    let rcp = 1.0 / det;
+    if !(t_scaled.is_normal() && rcp.is_normal()) {
+        return true;
+    }
+    // Not `<=`: an infinite `t` past an infinite `t_max` is the scalar test's to judge.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    let keep = !(t_scaled * rcp > t_max);
+    keep
+}
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) use x86::{Avx2, Sse4};
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use std::arch::x86_64::*;
+
+    use super::{BoxRay, Kernel, PacketRay, ROBUST_SLAB_SCALE, TrianglePacket};
+    use crate::bvh::INVALID_INDEX;
+    use crate::bvh::wide::WideNode;
+
+    /// SSE4.1 kernels.
+    pub(crate) struct Sse4;
+    /// AVX2 kernels: the box test eight lanes at once; triangles as [`Sse4`] (VEX-encoded).
+    pub(crate) struct Avx2;
+
+    impl Kernel for Sse4 {
+        #[inline(always)]
+        fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+            // SAFETY: the SSE intrinsics these use are part of x86-64's baseline; the kernels are
+            // instantiated only inside functions compiled with SSE4.1, which run only where the
+            // CPU has it (`SimdPath::is_available`).
+            unsafe { boxes_sse(node, ray, limit, dist) }
+        }
+
+        #[inline(always)]
+        fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> u32 {
+            // SAFETY: as for `boxes`.
+            unsafe { triangles_sse(p, ray, t_max, valid) }
+        }
+    }
+
+    impl Kernel for Avx2 {
+        #[inline(always)]
+        fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+            // SAFETY: instantiated only inside functions compiled with AVX2, which run only
+            // where the CPU has it (`SimdPath::is_available`), so the AVX intrinsics inline
+            // there. AVX2 implies SSE4.1.
+            unsafe {
+                if N == 8 { boxes_avx2(node, ray, limit, dist) } else { boxes_sse(node, ray, limit, dist) }
+            }
+        }
+
+        #[inline(always)]
+        fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> u32 {
+            // SAFETY: as for `boxes`.
+            unsafe { triangles_sse(p, ray, t_max, valid) }
+        }
+    }
+
+    /// The six plane rows of a node: `min_x min_y min_z max_x max_y max_z`, `N` lanes each.
+    #[inline(always)]
+    fn planes<const N: usize>(node: &WideNode<N>) -> &[[f32; N]; 6] {
+        // SAFETY: `WideNode` is `repr(C)` and starts with six `[f32; N]` fields, which have no
+        // padding between them, so its first `6 N` floats are those rows in that order.
+        unsafe { &*(node as *const WideNode<N>).cast::<[[f32; N]; 6]>() }
+    }
+
+    /// Four lanes from `offset` of a node's box test: the hit mask (bits 0..4) and the entry
+    /// distances.
+    #[inline(always)]
+    unsafe fn boxes_sse4_chunk<const N: usize>(
+        node: &WideNode<N>,
+        ray: &BoxRay,
+        limit: f32,
+        offset: usize,
+    ) -> (u32, __m128) {
+        let rows = planes(node);
+        // SAFETY: `offset + 4 <= N` (callers step by 4 below N, and N is 4 or 8), so every load
+        // reads four floats inside one row.
+        unsafe {
+            let row = |k: usize| _mm_loadu_ps(rows[k].as_ptr().add(offset));
+            let slab = |axis: usize, k: usize| {
+                _mm_mul_ps(_mm_sub_ps(row(k), _mm_set1_ps(ray.origin[axis])), _mm_set1_ps(ray.inv_dir[axis]))
+            };
+            // `max(x, acc)` is `x > acc ? x : acc`: NaN planes keep the accumulator.
+            let mut enter = _mm_setzero_ps();
+            let mut exit = _mm_set1_ps(limit);
+            for axis in 0..3 {
+                enter = _mm_max_ps(slab(axis, ray.near[axis]), enter);
+                exit = _mm_min_ps(slab(axis, ray.far[axis]), exit);
+            }
+            let hit = _mm_cmple_ps(enter, _mm_mul_ps(exit, _mm_set1_ps(ROBUST_SLAB_SCALE)));
+            let child = _mm_loadu_si128(node.child.as_ptr().add(offset).cast());
+            let empty = _mm_cmpeq_epi32(child, _mm_set1_epi32(INVALID_INDEX as i32));
+            let mask = _mm_movemask_ps(_mm_andnot_ps(_mm_castsi128_ps(empty), hit)) as u32;
+            (mask, enter)
+        }
+    }
+
+    #[inline(always)]
+    unsafe fn boxes_sse<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+        let mut mask = 0;
+        let mut offset = 0;
+        while offset + 4 <= N {
+            // SAFETY: `offset + 4 <= N`, and the caller runs with SSE4.1.
+            unsafe {
+                let (m, enter) = boxes_sse4_chunk(node, ray, limit, offset);
+                _mm_storeu_ps(dist.as_mut_ptr().add(offset), enter);
+                mask |= m << offset;
+            }
+            offset += 4;
+        }
+        mask
+    }
+
+    #[inline(always)]
+    unsafe fn boxes_avx2<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+        debug_assert_eq!(N, 8);
+        let rows = planes(node);
+        // SAFETY: N is 8 here, so each load reads one whole row of eight floats (or the eight
+        // child links), and the store writes all of `dist`.
+        unsafe {
+            let row = |k: usize| _mm256_loadu_ps(rows[k].as_ptr());
+            let slab = |axis: usize, k: usize| {
+                _mm256_mul_ps(_mm256_sub_ps(row(k), _mm256_set1_ps(ray.origin[axis])), _mm256_set1_ps(ray.inv_dir[axis]))
+            };
+            let mut enter = _mm256_setzero_ps();
+            let mut exit = _mm256_set1_ps(limit);
+            for axis in 0..3 {
+                enter = _mm256_max_ps(slab(axis, ray.near[axis]), enter);
+                exit = _mm256_min_ps(slab(axis, ray.far[axis]), exit);
+            }
+            let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(enter, _mm256_mul_ps(exit, _mm256_set1_ps(ROBUST_SLAB_SCALE)));
+            let child = _mm256_loadu_si256(node.child.as_ptr().cast());
+            let empty = _mm256_cmpeq_epi32(child, _mm256_set1_epi32(INVALID_INDEX as i32));
+            _mm256_storeu_ps(dist.as_mut_ptr(), enter);
+            _mm256_movemask_ps(_mm256_andnot_ps(_mm256_castsi256_ps(empty), hit)) as u32
+        }
+    }
+
+    /// The triangle filter on four lanes (the module docs; [`super::scalar_candidate`] lane by
+    /// lane, with the same operations in the same order).
+    #[inline(always)]
+    unsafe fn triangles_sse(p: &TrianglePacket, r: &PacketRay, t_max: f32, valid: u32) -> u32 {
+        let [kx, ky, kz] = r.k;
+        // SAFETY: every load reads one 16-byte-aligned row of `p` (`TrianglePacket` is
+        // `align(16)` and its rows are 16 bytes each).
+        unsafe {
+            let rel = |vertex: usize, axis: usize, o: f32| _mm_sub_ps(_mm_load_ps(p.v[vertex][axis].as_ptr()), _mm_set1_ps(o));
+            let (sx, sy, sz) = (_mm_set1_ps(r.sx), _mm_set1_ps(r.sy), _mm_set1_ps(r.sz));
+            let (az, bz, cz) = (rel(0, kz, r.o[2]), rel(1, kz, r.o[2]), rel(2, kz, r.o[2]));
+            let ax = _mm_sub_ps(rel(0, kx, r.o[0]), _mm_mul_ps(sx, az));
+            let ay = _mm_sub_ps(rel(0, ky, r.o[1]), _mm_mul_ps(sy, az));
+            let bx = _mm_sub_ps(rel(1, kx, r.o[0]), _mm_mul_ps(sx, bz));
+            let by = _mm_sub_ps(rel(1, ky, r.o[1]), _mm_mul_ps(sy, bz));
+            let cx = _mm_sub_ps(rel(2, kx, r.o[0]), _mm_mul_ps(sx, cz));
+            let cy = _mm_sub_ps(rel(2, ky, r.o[1]), _mm_mul_ps(sy, cz));
+            let u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
+            let v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
+            let w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
+            let zero = _mm_setzero_ps();
+            // Normal: MIN_POSITIVE <= |x| < inf (NaN fails both).
+            let abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fff_ffff));
+            let (min_normal, inf) = (_mm_set1_ps(f32::MIN_POSITIVE), _mm_set1_ps(f32::INFINITY));
+            let normal = |x: __m128| {
+                let a = _mm_and_ps(x, abs_mask);
+                _mm_and_ps(_mm_cmpge_ps(a, min_normal), _mm_cmplt_ps(a, inf))
+            };
+            let all_normal = _mm_and_ps(_mm_and_ps(normal(u), normal(v)), normal(w));
+            let any_neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)), _mm_cmplt_ps(w, zero));
+            let any_pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)), _mm_cmpgt_ps(w, zero));
+            let mixed = _mm_and_ps(any_neg, any_pos);
+            let det = _mm_add_ps(_mm_add_ps(u, v), w);
+            let t_scaled = _mm_add_ps(
+                _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(sz, az)), _mm_mul_ps(v, _mm_mul_ps(sz, bz))),
+                _mm_mul_ps(w, _mm_mul_ps(sz, cz)),
+            );
+            let rcp = _mm_div_ps(_mm_set1_ps(1.0), det);
+            let t_ok = _mm_and_ps(normal(t_scaled), normal(rcp));
+            let beyond = _mm_cmpgt_ps(_mm_mul_ps(t_scaled, rcp), _mm_set1_ps(t_max));
+            // Rejected: every edge function normal, and mixed signs, or a normal distance
+            // past `t_max`.
+            let reject = _mm_and_ps(all_normal, _mm_or_ps(mixed, _mm_and_ps(t_ok, beyond)));
+            (!(_mm_movemask_ps(reject) as u32)) & valid
+        }
+    }
+}

@@ -1,0 +1,329 @@
+//! A wide tree over a mesh's triangles, ready to trace: the nodes of a [`WideBvh`] whose leaf
+//! lanes point to packets of four triangles ([`TrianglePacket`]) instead of `prim_ids`
+//! positions, traced by one [`SimdPath`]'s kernels.
+//!
+//! A leaf lane keeps its triangle count in `count`, and `child` becomes the index of its first
+//! packet; a leaf of `n` triangles owns `ceil(n / 4)` consecutive packets. Memory: 160 bytes per
+//! packet, so 40 bytes per triangle in full packets; the collapse leaves of up to 8 triangles,
+//! so a leaf of 5 wastes three lanes.
+//!
+//! The traversal is written once, over [`Kernel`], and instantiated inside one function per
+//! path compiled with that path's target features, so the kernels inline into it. It is the
+//! traversal of [`WideBvh::closest_hit`] (hit lanes visited near to far, the same culling slack,
+//! ties to the lowest primitive id), with the leaves tested four triangles at a time: the kernel
+//! rejects the lanes the scalar watertight test would reject, and the scalar test decides the
+//! rest, so every path returns exactly the hits of [`super::Bvh::closest_hit_triangles`].
+//!
+//! `skip` names a primitive to leave out: a ray spawned from a triangle never needs to test it
+//! (its origin is offset to the side of the plane the ray leaves to, so the plane lies behind
+//! it), and that test was the costly one, since its `t` is within its error bound of zero and
+//! goes to the f64 path.
+
+use crate::geometry::{Aabb, Ray, Triangle, WatertightRay};
+
+use super::simd::{BoxRay, Kernel, PacketRay, Scalar, SimdPath, TrianglePacket};
+use super::traverse::{Stack, cull_limit, cull_slack};
+use super::wide::{WideBvh, WideNode, WideValidationError, nodes_bounds, nodes_sah, validate_nodes};
+use super::{Hit, INVALID_INDEX, SahCosts};
+
+/// Entries a traversal keeps before spilling to the heap.
+const STACK_SIZE: usize = 128;
+
+/// A wide tree with its triangles in packets, and the path that traces it (module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct WideMesh<const N: usize> {
+    nodes: Vec<WideNode<N>>,
+    packets: Vec<TrianglePacket>,
+    bounds: Aabb,
+    simd: SimdPath,
+}
+
+/// A traversal stack entry: a node (`count == 0`) or a leaf, with the distance its box is
+/// entered at.
+#[derive(Clone, Copy, Debug, Default)]
+struct Entry {
+    child: u32,
+    count: u32,
+    t: f32,
+}
+
+impl<const N: usize> WideMesh<N> {
+    /// Packs `wide`'s leaves from `leaf_ordered` (the triangle at each `prim_ids` position, as
+    /// [`super::MeshBvh`] keeps them) for tracing on `simd`; a path this CPU lacks is replaced
+    /// by the best one it has.
+    pub fn new(wide: WideBvh<N>, leaf_ordered: &[Triangle], simd: SimdPath) -> Self {
+        let WideBvh { mut nodes, prim_ids } = wide;
+        let mut packets = Vec::with_capacity(prim_ids.len().div_ceil(4) + nodes.len());
+        for node in &mut nodes {
+            for lane in 0..node.lanes() {
+                let count = node.count[lane];
+                if count == 0 {
+                    continue;
+                }
+                let first = node.child[lane] as usize;
+                node.child[lane] = packets.len() as u32;
+                for start in (first..first + count as usize).step_by(4) {
+                    let end = (start + 4).min(first + count as usize);
+                    let mut p = TrianglePacket { v: [[[0.0; 4]; 3]; 3], prim: [INVALID_INDEX; 4] };
+                    for i in 0..4 {
+                        // Lanes past the leaf's count repeat its first triangle (never tested).
+                        let pos = if start + i < end { start + i } else { start };
+                        let t = &leaf_ordered[pos];
+                        for (k, v) in [t.v0, t.v1, t.v2].into_iter().enumerate() {
+                            (p.v[k][0][i], p.v[k][1][i], p.v[k][2][i]) = (v.x, v.y, v.z);
+                        }
+                        if start + i < end {
+                            p.prim[i] = prim_ids[pos];
+                        }
+                    }
+                    packets.push(p);
+                }
+            }
+        }
+        let bounds = nodes_bounds(&nodes);
+        let simd = if simd.is_available() { simd } else { SimdPath::best() };
+        Self { nodes, packets, bounds, simd }
+    }
+
+    /// The path this tree is traced with.
+    pub fn simd(&self) -> SimdPath {
+        self.simd
+    }
+
+    /// The box of everything in the tree.
+    pub fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    /// Bytes of the nodes and packets, by length.
+    pub fn memory_bytes(&self) -> usize {
+        size_of_val(self.nodes.as_slice()) + size_of_val(self.packets.as_slice())
+    }
+
+    /// The wide tree's SAH ([`WideBvh::sah`]).
+    pub fn sah(&self, costs: &SahCosts) -> f64 {
+        nodes_sah(&self.nodes, costs)
+    }
+
+    /// The nodes (leaf lanes index packets).
+    pub fn nodes(&self) -> &[WideNode<N>] {
+        &self.nodes
+    }
+
+    /// The triangle packets.
+    pub fn packets(&self) -> &[TrianglePacket] {
+        &self.packets
+    }
+
+    /// Checks the tree's invariants ([`WideBvh::validate`]) with leaves read from the packets:
+    /// every packet range inside `packets`, every primitive in exactly one lane, each packed
+    /// triangle's box equal to its primitive's box in `prim_aabbs`, and each leaf box exactly the
+    /// union of its packed triangles.
+    pub fn validate(&self, prim_aabbs: &[Aabb]) -> Result<(), WideValidationError> {
+        use WideValidationError as E;
+        let mut seen = vec![0u32; prim_aabbs.len()];
+        validate_nodes(&self.nodes, |node, lane, first, count| {
+            let end = u64::from(first) + u64::from(count.div_ceil(4));
+            if end > self.packets.len() as u64 {
+                return Err(E::PacketRange { node, lane, first, end, len: self.packets.len() });
+            }
+            let mut b = Aabb::EMPTY;
+            for j in 0..count as usize {
+                let p = &self.packets[first as usize + j / 4];
+                let prim = p.prim[j % 4];
+                let expected = *prim_aabbs.get(prim as usize).ok_or(E::PrimOutOfRange { node, lane, prim })?;
+                let found = p.triangle(j % 4).aabb();
+                if found != expected {
+                    return Err(E::PackedTriangle { node, lane, prim, found, expected });
+                }
+                seen[prim as usize] += 1;
+                b = b.union(found);
+            }
+            Ok(b)
+        })?;
+        if let Some((prim, &c)) = seen.iter().enumerate().find(|(_, c)| **c != 1) {
+            return Err(E::Primitive(prim as u32, c));
+        }
+        Ok(())
+    }
+
+    /// The closest triangle hit with `0 < t <= t_max`, leaving out primitive `skip`
+    /// ([`INVALID_INDEX`] for none); ties go to the lowest primitive id.
+    #[inline]
+    pub fn closest_hit(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        match self.simd {
+            // SAFETY: `simd` is a path this CPU has (checked in `new`).
+            #[cfg(target_arch = "x86_64")]
+            SimdPath::Avx2 => unsafe { self.closest_avx2(ray, t_max, skip) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "x86_64")]
+            SimdPath::Sse4 => unsafe { self.closest_sse4(ray, t_max, skip) },
+            _ => self.closest::<Scalar>(ray, t_max, skip),
+        }
+    }
+
+    /// Whether any triangle but `skip` is hit with `0 < t <= t_max`; stops at the first found.
+    #[inline]
+    pub fn any_hit(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        match self.simd {
+            // SAFETY: `simd` is a path this CPU has (checked in `new`).
+            #[cfg(target_arch = "x86_64")]
+            SimdPath::Avx2 => unsafe { self.any_avx2(ray, t_max, skip) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "x86_64")]
+            SimdPath::Sse4 => unsafe { self.any_sse4(ray, t_max, skip) },
+            _ => self.any::<Scalar>(ray, t_max, skip),
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn closest_avx2(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        self.closest::<super::simd::Avx2>(ray, t_max, skip)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "sse4.1")]
+    unsafe fn closest_sse4(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        self.closest::<super::simd::Sse4>(ray, t_max, skip)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn any_avx2(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        self.any::<super::simd::Avx2>(ray, t_max, skip)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "sse4.1")]
+    unsafe fn any_sse4(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        self.any::<super::simd::Sse4>(ray, t_max, skip)
+    }
+
+    #[inline(always)]
+    fn closest<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let br = BoxRay::new(ray.inv());
+        // Set up at the first leaf and the first hit: most primary rays miss everything, and
+        // for them this set-up (six divisions, two f64 square roots) was most of the cost.
+        let mut pr: Option<PacketRay> = None;
+        let mut slack: Option<f32> = None;
+        let mut limit = if t_max == f32::INFINITY {
+            f32::INFINITY
+        } else {
+            cull_limit(t_max, *slack.insert(cull_slack(&self.bounds, ray)))
+        };
+        let mut best: Option<Hit> = None;
+        let mut stack = Stack::<Entry, STACK_SIZE>::new();
+        let mut dist = [0.0f32; N];
+        let mut current = Entry::default();
+        loop {
+            if current.count > 0 {
+                let pr = pr.get_or_insert_with(|| PacketRay::new(WatertightRay::new(ray)));
+                for j in 0..current.count.div_ceil(4) {
+                    let p = &self.packets[(current.child + j) as usize];
+                    let valid = (1u32 << (current.count - 4 * j).min(4)) - 1;
+                    let mut lanes = K::triangles(p, pr, best.map_or(t_max, |b| b.t), valid);
+                    while lanes != 0 {
+                        let i = lanes.trailing_zeros() as usize;
+                        lanes &= lanes - 1;
+                        let prim = p.prim[i];
+                        if prim == skip {
+                            continue;
+                        }
+                        let Some(h) = p.triangle(i).intersect(&pr.wr, best.map_or(t_max, |b| b.t)) else { continue };
+                        if best.is_none_or(|b| h.t < b.t || (h.t == b.t && prim < b.prim_id)) {
+                            best = Some(Hit { t: h.t, prim_id: prim, u: h.u, v: h.v });
+                            limit = cull_limit(h.t, *slack.get_or_insert_with(|| cull_slack(&self.bounds, ray)));
+                        }
+                    }
+                }
+            } else {
+                let node = &self.nodes[current.child as usize];
+                let mut mask = K::boxes(node, &br, limit, &mut dist);
+                if mask != 0 {
+                    let entry = |i: usize| Entry { child: node.child[i], count: node.count[i], t: dist[i] };
+                    if mask & (mask - 1) == 0 {
+                        current = entry(mask.trailing_zeros() as usize);
+                        continue;
+                    }
+                    // Several: farthest first onto the stack, the nearest visited next.
+                    let mut hits = [Entry::default(); N];
+                    let mut n = 0;
+                    while mask != 0 {
+                        let e = entry(mask.trailing_zeros() as usize);
+                        mask &= mask - 1;
+                        let mut j = n;
+                        while j > 0 && hits[j - 1].t < e.t {
+                            hits[j] = hits[j - 1];
+                            j -= 1;
+                        }
+                        hits[j] = e;
+                        n += 1;
+                    }
+                    for &e in &hits[..n - 1] {
+                        stack.push(e);
+                    }
+                    current = hits[n - 1];
+                    continue;
+                }
+            }
+            loop {
+                let Some(e) = stack.pop() else { return best };
+                if e.t <= limit {
+                    current = e;
+                    break;
+                }
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn any<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        if self.nodes.is_empty() {
+            return false;
+        }
+        let br = BoxRay::new(ray.inv());
+        let mut pr: Option<PacketRay> = None;
+        let limit = cull_limit(t_max, cull_slack(&self.bounds, ray));
+        let mut stack = Stack::<Entry, STACK_SIZE>::new();
+        let mut dist = [0.0f32; N];
+        let mut current = Entry::default();
+        loop {
+            if current.count > 0 {
+                let pr = pr.get_or_insert_with(|| PacketRay::new(WatertightRay::new(ray)));
+                for j in 0..current.count.div_ceil(4) {
+                    let p = &self.packets[(current.child + j) as usize];
+                    let valid = (1u32 << (current.count - 4 * j).min(4)) - 1;
+                    let mut lanes = K::triangles(p, pr, t_max, valid);
+                    while lanes != 0 {
+                        let i = lanes.trailing_zeros() as usize;
+                        lanes &= lanes - 1;
+                        if p.prim[i] != skip && p.triangle(i).intersect(&pr.wr, t_max).is_some() {
+                            return true;
+                        }
+                    }
+                }
+            } else {
+                let node = &self.nodes[current.child as usize];
+                let mut mask = K::boxes(node, &br, limit, &mut dist);
+                if mask != 0 {
+                    // Any order finds a blocker; the first lane is visited next, the rest wait.
+                    let i = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    while mask != 0 {
+                        let k = mask.trailing_zeros() as usize;
+                        mask &= mask - 1;
+                        stack.push(Entry { child: node.child[k], count: node.count[k], t: dist[k] });
+                    }
+                    current = Entry { child: node.child[i], count: node.count[i], t: dist[i] };
+                    continue;
+                }
+            }
+            let Some(e) = stack.pop() else { return false };
+            current = e;
+        }
+    }
+}
