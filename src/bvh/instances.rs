@@ -89,9 +89,10 @@ impl TwoLevel {
         &self.boxes
     }
 
-    /// Bytes of the meshes' BVHs and triangles, the instances and the top level.
+    /// Bytes of the meshes' BVHs (binary and wide) and triangles, the instances and the top
+    /// level.
     pub fn memory_bytes(&self) -> usize {
-        self.meshes.iter().map(|m| m.bvh.memory_bytes() + size_of_val(&m.triangles[..])).sum::<usize>()
+        self.meshes.iter().map(MeshBvh::memory_bytes).sum::<usize>()
             + size_of_val(&self.instances[..])
             + size_of_val(&self.boxes[..])
             + self.tlas.bvh().memory_bytes()
@@ -132,6 +133,12 @@ impl TwoLevel {
 
     /// The closest hit with `0 < t <= t_max`; ties go to the lowest instance, then triangle id.
     pub fn closest_hit(&self, ray: &Ray, t_max: f32) -> Option<InstanceHit> {
+        self.closest_hit_skipping(ray, t_max, None)
+    }
+
+    /// [`TwoLevel::closest_hit`] without testing triangle `skip = (instance, triangle)`: the
+    /// one a spawned ray leaves ([`MeshBvh::closest_hit_skipping`]).
+    pub fn closest_hit_skipping(&self, ray: &Ray, t_max: f32, skip: Option<(u32, u32)>) -> Option<InstanceHit> {
         let bvh = self.tlas.bvh();
         if bvh.is_empty() {
             return None;
@@ -139,20 +146,33 @@ impl TwoLevel {
         bvh.closest_hit(ray, t_max, |_, i, t_limit| {
             let inst = &self.instances[i as usize];
             let local = to_object(inst, ray);
-            self.meshes[inst.mesh as usize].closest_hit(&local, t_limit).map(|h| (h.t, (h.prim_id, h.u, h.v)))
+            self.meshes[inst.mesh as usize]
+                .closest_hit_skipping(&local, t_limit, skipped(skip, i))
+                .map(|h| (h.t, (h.prim_id, h.u, h.v)))
         })
         .map(|(instance, t, (prim_id, u, v))| InstanceHit { t, instance, prim_id, u, v })
     }
 
     /// Whether anything is hit with `0 < t <= t_max`.
     pub fn any_hit(&self, ray: &Ray, t_max: f32) -> bool {
+        self.any_hit_skipping(ray, t_max, None)
+    }
+
+    /// [`TwoLevel::any_hit`] without testing triangle `skip = (instance, triangle)`.
+    pub fn any_hit_skipping(&self, ray: &Ray, t_max: f32, skip: Option<(u32, u32)>) -> bool {
         let bvh = self.tlas.bvh();
         !bvh.is_empty()
             && bvh.any_hit(ray, t_max, |_, i, t_limit| {
                 let inst = &self.instances[i as usize];
-                self.meshes[inst.mesh as usize].any_hit(&to_object(inst, ray), t_limit)
+                self.meshes[inst.mesh as usize].any_hit_skipping(&to_object(inst, ray), t_limit, skipped(skip, i))
             })
     }
+}
+
+/// The triangle of instance `i` to skip: `skip`'s, where `skip` names that instance.
+#[inline]
+fn skipped(skip: Option<(u32, u32)>, i: u32) -> u32 {
+    skip.filter(|&(instance, _)| instance == i).map_or(super::INVALID_INDEX, |(_, prim)| prim)
 }
 
 fn to_object(inst: &Instance, ray: &Ray) -> Ray {

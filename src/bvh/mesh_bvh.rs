@@ -12,7 +12,6 @@
 use rayon::prelude::*;
 
 use super::simd::{TraceLayout, Tracing};
-use super::wide::WideBvh;
 use super::wide_mesh::WideMesh;
 use super::{Bvh, Hit, INVALID_INDEX, SahCosts};
 use crate::geometry::{Ray, Triangle, WatertightRay};
@@ -56,11 +55,11 @@ impl MeshBvh {
         let start = std::time::Instant::now();
         let wide = match tracing.layout {
             TraceLayout::Binary => Wide::None,
-            TraceLayout::Wide4 => Wide::Four(WideMesh::new(WideBvh::from_binary(&bvh), &ordered, tracing.simd)),
-            TraceLayout::Wide8 => Wide::Eight(WideMesh::new(WideBvh::from_binary(&bvh), &ordered, tracing.simd)),
+            TraceLayout::Wide4 => Wide::Four(WideMesh::from_binary(&bvh, &ordered, tracing.simd)),
+            TraceLayout::Wide8 => Wide::Eight(WideMesh::from_binary(&bvh, &ordered, tracing.simd)),
         };
         let simd = match &wide {
-            Wide::None => tracing.simd,
+            Wide::None => super::SimdPath::Scalar,
             Wide::Four(w) => w.simd(),
             Wide::Eight(w) => w.simd(),
         };
@@ -68,7 +67,7 @@ impl MeshBvh {
         Self { bvh, triangles: ordered, wide, tracing: Tracing { simd, ..tracing }, collapse_seconds }
     }
 
-    /// How this mesh is traced. The binary form runs scalar code whatever `simd` says.
+    /// How this mesh is traced (the binary form with scalar code).
     pub fn tracing(&self) -> Tracing {
         self.tracing
     }
@@ -79,7 +78,8 @@ impl MeshBvh {
         self.collapse_seconds
     }
 
-    /// The SAH of the traced form: the wide tree's ([`WideBvh::sah`]) or the binary tree's.
+    /// The SAH of the traced form: the wide tree's ([`super::wide::WideBvh::sah`]) or the binary
+    /// tree's.
     pub fn traced_sah(&self, costs: &SahCosts) -> f64 {
         match &self.wide {
             Wide::None => super::sah_cost_with(&self.bvh, costs),

@@ -160,6 +160,12 @@ impl Tracing {
         Self { layout: TraceLayout::default_for(simd), simd }
     }
 
+    /// What a scene rendered on a GPU keeps on the CPU: the binary tree alone (the GPU traces
+    /// its own copy of it), so no time goes into a wide form nobody traces.
+    pub fn gpu() -> Self {
+        Self { layout: TraceLayout::Binary, simd: SimdPath::Scalar }
+    }
+
     /// `layout` (or the path's default) on the path `ARBOR_SIMD` names (or the best).
     pub fn from_env(layout: Option<TraceLayout>) -> Result<Self, SimdError> {
         let simd = SimdPath::from_env()?;

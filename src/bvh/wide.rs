@@ -156,64 +156,8 @@ impl<const N: usize> WideBvh<N> {
     /// Collapses `bvh` (any builder's, after the leaf collapse or not) into `N`-wide nodes by
     /// the largest-area pull-up (see the module docs). Leaves stay the binary tree's leaves.
     pub fn from_binary(bvh: &Bvh) -> Self {
-        const { assert!(N >= 2, "a wide node holds at least two children") };
-        let mut wide = Self { nodes: Vec::new(), prim_ids: bvh.prim_ids.clone() };
-        // Dereferenced once: each `Nodes` dereference rebuilds the slice.
-        let nodes: &[super::BvhNode] = &bvh.nodes;
-        let Some(root) = nodes.first() else { return wide };
-        // About one wide node per N - 1 binary inner nodes.
-        wide.nodes.reserve(nodes.len() / (2 * (N - 1)) + 1);
-        wide.nodes.push(WideNode::empty());
-        if root.is_leaf() {
-            wide.nodes[0].set_lane(0, root.aabb(), root.first, root.prim_count);
-            return wide;
-        }
-        // (binary node, its wide node), depth first: each wide node gathers the binary node's
-        // subtree.
-        let mut stack = vec![(0u32, 0usize)];
-        while let Some((b, w)) = stack.pop() {
-            let first = nodes[b as usize].first;
-            // The lanes' binary nodes, and the half area of each inner one (-1 for a leaf).
-            let mut children = [0u32; N];
-            let mut areas = [-1.0f32; N];
-            let mut len = 0;
-            let add = |c: u32, children: &mut [u32; N], areas: &mut [f32; N], at: usize| {
-                let n = &nodes[c as usize];
-                children[at] = c;
-                areas[at] = if n.is_leaf() { -1.0 } else { n.aabb().half_area() };
-            };
-            for c in [first, first + 1] {
-                add(c, &mut children, &mut areas, len);
-                len += 1;
-            }
-            while len < N {
-                // The inner child of largest area; ties to the first, so the result does not
-                // depend on anything but the tree.
-                let mut widest = None;
-                for k in 0..len {
-                    if areas[k] >= 0.0 && widest.is_none_or(|j: usize| areas[k] > areas[j]) {
-                        widest = Some(k);
-                    }
-                }
-                let Some(k) = widest else { break };
-                let grand = nodes[children[k] as usize].first;
-                add(grand, &mut children, &mut areas, k);
-                add(grand + 1, &mut children, &mut areas, len);
-                len += 1;
-            }
-            for (lane, &c) in children[..len].iter().enumerate() {
-                let n = &nodes[c as usize];
-                if n.is_leaf() {
-                    wide.nodes[w].set_lane(lane, n.aabb(), n.first, n.prim_count);
-                } else {
-                    let index = wide.nodes.len();
-                    wide.nodes.push(WideNode::empty());
-                    wide.nodes[w].set_lane(lane, n.aabb(), index as u32, 0);
-                    stack.push((c, index));
-                }
-            }
-        }
-        wide
+        let nodes = collapse(bvh, |n| n.is_leaf().then_some((n.first, n.prim_count)), |n, _| (n.first, n.prim_count));
+        Self { nodes, prim_ids: bvh.prim_ids.clone() }
     }
 
     /// The box of everything in the tree.
@@ -345,6 +289,77 @@ impl<const N: usize> WideBvh<N> {
         let wr = WatertightRay::new(ray);
         self.any_hit(ray, t_max, |_, prim, t_max| triangles[prim as usize].intersect(&wr, t_max).is_some())
     }
+}
+
+/// The largest-area pull-up (module docs) over `bvh`, shared by every wide form: `leaf(node)`
+/// says whether a binary node ends the descent as one leaf lane, and `place(node, lane)` gives
+/// that lane's `(child, count)` (it may store the leaf's contents elsewhere as a side effect;
+/// it is called once per leaf lane, depth first). `leaf` must hold for every binary leaf.
+pub(crate) fn collapse<const N: usize>(
+    bvh: &Bvh,
+    mut leaf: impl FnMut(&super::BvhNode) -> Option<(u32, u32)>,
+    mut place: impl FnMut(&super::BvhNode, (u32, u32)) -> (u32, u32),
+) -> Vec<WideNode<N>> {
+    const { assert!(N >= 2, "a wide node holds at least two children") };
+    // Dereferenced once: each `Nodes` dereference rebuilds the slice.
+    let nodes: &[super::BvhNode] = &bvh.nodes;
+    let Some(root) = nodes.first() else { return Vec::new() };
+    // About one wide node per N - 1 binary inner nodes.
+    let mut wide = Vec::with_capacity(nodes.len() / (2 * (N - 1)) + 1);
+    wide.push(WideNode::empty());
+    if let Some(range) = leaf(root) {
+        let (child, count) = place(root, range);
+        wide[0].set_lane(0, root.aabb(), child, count);
+        return wide;
+    }
+    // (binary node, its wide node), depth first: each wide node gathers the binary node's
+    // subtree.
+    let mut stack = vec![(0u32, 0usize)];
+    while let Some((b, w)) = stack.pop() {
+        let first = nodes[b as usize].first;
+        // The lanes' binary nodes, the leaf range of each leaf lane, and the half area of each
+        // inner one (-1 for a leaf).
+        let mut children = [0u32; N];
+        let mut ranges = [None; N];
+        let mut areas = [-1.0f32; N];
+        let mut add = |c: u32, at: usize, children: &mut [u32; N], ranges: &mut [Option<(u32, u32)>; N], areas: &mut [f32; N]| {
+            let n = &nodes[c as usize];
+            children[at] = c;
+            ranges[at] = leaf(n);
+            areas[at] = if ranges[at].is_some() { -1.0 } else { n.aabb().half_area() };
+        };
+        add(first, 0, &mut children, &mut ranges, &mut areas);
+        add(first + 1, 1, &mut children, &mut ranges, &mut areas);
+        let mut len = 2;
+        while len < N {
+            // The inner child of largest area; ties to the first, so the result does not
+            // depend on anything but the tree.
+            let mut widest = None;
+            for k in 0..len {
+                if areas[k] >= 0.0 && widest.is_none_or(|j: usize| areas[k] > areas[j]) {
+                    widest = Some(k);
+                }
+            }
+            let Some(k) = widest else { break };
+            let grand = nodes[children[k] as usize].first;
+            add(grand, k, &mut children, &mut ranges, &mut areas);
+            add(grand + 1, len, &mut children, &mut ranges, &mut areas);
+            len += 1;
+        }
+        for lane in 0..len {
+            let n = &nodes[children[lane] as usize];
+            if let Some(range) = ranges[lane] {
+                let (child, count) = place(n, range);
+                wide[w].set_lane(lane, n.aabb(), child, count);
+            } else {
+                let index = wide.len();
+                wide.push(WideNode::empty());
+                wide[w].set_lane(lane, n.aabb(), index as u32, 0);
+                stack.push((children[lane], index));
+            }
+        }
+    }
+    wide
 }
 
 /// The box of everything under `nodes[0]`.

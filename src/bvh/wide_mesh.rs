@@ -23,8 +23,11 @@ use crate::geometry::{Aabb, Ray, Triangle, WatertightRay};
 
 use super::simd::{BoxRay, Kernel, PacketRay, Scalar, SimdPath, TrianglePacket};
 use super::traverse::{Stack, cull_limit, cull_slack};
-use super::wide::{WideBvh, WideNode, WideValidationError, nodes_bounds, nodes_sah, validate_nodes};
-use super::{Hit, INVALID_INDEX, SahCosts};
+use super::wide::{WideNode, WideValidationError, collapse, nodes_bounds, nodes_sah, validate_nodes};
+use super::{Bvh, BvhNode, Hit, INVALID_INDEX, SahCosts};
+
+#[cfg(doc)]
+use super::wide::WideBvh;
 
 /// Entries a traversal keeps before spilling to the heap.
 const STACK_SIZE: usize = 128;
@@ -48,38 +51,52 @@ struct Entry {
 }
 
 impl<const N: usize> WideMesh<N> {
-    /// Packs `wide`'s leaves from `leaf_ordered` (the triangle at each `prim_ids` position, as
-    /// [`super::MeshBvh`] keeps them) for tracing on `simd`; a path this CPU lacks is replaced
+    /// Collapses `bvh` into `N`-wide nodes (the pull-up of [`WideBvh::from_binary`]) and packs
+    /// its leaves from `leaf_ordered` (the triangle at each `prim_ids` position, as
+    /// [`super::MeshBvh`] keeps them), for tracing on `simd`; a path this CPU lacks is replaced
     /// by the best one it has.
-    pub fn new(wide: WideBvh<N>, leaf_ordered: &[Triangle], simd: SimdPath) -> Self {
-        let WideBvh { mut nodes, prim_ids } = wide;
-        let mut packets = Vec::with_capacity(prim_ids.len().div_ceil(4) + nodes.len());
-        for node in &mut nodes {
-            for lane in 0..node.lanes() {
-                let count = node.count[lane];
-                if count == 0 {
-                    continue;
-                }
-                let first = node.child[lane] as usize;
-                node.child[lane] = packets.len() as u32;
-                for start in (first..first + count as usize).step_by(4) {
-                    let end = (start + 4).min(first + count as usize);
-                    let mut p = TrianglePacket { v: [[[0.0; 4]; 3]; 3], prim: [INVALID_INDEX; 4] };
-                    for i in 0..4 {
-                        // Lanes past the leaf's count repeat its first triangle (never tested).
-                        let pos = if start + i < end { start + i } else { start };
-                        let t = &leaf_ordered[pos];
-                        for (k, v) in [t.v0, t.v1, t.v2].into_iter().enumerate() {
-                            (p.v[k][0][i], p.v[k][1][i], p.v[k][2][i]) = (v.x, v.y, v.z);
-                        }
-                        if start + i < end {
-                            p.prim[i] = prim_ids[pos];
-                        }
-                    }
-                    packets.push(p);
-                }
+    ///
+    /// A subtree of at most four triangles becomes one leaf lane, one packet: testing four
+    /// triangles at once costs about what one box test does, and the binary tree's leaves,
+    /// sized for one triangle at a time, would leave most lanes of their packets empty.
+    pub fn from_binary(bvh: &Bvh, leaf_ordered: &[Triangle], simd: SimdPath) -> Self {
+        let nodes: &[BvhNode] = &bvh.nodes;
+        let prim_ids = &bvh.prim_ids;
+        let mut packets: Vec<TrianglePacket> = Vec::with_capacity(prim_ids.len().div_ceil(3) + 1);
+        let mut positions: Vec<u32> = Vec::with_capacity(8);
+        let leaf = |n: &BvhNode| {
+            if n.is_leaf() {
+                return Some((n.first, n.prim_count));
             }
-        }
+            let count = small_subtree(nodes, n, 4)?;
+            Some((INVALID_INDEX, count))
+        };
+        let place = |n: &BvhNode, (first, count): (u32, u32)| {
+            positions.clear();
+            if first == INVALID_INDEX {
+                leaf_positions(nodes, n, &mut positions);
+            } else {
+                positions.extend(first..first + count);
+            }
+            let index = packets.len() as u32;
+            for chunk in positions.chunks(4) {
+                let mut p = TrianglePacket { v: [[[0.0; 4]; 3]; 3], prim: [INVALID_INDEX; 4] };
+                for i in 0..4 {
+                    // Lanes past the leaf's count repeat its first triangle (never tested).
+                    let pos = chunk.get(i).copied().unwrap_or(chunk[0]) as usize;
+                    let t = &leaf_ordered[pos];
+                    for (k, v) in [t.v0, t.v1, t.v2].into_iter().enumerate() {
+                        (p.v[k][0][i], p.v[k][1][i], p.v[k][2][i]) = (v.x, v.y, v.z);
+                    }
+                    if i < chunk.len() {
+                        p.prim[i] = prim_ids[pos];
+                    }
+                }
+                packets.push(p);
+            }
+            (index, count)
+        };
+        let nodes = collapse::<N>(bvh, leaf, place);
         let bounds = nodes_bounds(&nodes);
         let simd = if simd.is_available() { simd } else { SimdPath::best() };
         Self { nodes, packets, bounds, simd }
@@ -200,6 +217,30 @@ impl<const N: usize> WideMesh<N> {
         self.any::<super::simd::Sse4>(ray, t_max, skip)
     }
 
+    /// Asks the cache for what the hit lanes of `node` lead to (their nodes or first packets):
+    /// a traversal waits mostly on memory, and all of them are visited unless a hit culls them.
+    #[inline(always)]
+    fn prefetch(&self, node: &WideNode<N>, mut mask: u32) {
+        #[cfg(target_arch = "x86_64")]
+        while mask != 0 {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            let i = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            let (child, count) = (node.child[i] as usize, node.count[i]);
+            let (base, bytes) = if count == 0 {
+                (self.nodes.as_ptr().wrapping_add(child).cast::<i8>(), size_of::<WideNode<N>>())
+            } else {
+                (self.packets.as_ptr().wrapping_add(child).cast::<i8>(), size_of::<TrianglePacket>())
+            };
+            for line in (0..bytes).step_by(64) {
+                // SAFETY: a prefetch is a hint that never faults, whatever the address.
+                unsafe { _mm_prefetch::<_MM_HINT_T0>(base.wrapping_add(line)) };
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = (node, mask);
+    }
+
     #[inline(always)]
     fn closest<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
         if self.nodes.is_empty() {
@@ -243,6 +284,7 @@ impl<const N: usize> WideMesh<N> {
             } else {
                 let node = &self.nodes[current.child as usize];
                 let mut mask = K::boxes(node, &br, limit, &mut dist);
+                self.prefetch(node, mask);
                 if mask != 0 {
                     let entry = |i: usize| Entry { child: node.child[i], count: node.count[i], t: dist[i] };
                     if mask & (mask - 1) == 0 {
@@ -309,6 +351,7 @@ impl<const N: usize> WideMesh<N> {
             } else {
                 let node = &self.nodes[current.child as usize];
                 let mut mask = K::boxes(node, &br, limit, &mut dist);
+                self.prefetch(node, mask);
                 if mask != 0 {
                     // Any order finds a blocker; the first lane is visited next, the rest wait.
                     let i = mask.trailing_zeros() as usize;
@@ -324,6 +367,46 @@ impl<const N: usize> WideMesh<N> {
             }
             let Some(e) = stack.pop() else { return false };
             current = e;
+        }
+    }
+}
+
+/// The number of primitives under inner node `n` if it is at most `limit`, found by a walk that
+/// stops as soon as it passes `limit` (so it visits at most about `2 limit` nodes).
+fn small_subtree(nodes: &[BvhNode], n: &BvhNode, limit: u32) -> Option<u32> {
+    let mut stack = [0u32; 16];
+    let (mut len, mut count) = (2, 0u32);
+    (stack[0], stack[1]) = (n.first, n.first + 1);
+    while len > 0 {
+        len -= 1;
+        let c = &nodes[stack[len] as usize];
+        if c.is_leaf() {
+            count += c.prim_count;
+            if count > limit {
+                return None;
+            }
+        } else {
+            // Every inner node holds at least two primitives, so a walk within `limit` never
+            // stacks more than `limit + 1` entries.
+            if len + 2 > stack.len() {
+                return None;
+            }
+            (stack[len], stack[len + 1]) = (c.first, c.first + 1);
+            len += 2;
+        }
+    }
+    Some(count)
+}
+
+/// The `prim_ids` positions of every leaf under `n`, depth first.
+fn leaf_positions(nodes: &[BvhNode], n: &BvhNode, out: &mut Vec<u32>) {
+    let mut stack = vec![n.first, n.first + 1];
+    while let Some(i) = stack.pop() {
+        let c = &nodes[i as usize];
+        if c.is_leaf() {
+            out.extend(c.first..c.first + c.prim_count);
+        } else {
+            stack.extend([c.first, c.first + 1]);
         }
     }
 }

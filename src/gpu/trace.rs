@@ -346,7 +346,7 @@ pub fn flatten(scene: &Scene, time: f32, builder: &Builder) -> (RenderScene, Bui
     let prims: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
     let label = format!("{builder}, flattened for the GPU");
-    RenderScene::assemble(scene, triangles, material_of, &built.bvh, start, label)
+    RenderScene::assemble(scene, triangles, material_of, &built.bvh, start, label, crate::bvh::Tracing::gpu())
 }
 
 /// The pipeline of `scene`'s variant, compiled on first use and cached in `ctx`.

@@ -14,7 +14,7 @@ use super::material::RenderMaterial;
 use crate::bvh::builders::Builder;
 use crate::bvh::instances::TopLevelUpdate;
 use crate::bvh::prbvh::PrbvhConfig;
-use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, sah_cost};
+use crate::bvh::{CollapseConfig, MeshBvh, Tracing, collapse_leaves, sah_cost};
 use crate::geometry::Triangle;
 use crate::scene::Scene;
 
@@ -36,11 +36,19 @@ pub struct RenderScene {
 /// What building the acceleration structure cost.
 #[derive(Clone, Debug)]
 pub struct BuildReport {
+    /// The whole build, the wide collapse included.
     pub build_ms: f64,
     pub sah: f64,
     pub triangles: usize,
     /// The builder used (for `auto`, what it decided).
     pub builder: String,
+    /// How the CPU traces the scene (the binary form for a GPU render, which traces its own).
+    pub tracing: Tracing,
+    /// Of `build_ms`, the time spent collapsing binary trees into wide ones for tracing.
+    pub collapse_ms: f64,
+    /// The SAH of the traced form (the wide tree's where it is wide); for two levels, of the
+    /// largest mesh's tree.
+    pub traced_sah: f64,
 }
 
 /// The time of a scene's first frame (0 for a static scene).
@@ -63,7 +71,7 @@ impl RenderScene {
         let (triangles, material_of) = scene.world_triangles();
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
         let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
-        Self::assemble(scene, triangles, material_of, &built.bvh, t, builder.to_string())
+        Self::assemble(scene, triangles, material_of, &built.bvh, t, builder.to_string(), Tracing::current())
     }
 
     /// The two-level build (see [`RenderScene::build`]).
@@ -75,7 +83,12 @@ impl RenderScene {
         let lights = instanced.lights(&materials);
         let geometry = Geometry::Instanced(instanced);
         let Geometry::Instanced(g) = &geometry else { unreachable!() };
+        let meshes = g.two_level.meshes();
+        let largest = meshes.iter().max_by_key(|m| m.triangles.len());
         let report = BuildReport {
+            tracing: largest.map_or_else(Tracing::current, MeshBvh::tracing),
+            collapse_ms: meshes.iter().map(MeshBvh::collapse_seconds).sum::<f64>() * 1e3,
+            traced_sah: largest.map_or(0.0, |m| m.traced_sah(&Default::default())),
             build_ms: t.elapsed().as_secs_f64() * 1e3,
             sah: g.two_level.top_level().sah_estimate(&Default::default()),
             triangles: geometry.world_triangle_count(),
@@ -85,8 +98,9 @@ impl RenderScene {
     }
 
     /// The rest of a flat build from a tree with one primitive per leaf over `triangles` (built
-    /// here, or on the GPU: `arbor::gpu::build_render_scene`): leaf collapse, materials, lights,
-    /// camera. The report's time runs from `start`.
+    /// here, or on the GPU: `arbor::gpu::build_render_scene`): leaf collapse, the form the CPU
+    /// traces (`tracing`; a GPU render needs only the binary tree), materials, lights, camera.
+    /// The report's time runs from `start`.
     pub fn assemble(
         scene: &Scene,
         triangles: Vec<Triangle>,
@@ -94,14 +108,25 @@ impl RenderScene {
         leaf1: &crate::bvh::Bvh,
         start: Instant,
         builder: String,
+        tracing: Tracing,
     ) -> (Self, BuildReport) {
         let bvh = collapse_leaves(leaf1, &CollapseConfig::default());
         let sah = sah_cost(&bvh);
-        let mesh = MeshBvh::new(bvh, &triangles);
+        let mesh = MeshBvh::with_tracing(bvh, &triangles, tracing);
+        let (tracing, collapse_ms, traced_sah) =
+            (mesh.tracing(), mesh.collapse_seconds() * 1e3, mesh.traced_sah(&Default::default()));
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
         let lights = flat_lights(&triangles, &material_of, &materials);
         let report =
-            BuildReport { build_ms: start.elapsed().as_secs_f64() * 1e3, sah, triangles: triangles.len(), builder };
+            BuildReport {
+                build_ms: start.elapsed().as_secs_f64() * 1e3,
+                sah,
+                triangles: triangles.len(),
+                builder,
+                tracing,
+                collapse_ms,
+                traced_sah,
+            };
         let geometry = Geometry::Flat(Flat { mesh, triangles, material_of });
         (Self::with_geometry(scene, geometry, materials, lights), report)
     }

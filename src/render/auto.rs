@@ -11,6 +11,7 @@ use super::geometry::wants_instancing;
 use super::integrator::RR_DEPTH;
 use super::rng::Rng;
 use super::{BuildReport, RenderScene};
+use crate::bvh::Tracing;
 use crate::bvh::prbvh::{self, PrbvhConfig};
 use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh};
 use crate::geometry::{Ray, Triangle};
@@ -199,12 +200,16 @@ impl RenderScene {
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
         let mut bvh = lbvh::build(&prims);
         let lbvh_seconds = t.elapsed().as_secs_f64();
+        let tracing = match device {
+            AutoDevice::Cpu | AutoDevice::CpuPaths { .. } => Tracing::current(),
+            AutoDevice::Measured { .. } | AutoDevice::Unmeasured => Tracing::gpu(),
+        };
         let assemble = |b: &crate::bvh::Bvh| {
-            Self::assemble(scene, triangles.clone(), material_of.clone(), b, Instant::now(), String::new())
+            Self::assemble(scene, triangles.clone(), material_of.clone(), b, Instant::now(), String::new(), tracing)
         };
         let Some(baseline) = Self::auto_baseline(scene, rays, device, &bvh, &triangles, lbvh_seconds, &assemble) else {
             let label = "auto: lbvh, a render too short to time on the device".to_owned();
-            return Self::assemble(scene, triangles, material_of, &bvh, t, label);
+            return Self::assemble(scene, triangles, material_of, &bvh, t, label, tracing);
         };
         t += baseline.excluded;
         let Baseline { judge, render_seconds, mut timed, probe_cost, measured, .. } = baseline;
@@ -243,7 +248,7 @@ impl RenderScene {
                 (report.builder, report.build_ms) = (label, t.elapsed().as_secs_f64() * 1e3);
                 (rs, report)
             }
-            None => Self::assemble(scene, triangles, material_of, &bvh, t, label),
+            None => Self::assemble(scene, triangles, material_of, &bvh, t, label, tracing),
         }
     }
 

@@ -33,6 +33,17 @@ pub struct SurfaceHit {
     pub material: u32,
     /// The triangle's id in [`Lights`] (meaningful when its material emits).
     pub light: u32,
+    /// Which triangle was hit, for rays spawned from it to skip.
+    pub surface: Surface,
+}
+
+/// A triangle of the scene: its instance (0 in a flat scene) and its id there. A ray spawned
+/// from a triangle skips it ([`crate::bvh::MeshBvh::closest_hit_skipping`]): it cannot hit it,
+/// and that test is the costliest one it would make.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Surface {
+    pub instance: u32,
+    pub prim: u32,
 }
 
 /// Flat world-space triangles.
@@ -154,16 +165,23 @@ impl Geometry {
     /// The closest hit along `ray`.
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<SurfaceHit> {
+        self.intersect_from(ray, None)
+    }
+
+    /// The closest hit along `ray`, spawned from surface `from` (which it skips).
+    #[inline]
+    pub fn intersect_from(&self, ray: &Ray, from: Option<Surface>) -> Option<SurfaceHit> {
         match self {
-            Geometry::Flat(f) => f.mesh.closest_hit(ray, f32::INFINITY).map(|h| SurfaceHit {
+            Geometry::Flat(f) => f.mesh.closest_hit_skipping(ray, f32::INFINITY, skip_prim(from)).map(|h| SurfaceHit {
                 t: h.t,
                 triangle: f.triangles[h.prim_id as usize],
                 u: h.u,
                 v: h.v,
                 material: f.material_of[h.prim_id as usize],
                 light: h.prim_id,
+                surface: Surface { instance: 0, prim: h.prim_id },
             }),
-            Geometry::Instanced(g) => g.two_level.closest_hit(ray, f32::INFINITY).map(|h| {
+            Geometry::Instanced(g) => g.two_level.closest_hit_skipping(ray, f32::INFINITY, skip_pair(from)).map(|h| {
                 let inst = &g.two_level.instances()[h.instance as usize];
                 let local = &g.mesh_triangles[inst.mesh as usize][h.prim_id as usize];
                 let base = g.light_base.get(h.instance as usize).copied().unwrap_or(INVALID_INDEX);
@@ -174,6 +192,7 @@ impl Geometry {
                     v: h.v,
                     material: g.material(h.instance as usize, h.prim_id),
                     light: if base == INVALID_INDEX { INVALID_INDEX } else { base + h.prim_id },
+                    surface: Surface { instance: h.instance, prim: h.prim_id },
                 }
             }),
         }
@@ -182,9 +201,15 @@ impl Geometry {
     /// Whether anything blocks `ray` with `0 < t <= t_max`.
     #[inline]
     pub fn occluded(&self, ray: &Ray, t_max: f32) -> bool {
+        self.occluded_from(ray, t_max, None)
+    }
+
+    /// [`Geometry::occluded`] for a ray spawned from surface `from` (which it skips).
+    #[inline]
+    pub fn occluded_from(&self, ray: &Ray, t_max: f32, from: Option<Surface>) -> bool {
         match self {
-            Geometry::Flat(f) => f.mesh.any_hit(ray, t_max),
-            Geometry::Instanced(g) => g.two_level.any_hit(ray, t_max),
+            Geometry::Flat(f) => f.mesh.any_hit_skipping(ray, t_max, skip_prim(from)),
+            Geometry::Instanced(g) => g.two_level.any_hit_skipping(ray, t_max, skip_pair(from)),
         }
     }
 
@@ -205,6 +230,16 @@ impl Geometry {
             Geometry::Instanced(g) => g.two_level.top_level().bvh().bounds(),
         }
     }
+}
+
+#[inline]
+fn skip_prim(from: Option<Surface>) -> u32 {
+    from.map_or(INVALID_INDEX, |s| s.prim)
+}
+
+#[inline]
+fn skip_pair(from: Option<Surface>) -> Option<(u32, u32)> {
+    from.map(|s| (s.instance, s.prim))
 }
 
 /// A light's emission in a form [`Lights::new`] takes, for the flat path.

@@ -14,6 +14,7 @@ use glam::Vec3;
 
 use super::RenderScene;
 use super::bsdf::Bsdf;
+use super::geometry::Surface;
 use super::rng::Rng;
 use super::sampling::{Frame, power_heuristic, robust_length, solid_angle_pdf};
 use crate::geometry::{Ray, gamma, spawn_ray};
@@ -32,9 +33,11 @@ impl RenderScene {
         let (mut l, mut beta) = (Vec3::ZERO, Vec3::ONE);
         let (mut prev_pdf, mut prev_delta) = (0.0f32, true);
         let mut rays = 0;
+        // The surface the ray leaves, which it skips (see `Surface`).
+        let mut from = None;
         for depth in 1..=max_depth {
             rays += 1;
-            let Some(hit) = self.geometry.intersect(&ray) else {
+            let Some(hit) = self.geometry.intersect_from(&ray, from) else {
                 if let Some(env) = self.environment {
                     l += beta * env;
                 }
@@ -69,7 +72,7 @@ impl RenderScene {
             let frame = Frame::from_normal(ng);
             let wo = frame.to_local(wo_world);
             if !self.lights.is_empty() && bsdf.has_non_delta() {
-                rays += self.direct_light(&bsdf, &frame, (p, p_error), ng, wo, beta, rng, &mut l);
+                rays += self.direct_light(&bsdf, &frame, (p, p_error, hit.surface), ng, wo, beta, rng, &mut l);
             }
             let Some(s) = bsdf.sample(wo, rng.next_vec2(), rng.next_f32()) else { break };
             if !(s.weight.is_finite() && s.weight.max_element() > 0.0) {
@@ -79,6 +82,7 @@ impl RenderScene {
             prev_pdf = s.pdf;
             prev_delta = s.is_delta;
             ray = spawn_ray(p, p_error, ng, frame.to_world(s.wi).normalize());
+            from = Some(hit.surface);
             if depth >= RR_DEPTH {
                 let q = beta.max_element().min(0.95);
                 if rng.next_f32() >= q {
@@ -97,7 +101,7 @@ impl RenderScene {
         &self,
         bsdf: &Bsdf,
         frame: &Frame,
-        (p, p_error): (Vec3, Vec3),
+        (p, p_error, surface): (Vec3, Vec3, Surface),
         ng: Vec3,
         wo: Vec3,
         beta: Vec3,
@@ -139,7 +143,7 @@ impl RenderScene {
         let length = robust_length(shadow.dir);
         let short_of_plane = lp.normal.abs().dot(lp.point_error) / (cos_light.abs() * length);
         let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
-        if !(clear.is_finite() && clear < dist && t_max > 0.0) || self.geometry.occluded(&shadow, t_max) {
+        if !(clear.is_finite() && clear < dist && t_max > 0.0) || self.geometry.occluded_from(&shadow, t_max, Some(surface)) {
             return 1;
         }
         let p_light = solid_angle_pdf(lp.pdf_area, to, cos_light.abs());

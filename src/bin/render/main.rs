@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use arbor::device::{BuilderChoice, DeviceChoice, Progress, RenderedFrame, Renderer};
 use arbor::image_io::{check_output_path, write_image};
+use arbor::bvh::{TraceLayout, Tracing};
 use arbor::render::BuildReport;
 use arbor::render::geometry::wants_instancing;
 use arbor::scene::{RenderSettings, Scene};
@@ -63,6 +64,11 @@ struct Args {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// The tree the CPU traces: binary, wide4 or wide8 (default: wide8 where the CPU has AVX2,
+    /// else wide4). Every form gives the same image; `ARBOR_SIMD=scalar|sse4|avx2` forces the
+    /// instruction set.
+    #[arg(long, value_name = "FORM", value_parser = parse_trace)]
+    trace: Option<TraceLayout>,
     /// Clamp fireflies: scale down any sample whose largest channel exceeds this radiance.
     /// Biased (it removes energy); off unless given.
     #[arg(long, value_name = "RADIANCE")]
@@ -104,6 +110,8 @@ fn run() -> Result<()> {
     let named: Option<BuilderChoice> =
         args.builder.as_deref().map(str::parse).transpose().context("--builder (or auto)")?;
     cli::init_threads(args.threads)?;
+    // Before any tree is built: meshes take the form current when they are built.
+    Tracing::from_env(args.trace)?.set_default();
     let scene = Scene::load(&args.scene)?;
     // The film's sums, the tiles' and the image written: about three times a pixel's sums.
     let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
@@ -182,7 +190,7 @@ fn run() -> Result<()> {
     let builder = named.unwrap_or_else(|| BuilderChoice::default_for(device, &scene));
     let mut renderer = Renderer::new(device, &scene, &builder, &settings, list.len(), list[0].1)?;
     if !args.quiet {
-        print_build(&args.scene, renderer.build_report());
+        print_build(&args.scene, renderer.build_report(), device.name() == "cpu");
         if let Some(note) = renderer.kernel_note() {
             outln!("{note}");
         }
@@ -204,16 +212,32 @@ fn run() -> Result<()> {
     Ok(())
 }
 
-fn print_build(scene: &Path, build: &BuildReport) {
+fn print_build(scene: &Path, build: &BuildReport, cpu: bool) {
+    // What the CPU traces; a GPU render traces its own copy of the binary tree.
+    let traced = if cpu && build.tracing.layout != TraceLayout::Binary {
+        format!(
+            ", traced as a {} (collapse {:.1} ms, SAH {:.2})",
+            build.tracing, build.collapse_ms, build.traced_sah
+        )
+    } else if cpu {
+        format!(", traced as a {}", build.tracing)
+    } else {
+        String::new()
+    };
     outln!(
-        "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}",
+        "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}{}",
         scene.display(),
         build.triangles,
         build.builder,
         build.build_ms,
         build.sah,
+        traced,
         peak_memory(build.triangles),
     );
+}
+
+fn parse_trace(name: &str) -> Result<TraceLayout, String> {
+    TraceLayout::parse(name).ok_or_else(|| format!("{name:?} is not a tree form: expected binary, wide4 or wide8"))
 }
 
 /// Writes the image and prints the frame's summary line.
