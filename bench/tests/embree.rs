@@ -15,11 +15,51 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use glam::Vec3;
+
 use arbor::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh};
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh, procedural};
 use arbor_bench::compare::{self, BenchConfig};
 use arbor_bench::embree::{Device, Quality, Scene};
 use arbor_bench::rays;
+
+/// One triangle in the z = 0 plane: a ray from above hits it at its own `t` (the direction is
+/// not unit length), misses past `t_max`, and a ray starting on the plane does not hit it at
+/// `t = 0` (Embree's robust mode would with `tnear = 0`).
+#[test]
+fn one_triangle_hits_in_the_rays_parametrisation() {
+    let device = Device::new(1).unwrap();
+    let triangles = [Triangle::new(Vec3::ZERO, Vec3::X, Vec3::Y)];
+    let (scene, _) = Scene::build(&device, &triangles, Quality::Medium).unwrap();
+    let down = Ray::new(Vec3::new(0.25, 0.25, 4.0), Vec3::new(0.0, 0.0, -2.0));
+    let (prim, t) = scene.closest_hit(&down, f32::INFINITY).unwrap();
+    assert_eq!(prim, 0);
+    assert!((t - 2.0).abs() < 1e-6, "t = {t}");
+    assert!(scene.any_hit(&down, 2.0));
+    assert!(!scene.any_hit(&down, 1.9));
+    assert_eq!(scene.closest_hit(&down, 1.9), None);
+    let on_plane = Ray::new(Vec3::new(0.25, 0.25, 0.0), Vec3::new(0.0, 0.0, 1.0));
+    assert_eq!(scene.closest_hit(&on_plane, f32::INFINITY), None);
+    assert!(!scene.any_hit(&on_plane, f32::INFINITY));
+}
+
+#[test]
+fn quality_names_round_trip() {
+    for q in Quality::ALL {
+        assert_eq!(Quality::from_name(q.name()), Some(q));
+    }
+    assert_eq!(Quality::from_name("embree-refit"), None);
+}
+
+/// An empty scene builds and misses everything.
+#[test]
+fn empty_scene_misses() {
+    let device = Device::new(1).unwrap();
+    let (scene, _) = Scene::build(&device, &[], Quality::Low).unwrap();
+    let ray = Ray::new(Vec3::ZERO, Vec3::X);
+    assert_eq!(scene.closest_hit(&ray, f32::INFINITY), None);
+    assert!(!scene.any_hit(&ray, f32::INFINITY));
+}
 
 /// The rays of one set whose hits differ, and how many rays the set has.
 #[derive(Debug)]
@@ -199,7 +239,7 @@ fn the_cli_compares_with_embree_medium() {
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
-    assert!(stdout.contains("embree-medium against lbvh+prbvh, rays hitting differently"), "{stdout}");
+    assert!(stdout.contains("embree-medium against lbvh+prbvh: rays hitting differently"), "{stdout}");
 
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(report["peer_reference"], "lbvh+prbvh");

@@ -108,13 +108,13 @@ pub(crate) fn print_table(r: &Report) {
                 .enumerate()
                 .map(|(k, (set, rays))| {
                     let hits = match reference_hits {
-                        Some(theirs) => format!("; hits {} against {}", b.hits[k], theirs[k]),
-                        None => format!("; hits {}", b.hits[k]),
+                        Some(theirs) => format!("hits {}, reference {}", b.hits[k], theirs[k]),
+                        None => format!("hits {}", b.hits[k]),
                     };
-                    format!("{set} {} of {rays}{hits}", differing[k])
+                    format!("{set} {} of {rays} ({hits})", differing[k])
                 })
                 .collect();
-            outln!("{} against {reference}, rays hitting differently (grazing): {}", b.name, per_set.join(", "));
+            outln!("{} against {reference}: rays hitting differently (grazing): {}", b.name, per_set.join("; "));
         }
     }
     if r.rays.shadow == 0 {
