@@ -310,18 +310,18 @@ pub fn run_with_progress(
     for round in 0..config.runs.max(1) {
         progress(&format!("tracing, round {} of {}", round + 1, config.runs.max(1)));
         for (b, mesh) in meshes.iter().enumerate() {
-            let mut codes = [const { Vec::new() }; 3];
+            let r = &mut report.builders[b];
+            // The hit codes are kept (round 0) only where Embree's are compared ray by ray.
+            let keep = round == 0 && has_peers && (r.engine != "arbor" || Some(b) == reference);
             for (k, &(set, t_max)) in sets.iter().enumerate() {
-                let (time, c) = mesh.trace(set, t_max);
+                let (time, codes) = mesh.trace(set, t_max);
                 times[b][k].push(time);
-                codes[k] = c;
-            }
-            if round == 0 {
-                let r = &mut report.builders[b];
-                r.checksums = codes.each_ref().map(|c| checksum(c));
-                r.hits = codes.each_ref().map(|c| c.iter().filter(|&&c| c != 0).count());
-                if has_peers && (r.engine != "arbor" || Some(b) == reference) {
-                    first_codes[b] = Some(codes);
+                if round == 0 {
+                    r.checksums[k] = checksum(&codes);
+                    r.hits[k] = codes.iter().filter(|&&c| c != 0).count();
+                }
+                if keep {
+                    first_codes[b].get_or_insert_with(Default::default)[k] = codes;
                 }
             }
         }
