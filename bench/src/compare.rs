@@ -2,13 +2,21 @@
 //! same leaf collapse, and traces the same primary, shadow and diffuse rays (Meister & Bittner
 //! 2018, Table 1). Closest hits must be the same for every tree (traversal is exact), so each
 //! ray set's checksum must agree between builders; a disagreement is reported.
+//!
+//! With the feature `embree`, Embree takes part as a peer ([`crate::embree`]): its own trees,
+//! traced by its own traversal on the same rays, in the same rounds. Its hits are not expected
+//! to be bit for bit Arbor's (see that module), so it is compared ray by ray with the reference
+//! (the first of Arbor's builders listed) and the rays that hit differently are counted, not
+//! treated as an error.
 
+use std::fmt;
+use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 use serde::Serialize;
 
-use arbor::bvh::builders::Builder;
+use arbor::bvh::builders::{Builder, UnknownBuilder};
 use arbor::bvh::prbvh::PrbvhConfig;
 use arbor::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh, sah_cost, validate};
 use arbor::geometry::{Aabb, Ray, Triangle};
@@ -17,10 +25,74 @@ use crate::median;
 
 use crate::rays as bench_rays;
 
+/// A builder in the comparison: one of Arbor's, whose tree Arbor's traversal traces, or (feature
+/// `embree`) Embree at a build quality, with its own tree and traversal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BenchBuilder {
+    Arbor(Builder),
+    #[cfg(feature = "embree")]
+    Embree(crate::embree::Quality),
+}
+
+/// A name `--builders` does not take.
+#[derive(Debug, thiserror::Error)]
+pub enum BuilderNameError {
+    #[error(transparent)]
+    Unknown(#[from] UnknownBuilder),
+    #[error(
+        "`{0}` is an Embree builder, and this bvh-bench was built without Embree: build it with `--features embree` (needs Embree 3: Debian package libembree-dev)"
+    )]
+    EmbreeNotBuilt(String),
+    #[error("unknown Embree builder `{0}`; known: embree-low, embree-medium, embree-high")]
+    UnknownEmbree(String),
+}
+
+/// The prefix of Embree's builder names.
+pub const EMBREE_PREFIX: &str = "embree-";
+
+impl FromStr for BenchBuilder {
+    type Err = BuilderNameError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s.starts_with(EMBREE_PREFIX) {
+            return embree_builder(s);
+        }
+        Ok(BenchBuilder::Arbor(s.parse()?))
+    }
+}
+
+#[cfg(feature = "embree")]
+fn embree_builder(name: &str) -> Result<BenchBuilder, BuilderNameError> {
+    crate::embree::Quality::from_name(name)
+        .map(BenchBuilder::Embree)
+        .ok_or_else(|| BuilderNameError::UnknownEmbree(name.to_owned()))
+}
+
+#[cfg(not(feature = "embree"))]
+fn embree_builder(name: &str) -> Result<BenchBuilder, BuilderNameError> {
+    Err(BuilderNameError::EmbreeNotBuilt(name.to_owned()))
+}
+
+impl From<Builder> for BenchBuilder {
+    fn from(b: Builder) -> Self {
+        BenchBuilder::Arbor(b)
+    }
+}
+
+impl fmt::Display for BenchBuilder {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BenchBuilder::Arbor(b) => b.fmt(f),
+            #[cfg(feature = "embree")]
+            BenchBuilder::Embree(q) => f.write_str(q.name()),
+        }
+    }
+}
+
 /// What to measure.
 #[derive(Clone, Debug)]
 pub struct BenchConfig {
-    pub builders: Vec<Builder>,
+    pub builders: Vec<BenchBuilder>,
     /// Builds per builder, and rounds of tracing (each round traces every builder once); the
     /// median times are reported. Default 3.
     pub runs: usize,
@@ -43,22 +115,26 @@ impl Default for BenchConfig {
 }
 
 /// One builder's results. Times in milliseconds, trace speeds in millions of rays per second.
+/// Fields that only Arbor's trees have (optimisation, collapse, SAH, node counts) are `None`
+/// (null in the JSON) for Embree, whose tree is opaque.
 #[derive(Clone, Debug, Serialize)]
 pub struct BuilderReport {
     pub name: String,
-    /// Median build time, without optimisation.
+    /// Whose tree and traversal: `arbor`, or `embree` for the Embree peer.
+    pub engine: &'static str,
+    /// Median build time, without optimisation (Embree: `rtcCommitScene`).
     pub build_ms: f64,
     /// Median PRBVH time (0 without).
-    pub optimize_ms: f64,
+    pub optimize_ms: Option<f64>,
     /// Leaf collapse time.
-    pub collapse_ms: f64,
+    pub collapse_ms: Option<f64>,
     /// SAH (cT = 3, cI = 2) after leaf collapse.
-    pub sah: f64,
+    pub sah: Option<f64>,
     /// SAH with one primitive per leaf, before collapse.
-    pub sah_leaf1: f64,
-    pub nodes: usize,
-    pub leaves: usize,
-    pub depth: usize,
+    pub sah_leaf1: Option<f64>,
+    pub nodes: Option<usize>,
+    pub leaves: Option<usize>,
+    pub depth: Option<usize>,
     /// Trace speeds in Mrays/s; `None` (null in the JSON) for a set of no rays (or one traced
     /// in no measurable time): shadow and diffuse rays start where primary rays hit, and a
     /// camera that sees nothing of a thin mesh makes none.
@@ -66,10 +142,15 @@ pub struct BuilderReport {
     pub shadow_mrays: Option<f64>,
     pub diffuse_mrays: Option<f64>,
     /// PRBVH iterations: `[milliseconds since the build started, leaf-1 SAH]`, starting with
-    /// the unoptimised tree; one point for builders without optimisation.
+    /// the unoptimised tree; one point for builders without optimisation, none for Embree.
     pub sah_curve: Vec<[f64; 2]>,
-    /// Checksums of the hits of each ray set: equal for every builder.
+    /// Checksums of the hits of each ray set: equal for every one of Arbor's builders.
     pub checksums: [u64; 3],
+    /// Rays of each set (primary, shadow, diffuse) that hit something.
+    pub hits: [usize; 3],
+    /// Embree only: rays of each set whose hit (triangle, or hit against miss) differs from the
+    /// reference builder's ([`Report::peer_reference`]); `None` for Arbor's builders.
+    pub differing_rays: Option<[usize; 3]>,
 }
 
 /// Everything `bvh-bench` reports.
@@ -79,8 +160,11 @@ pub struct Report {
     pub threads: usize,
     pub rays: RayCounts,
     pub builders: Vec<BuilderReport>,
-    /// Disagreements between builders' checksums; empty when all agree.
+    /// Disagreements between the checksums of Arbor's builders; empty when all agree.
     pub mismatches: Vec<String>,
+    /// What Embree's hits are compared with, ray by ray: the first of Arbor's builders listed,
+    /// or `lbvh` (the tree the rays were made with) where none is; `None` without Embree.
+    pub peer_reference: Option<String>,
 }
 
 #[derive(Clone, Copy, Debug, Serialize)]
@@ -97,8 +181,13 @@ struct RaySets {
     diffuse: Vec<Ray>,
 }
 
+/// The tree the ray sets are made with.
+fn reference_lbvh(prim_aabbs: &[Aabb]) -> arbor::bvh::Bvh {
+    lbvh::build(prim_aabbs)
+}
+
 fn ray_sets(triangles: &[Triangle], prim_aabbs: &[Aabb], resolution: u32) -> RaySets {
-    let bvh = lbvh::build(prim_aabbs);
+    let bvh = reference_lbvh(prim_aabbs);
     let bounds = bvh.bounds();
     let primary = bench_rays::primary_rays(&bounds, resolution, resolution);
     let shadow = bench_rays::shadow_rays(&bvh, triangles, &primary, bench_rays::light_position(&bounds));
@@ -117,9 +206,52 @@ pub struct InvalidTree {
     pub error: arbor::bvh::ValidationError,
 }
 
-/// Runs the comparison. Fails only on a tree that does not validate (a bug); checksum
-/// disagreements are listed in the report.
-pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, InvalidTree> {
+/// Why the comparison could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    InvalidTree(#[from] InvalidTree),
+    #[cfg(feature = "embree")]
+    #[error(transparent)]
+    Embree(#[from] crate::embree::EmbreeError),
+}
+
+/// A built tree, ready to trace.
+enum Traced {
+    Arbor(MeshBvh),
+    #[cfg(feature = "embree")]
+    Embree(crate::embree::Scene),
+}
+
+impl Traced {
+    /// Traces `rays` once (closest hit, or any hit when `t_max` is finite: shadow rays); returns
+    /// the time and each ray's hit code: the primitive's id + 1 for a closest hit (0 for none),
+    /// 1 or 0 for a shadow ray.
+    fn trace(&self, rays: &[Ray], t_max: f32) -> (Duration, Vec<u64>) {
+        let shadow = t_max.is_finite();
+        match self {
+            Traced::Arbor(mesh) => trace_codes(rays, |r| {
+                if shadow {
+                    mesh.any_hit(r, t_max) as u64
+                } else {
+                    mesh.closest_hit(r, t_max).map_or(0, |h| h.prim_id as u64 + 1)
+                }
+            }),
+            #[cfg(feature = "embree")]
+            Traced::Embree(scene) => trace_codes(rays, |r| {
+                if shadow {
+                    scene.any_hit(r, t_max) as u64
+                } else {
+                    scene.closest_hit(r, t_max).map_or(0, |(prim_id, _)| prim_id as u64 + 1)
+                }
+            }),
+        }
+    }
+}
+
+/// Runs the comparison. Fails only on a tree that does not validate (a bug) or an Embree call
+/// that fails; checksum disagreements are listed in the report.
+pub fn run(triangles: &[Triangle], config: &BenchConfig) -> Result<Report, BenchError> {
     run_with_progress(triangles, config, |_| {})
 }
 
@@ -129,7 +261,7 @@ pub fn run_with_progress(
     triangles: &[Triangle],
     config: &BenchConfig,
     progress: impl Fn(&str),
-) -> Result<Report, InvalidTree> {
+) -> Result<Report, BenchError> {
     progress("tracing the reference rays");
     let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let rays = ray_sets(triangles, &prim_aabbs, config.resolution);
@@ -139,10 +271,13 @@ pub fn run_with_progress(
         rays: RayCounts { primary: rays.primary.len(), shadow: rays.shadow.len(), diffuse: rays.diffuse.len() },
         builders: Vec::new(),
         mismatches: Vec::new(),
+        peer_reference: None,
     };
     // Build everything first, then trace in rounds that visit every builder in turn: on a
     // shared, noisy machine a slow spell then hits all builders alike instead of one of them.
     let mut meshes = Vec::with_capacity(config.builders.len());
+    #[cfg(feature = "embree")]
+    let mut embree_device = None;
     for (k, builder) in config.builders.iter().enumerate() {
         progress(&format!(
             "building {builder} ({} of {} builders, {} runs)",
@@ -150,21 +285,43 @@ pub fn run_with_progress(
             config.builders.len(),
             config.runs
         ));
-        let (r, mesh) = measure(builder, triangles, &prim_aabbs, config)?;
+        let (r, mesh) = match builder {
+            BenchBuilder::Arbor(b) => measure(b, triangles, &prim_aabbs, config)?,
+            #[cfg(feature = "embree")]
+            BenchBuilder::Embree(quality) => {
+                // One device for every Embree build, with the threads Arbor's builders get.
+                let device = match &mut embree_device {
+                    Some(d) => d,
+                    None => embree_device.insert(crate::embree::Device::new(report.threads)?),
+                };
+                measure_embree(*quality, device, triangles, config)?
+            }
+        };
         report.builders.push(r);
         meshes.push(mesh);
     }
     let sets: [(&[Ray], f32); 3] =
         [(&rays.primary, f32::INFINITY), (&rays.shadow, 1.0), (&rays.diffuse, f32::INFINITY)];
+    // Embree is compared ray by ray with the first of Arbor's builders.
+    let reference = config.builders.iter().position(|b| matches!(b, BenchBuilder::Arbor(_)));
+    let has_peers = report.builders.iter().any(|b| b.engine != "arbor");
+    let mut first_codes: Vec<Option<[Vec<u64>; 3]>> = vec![None; meshes.len()];
     let mut times = vec![[const { Vec::new() }; 3]; meshes.len()];
     for round in 0..config.runs.max(1) {
         progress(&format!("tracing, round {} of {}", round + 1, config.runs.max(1)));
         for (b, mesh) in meshes.iter().enumerate() {
+            let r = &mut report.builders[b];
+            // The hit codes are kept (round 0) only where Embree's are compared ray by ray.
+            let keep = round == 0 && has_peers && (r.engine != "arbor" || Some(b) == reference);
             for (k, &(set, t_max)) in sets.iter().enumerate() {
-                let (time, checksum) = trace(mesh, set, t_max);
+                let (time, codes) = mesh.trace(set, t_max);
                 times[b][k].push(time);
                 if round == 0 {
-                    report.builders[b].checksums[k] = checksum;
+                    r.checksums[k] = checksum(&codes);
+                    r.hits[k] = codes.iter().filter(|&&c| c != 0).count();
+                }
+                if keep {
+                    first_codes[b].get_or_insert_with(Default::default)[k] = codes;
                 }
             }
         }
@@ -176,15 +333,41 @@ pub fn run_with_progress(
         r.shadow_mrays = mrays(rays.shadow.len(), shadow);
         r.diffuse_mrays = mrays(rays.diffuse.len(), diffuse);
     }
-    for r in &report.builders[1..] {
-        let first = &report.builders[0];
-        for (k, set) in ["primary", "shadow", "diffuse"].iter().enumerate() {
-            if r.checksums[k] != first.checksums[k] {
-                report.mismatches.push(format!("{set} rays: {} and {} hit different triangles", first.name, r.name));
+    if let Some(first) = reference {
+        let first = &report.builders[first];
+        for r in report.builders.iter().filter(|r| r.engine == "arbor") {
+            for (k, set) in ["primary", "shadow", "diffuse"].iter().enumerate() {
+                if r.checksums[k] != first.checksums[k] {
+                    report
+                        .mismatches
+                        .push(format!("{set} rays: {} and {} hit different triangles", first.name, r.name));
+                }
             }
         }
     }
+    if has_peers {
+        let (name, codes) = match reference {
+            Some(b) => (report.builders[b].name.clone(), first_codes[b].take().expect("kept in round 0")),
+            None => {
+                // Only peers listed: compare them with the tree the rays were made with.
+                let mesh = Traced::Arbor(MeshBvh::new(reference_lbvh(&prim_aabbs), triangles));
+                ("lbvh".to_string(), sets.map(|(set, t_max)| mesh.trace(set, t_max).1))
+            }
+        };
+        for (r, peer) in report.builders.iter_mut().zip(first_codes) {
+            if let (Some(peer), "embree") = (peer, r.engine) {
+                r.differing_rays = Some(std::array::from_fn(|k| differing(&codes[k], &peer[k])));
+            }
+        }
+        report.peer_reference = Some(name);
+    }
     Ok(report)
+}
+
+/// How many rays hit differently in two traces of the same rays.
+fn differing(a: &[u64], b: &[u64]) -> usize {
+    assert_eq!(a.len(), b.len(), "two traces of one ray set");
+    a.iter().zip(b).filter(|(a, b)| a != b).count()
 }
 
 /// The median of `times` in milliseconds.
@@ -199,7 +382,7 @@ fn measure(
     triangles: &[Triangle],
     prim_aabbs: &[Aabb],
     config: &BenchConfig,
-) -> Result<(BuilderReport, MeshBvh), InvalidTree> {
+) -> Result<(BuilderReport, Traced), InvalidTree> {
     let runs = config.runs.max(1);
     let mut builds = Vec::with_capacity(runs);
     let mut optimizations = Vec::with_capacity(runs);
@@ -234,38 +417,76 @@ fn measure(
     let mesh = MeshBvh::new(collapsed, triangles);
     let report = BuilderReport {
         name: builder.to_string(),
+        engine: "arbor",
         build_ms,
-        optimize_ms: median_ms(optimizations),
-        collapse_ms,
-        sah,
-        sah_leaf1,
-        nodes: stats.node_count,
-        leaves: stats.leaf_count,
-        depth: stats.depth,
+        optimize_ms: Some(median_ms(optimizations)),
+        collapse_ms: Some(collapse_ms),
+        sah: Some(sah),
+        sah_leaf1: Some(sah_leaf1),
+        nodes: Some(stats.node_count),
+        leaves: Some(stats.leaf_count),
+        depth: Some(stats.depth),
         primary_mrays: None,
         shadow_mrays: None,
         diffuse_mrays: None,
         sah_curve,
         checksums: [0; 3],
+        hits: [0; 3],
+        differing_rays: None,
     };
-    Ok((report, mesh))
+    Ok((report, Traced::Arbor(mesh)))
 }
 
-/// Traces `rays` once (closest hit, or any hit when `t_max` is finite: shadow rays); returns the
-/// time and a checksum of the hits.
-fn trace(mesh: &MeshBvh, rays: &[Ray], t_max: f32) -> (Duration, u64) {
-    let shadow = t_max.is_finite();
-    let hit_code = |r: &Ray| -> u64 {
-        if shadow {
-            mesh.any_hit(r, t_max) as u64
-        } else {
-            mesh.closest_hit(r, t_max).map_or(0, |h| h.prim_id as u64 + 1)
-        }
+/// Builds Embree's scene at `quality` `runs` times (the build time is `rtcCommitScene`'s) and
+/// reports what applies to it; returns the last scene to trace.
+#[cfg(feature = "embree")]
+fn measure_embree(
+    quality: crate::embree::Quality,
+    device: &crate::embree::Device,
+    triangles: &[Triangle],
+    config: &BenchConfig,
+) -> Result<(BuilderReport, Traced), crate::embree::EmbreeError> {
+    let mut builds = Vec::new();
+    let mut last = None;
+    for _ in 0..config.runs.max(1) {
+        // The previous scene is freed first, so that two are never in memory at once.
+        drop(last.take());
+        let (scene, time) = crate::embree::Scene::build(device, triangles, quality)?;
+        builds.push(time);
+        last = Some(scene);
+    }
+    let report = BuilderReport {
+        name: quality.name().to_string(),
+        engine: "embree",
+        build_ms: median_ms(builds),
+        optimize_ms: None,
+        collapse_ms: None,
+        sah: None,
+        sah_leaf1: None,
+        nodes: None,
+        leaves: None,
+        depth: None,
+        primary_mrays: None,
+        shadow_mrays: None,
+        diffuse_mrays: None,
+        sah_curve: Vec::new(),
+        checksums: [0; 3],
+        hits: [0; 3],
+        differing_rays: None,
     };
+    Ok((report, Traced::Embree(last.expect("at least one run"))))
+}
+
+/// Traces `rays` once by `hit_code`, in parallel; returns the time and each ray's code.
+fn trace_codes(rays: &[Ray], hit_code: impl Fn(&Ray) -> u64 + Send + Sync) -> (Duration, Vec<u64>) {
     let t = Instant::now();
     let codes = rays.par_iter().with_min_len(64).map(hit_code).collect::<Vec<u64>>();
-    let time = t.elapsed();
-    (time, codes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &c| (h ^ c).wrapping_mul(0x0100_0000_01b3)))
+    (t.elapsed(), codes)
+}
+
+/// A checksum (FNV-1a over the codes) of a trace's hit codes.
+fn checksum(codes: &[u64]) -> u64 {
+    codes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &c| (h ^ c).wrapping_mul(0x0100_0000_01b3))
 }
 
 #[cfg(test)]

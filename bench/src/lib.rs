@@ -4,12 +4,15 @@
 //! - [`rays`]: the ray sets trace speed is measured with (primary, shadow, diffuse);
 //! - [`anim`]: ways of keeping a top-level BVH up to date through an animation;
 //! - [`converge`]: image error against wall time, through [`arbor::device::Renderer`];
+//! - `embree` (feature `embree`): Embree 3 as a peer, its own trees and traversal;
 //! - [`peers`]: external builders (the obvhs crate's presets) in Arbor's layout, registered
 //!   with the library's builder names by [`peers::register`].
 
 pub mod anim;
 pub mod compare;
 pub mod converge;
+#[cfg(feature = "embree")]
+pub mod embree;
 pub mod peers;
 pub mod rays;
 

@@ -549,3 +549,13 @@ fn gpu_builds_are_reported_beside_the_cpu() {
     );
     assert!(gpu < lbvh && (gpu - cpu).abs() <= 0.02 * cpu, "SAH: LBVH {lbvh}, CPU PRBVH {cpu}, GPU PRBVH {gpu}");
 }
+
+/// Without the feature `embree`, naming an Embree builder says how to get it, before any work.
+#[cfg(not(feature = "embree"))]
+#[test]
+fn embree_builders_need_the_feature() {
+    let out = bench().args(["--procedural", "city:1000", "--builders", "lbvh,embree-medium"]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("`embree-medium`") && stderr.contains("--features embree"), "{stderr}");
+}

@@ -1,9 +1,8 @@
 //! The builder comparison, the default mode: build time, SAH and trace speed.
 
 use anyhow::{Context, Result, bail};
-use arbor::bvh::builders::Builder;
 use arbor::bvh::prbvh::PrbvhConfig;
-use arbor_bench::compare::{self as bench, BenchConfig, Report};
+use arbor_bench::compare::{self as bench, BenchBuilder, BenchConfig, Report};
 use indicatif::ProgressBar;
 use std::io::{IsTerminal, Write};
 
@@ -21,7 +20,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         .clone()
         .unwrap_or_else(default_builders)
         .iter()
-        .map(|b| b.trim().parse::<Builder>())
+        .map(|b| b.trim().parse::<BenchBuilder>())
         .collect::<Result<Vec<_>, _>>()
         .context("--builders")?;
     let (name, mesh) = load_input(args)?;
@@ -41,8 +40,13 @@ pub(crate) fn run(args: &Args) -> Result<()> {
     spinner.finish_and_clear();
     let report = report?;
     print_table(&report);
-    let series: Vec<Series> =
-        report.builders.iter().map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect())).collect();
+    // Embree's tree is opaque: it has no SAH curve to plot.
+    let series: Vec<Series> = report
+        .builders
+        .iter()
+        .filter(|b| !b.sah_curve.is_empty())
+        .map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect()))
+        .collect();
     let plot = (format!("SAH against time: {name}"), ("build + optimisation time (ms)", "SAH, one primitive per leaf"));
     write_outputs(args, &report, |f| write_csv(f, &report), plot, &series, false)?;
     if !report.mismatches.is_empty() {
@@ -74,22 +78,45 @@ pub(crate) fn print_table(r: &Report) {
         "diffuse"
     );
     let speed = |v: Option<f64>| v.map_or_else(|| "n/a".to_string(), |v| format!("{v:.2}"));
+    // Fields Embree's opaque tree does not have: `-`.
+    let ms = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.1}"));
+    let sah = |v: Option<f64>| v.map_or_else(|| "-".to_string(), |v| format!("{v:.2}"));
+    let count = |v: Option<usize>| v.map_or_else(|| "-".to_string(), |v| v.to_string());
     for b in &r.builders {
         outln!(
-            "{:<26} {:>10.1} {:>12.1} {:>10.2} {:>8.2} {:>9} {:>9} {:>9} {:>9} {:>9}",
+            "{:<26} {:>10.1} {:>12} {:>10} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9}",
             b.name,
             b.build_ms,
-            b.optimize_ms,
-            b.sah_leaf1,
-            b.sah,
-            b.nodes,
-            b.leaves,
+            ms(b.optimize_ms),
+            sah(b.sah_leaf1),
+            sah(b.sah),
+            count(b.nodes),
+            count(b.leaves),
             speed(b.primary_mrays),
             speed(b.shadow_mrays),
             speed(b.diffuse_mrays)
         );
     }
     outln!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
+    if let Some(reference) = &r.peer_reference {
+        outln!("(embree-*: Embree's own trees and traversal; `-`: does not apply to them)");
+        for b in r.builders.iter().filter(|b| b.differing_rays.is_some()) {
+            let differing = b.differing_rays.unwrap_or_default();
+            let reference_hits = r.builders.iter().find(|x| &x.name == reference).map(|x| x.hits);
+            let sets = ["primary", "shadow", "diffuse"].iter().zip([r.rays.primary, r.rays.shadow, r.rays.diffuse]);
+            let per_set: Vec<String> = sets
+                .enumerate()
+                .map(|(k, (set, rays))| {
+                    let hits = match reference_hits {
+                        Some(theirs) => format!("hits {}, reference {}", b.hits[k], theirs[k]),
+                        None => format!("hits {}", b.hits[k]),
+                    };
+                    format!("{set} {} of {rays} ({hits})", differing[k])
+                })
+                .collect();
+            outln!("{} against {reference}: rays hitting differently (grazing): {}", b.name, per_set.join("; "));
+        }
+    }
     if r.rays.shadow == 0 {
         outln!(
             "(no primary ray hit the mesh, so there are no shadow or diffuse rays: n/a, null in the JSON; a thin or flat mesh seen edge-on)"
@@ -108,22 +135,22 @@ pub(crate) fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {
             "{},{},{},{},{},{},{},{},{},{},{},{}",
             b.name,
             b.build_ms,
-            b.optimize_ms,
-            b.collapse_ms,
-            b.sah,
-            b.sah_leaf1,
-            b.nodes,
-            b.leaves,
-            b.depth,
-            csv_speed(b.primary_mrays),
-            csv_speed(b.shadow_mrays),
-            csv_speed(b.diffuse_mrays)
+            csv_value(b.optimize_ms),
+            csv_value(b.collapse_ms),
+            csv_value(b.sah),
+            csv_value(b.sah_leaf1),
+            csv_value(b.nodes),
+            csv_value(b.leaves),
+            csv_value(b.depth),
+            csv_value(b.primary_mrays),
+            csv_value(b.shadow_mrays),
+            csv_value(b.diffuse_mrays)
         )?;
     }
     Ok(())
 }
 
-/// A trace speed in the CSV: empty where there were no rays.
-pub(crate) fn csv_speed(v: Option<f64>) -> String {
+/// A value in the CSV: empty where it does not apply, or for a set of no rays.
+pub(crate) fn csv_value(v: Option<impl ToString>) -> String {
     v.map_or_else(String::new, |v| v.to_string())
 }

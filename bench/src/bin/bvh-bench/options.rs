@@ -4,6 +4,7 @@ use anyhow::{Context, Result, bail};
 use arbor::atomic_file::{self};
 use arbor::bvh::builders::Builder;
 use arbor::geometry::{TriangleMesh, procedural};
+use arbor_bench::compare::{BenchBuilder, EMBREE_PREFIX};
 
 use crate::Args;
 use crate::plot::plot_format;
@@ -43,6 +44,15 @@ pub(crate) fn check_options(args: &Args) -> Result<()> {
                     bail!("--builders: `{name}` is listed twice");
                 }
                 bail!("--builders: `{first}` and `{name}` are the same builder, `{canonical}`");
+            }
+        }
+        // Embree's builders exist only with the feature, and only in the builder comparison.
+        for name in names.iter().map(|n| n.trim()).filter(|n| n.starts_with(EMBREE_PREFIX)) {
+            name.parse::<BenchBuilder>().context("--builders")?;
+            if args.converge.is_some() || args.memory {
+                bail!(
+                    "--builders: `{name}` (Embree) is measured by the builder comparison only, not by --converge or --memory"
+                );
             }
         }
     }
