@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use arbor::bvh::builders::{Builder, UnknownBuilder};
 use arbor::bvh::prbvh::PrbvhConfig;
-use arbor::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh, sah_cost, validate};
+use arbor::bvh::{CollapseConfig, MeshBvh, TraceLayout, collapse_leaves, lbvh, sah_cost, validate};
 use arbor::geometry::{Aabb, Ray, Triangle};
 
 use crate::median;
@@ -135,12 +135,23 @@ pub struct BuilderReport {
     pub nodes: Option<usize>,
     pub leaves: Option<usize>,
     pub depth: Option<usize>,
-    /// Trace speeds in Mrays/s; `None` (null in the JSON) for a set of no rays (or one traced
-    /// in no measurable time): shadow and diffuse rays start where primary rays hit, and a
-    /// camera that sees nothing of a thin mesh makes none.
+    /// Trace speeds in Mrays/s of the form `render` traces by default ([`Report::trace`]: the
+    /// wide tree on the best SIMD path, for Arbor's builders); `None` (null in the JSON) for a
+    /// set of no rays (or one traced in no measurable time): shadow and diffuse rays start where
+    /// primary rays hit, and a camera that sees nothing of a thin mesh makes none.
     pub primary_mrays: Option<f64>,
     pub shadow_mrays: Option<f64>,
     pub diffuse_mrays: Option<f64>,
+    /// The same rays through the binary tree the wide one is collapsed from (scalar code);
+    /// `None` for Embree.
+    pub binary_primary_mrays: Option<f64>,
+    pub binary_shadow_mrays: Option<f64>,
+    pub binary_diffuse_mrays: Option<f64>,
+    /// Time to collapse the leaf-collapsed binary tree into the wide one and pack its triangles
+    /// (part of every render's BVH time); `None` for Embree, or where the traced form is binary.
+    pub wide_collapse_ms: Option<f64>,
+    /// SAH (cT = 3, cI = 2 per triangle) of the wide tree traced.
+    pub wide_sah: Option<f64>,
     /// PRBVH iterations: `[milliseconds since the build started, leaf-1 SAH]`, starting with
     /// the unoptimised tree; one point for builders without optimisation, none for Embree.
     pub sah_curve: Vec<[f64; 2]>,
@@ -158,6 +169,10 @@ pub struct BuilderReport {
 pub struct Report {
     pub triangles: usize,
     pub threads: usize,
+    /// The tree form Arbor's `*_mrays` are measured on: `binary`, `wide4` or `wide8`.
+    pub trace: &'static str,
+    /// The SIMD path that traces it: `scalar`, `sse4` or `avx2` (`ARBOR_SIMD` forces one).
+    pub simd: &'static str,
     pub rays: RayCounts,
     pub builders: Vec<BuilderReport>,
     /// Disagreements between the checksums of Arbor's builders; empty when all agree.
@@ -218,7 +233,8 @@ pub enum BenchError {
 
 /// A built tree, ready to trace.
 enum Traced {
-    Arbor(MeshBvh),
+    /// The form traced by default, and the binary tree it comes from.
+    Arbor { traced: Box<MeshBvh>, binary: Box<MeshBvh> },
     #[cfg(feature = "embree")]
     Embree(crate::embree::Scene),
 }
@@ -228,18 +244,11 @@ impl Traced {
     /// the time and each ray's hit code: the primitive's id + 1 for a closest hit (0 for none),
     /// 1 or 0 for a shadow ray.
     fn trace(&self, rays: &[Ray], t_max: f32) -> (Duration, Vec<u64>) {
-        let shadow = t_max.is_finite();
         match self {
-            Traced::Arbor(mesh) => trace_codes(rays, |r| {
-                if shadow {
-                    mesh.any_hit(r, t_max) as u64
-                } else {
-                    mesh.closest_hit(r, t_max).map_or(0, |h| h.prim_id as u64 + 1)
-                }
-            }),
+            Traced::Arbor { traced, .. } => trace_mesh(traced, rays, t_max),
             #[cfg(feature = "embree")]
             Traced::Embree(scene) => trace_codes(rays, |r| {
-                if shadow {
+                if t_max.is_finite() {
                     scene.any_hit(r, t_max) as u64
                 } else {
                     scene.closest_hit(r, t_max).map_or(0, |(prim_id, _)| prim_id as u64 + 1)
@@ -247,6 +256,27 @@ impl Traced {
             }),
         }
     }
+
+    /// Arbor's binary tree, traced beside the wide one.
+    fn binary(&self) -> Option<&MeshBvh> {
+        match self {
+            Traced::Arbor { binary, .. } => Some(binary),
+            #[cfg(feature = "embree")]
+            Traced::Embree(_) => None,
+        }
+    }
+}
+
+/// [`Traced::trace`] through `mesh`.
+fn trace_mesh(mesh: &MeshBvh, rays: &[Ray], t_max: f32) -> (Duration, Vec<u64>) {
+    let shadow = t_max.is_finite();
+    trace_codes(rays, |r| {
+        if shadow {
+            mesh.any_hit(r, t_max) as u64
+        } else {
+            mesh.closest_hit(r, t_max).map_or(0, |h| h.prim_id as u64 + 1)
+        }
+    })
 }
 
 /// Runs the comparison. Fails only on a tree that does not validate (a bug) or an Embree call
@@ -265,9 +295,12 @@ pub fn run_with_progress(
     progress("tracing the reference rays");
     let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let rays = ray_sets(triangles, &prim_aabbs, config.resolution);
+    let tracing = arbor::bvh::Tracing::current();
     let mut report = Report {
         triangles: triangles.len(),
         threads: rayon::current_num_threads(),
+        trace: tracing.layout.name(),
+        simd: tracing.simd.name(),
         rays: RayCounts { primary: rays.primary.len(), shadow: rays.shadow.len(), diffuse: rays.diffuse.len() },
         builders: Vec::new(),
         mismatches: Vec::new(),
@@ -307,6 +340,7 @@ pub fn run_with_progress(
     let has_peers = report.builders.iter().any(|b| b.engine != "arbor");
     let mut first_codes: Vec<Option<[Vec<u64>; 3]>> = vec![None; meshes.len()];
     let mut times = vec![[const { Vec::new() }; 3]; meshes.len()];
+    let mut binary_times = vec![[const { Vec::new() }; 3]; meshes.len()];
     for round in 0..config.runs.max(1) {
         progress(&format!("tracing, round {} of {}", round + 1, config.runs.max(1)));
         for (b, mesh) in meshes.iter().enumerate() {
@@ -320,18 +354,29 @@ pub fn run_with_progress(
                     r.checksums[k] = checksum(&codes);
                     r.hits[k] = codes.iter().filter(|&&c| c != 0).count();
                 }
+                if let Some(binary) = mesh.binary() {
+                    let (time, binary_codes) = trace_mesh(binary, set, t_max);
+                    binary_times[b][k].push(time);
+                    if round == 0 && binary_codes != codes {
+                        let set = ["primary", "shadow", "diffuse"][k];
+                        report.mismatches.push(format!("{set} rays: {}'s binary and wide trees hit differently", r.name));
+                    }
+                }
                 if keep {
                     first_codes[b].get_or_insert_with(Default::default)[k] = codes;
                 }
             }
         }
     }
-    for (r, times) in report.builders.iter_mut().zip(times) {
-        let [primary, shadow, diffuse] = times.map(median_ms);
-        let mrays = |count: usize, ms: f64| (count > 0 && ms > 0.0).then(|| count as f64 / ms / 1e3);
-        r.primary_mrays = mrays(rays.primary.len(), primary);
-        r.shadow_mrays = mrays(rays.shadow.len(), shadow);
-        r.diffuse_mrays = mrays(rays.diffuse.len(), diffuse);
+    let mrays = |count: usize, times: &[Duration]| {
+        let ms = median_ms(times.to_vec());
+        (count > 0 && ms > 0.0 && !times.is_empty()).then(|| count as f64 / ms / 1e3)
+    };
+    let counts = [rays.primary.len(), rays.shadow.len(), rays.diffuse.len()];
+    for ((r, times), binary) in report.builders.iter_mut().zip(times).zip(binary_times) {
+        [r.primary_mrays, r.shadow_mrays, r.diffuse_mrays] = std::array::from_fn(|k| mrays(counts[k], &times[k]));
+        [r.binary_primary_mrays, r.binary_shadow_mrays, r.binary_diffuse_mrays] =
+            std::array::from_fn(|k| mrays(counts[k], &binary[k]));
     }
     if let Some(first) = reference {
         let first = &report.builders[first];
@@ -350,7 +395,8 @@ pub fn run_with_progress(
             Some(b) => (report.builders[b].name.clone(), first_codes[b].take().expect("kept in round 0")),
             None => {
                 // Only peers listed: compare them with the tree the rays were made with.
-                let mesh = Traced::Arbor(MeshBvh::new(reference_lbvh(&prim_aabbs), triangles));
+                let mesh = MeshBvh::new(reference_lbvh(&prim_aabbs), triangles);
+                let mesh = Traced::Arbor { binary: Box::new(mesh.clone()), traced: Box::new(mesh) };
                 ("lbvh".to_string(), sets.map(|(set, t_max)| mesh.trace(set, t_max).1))
             }
         };
@@ -414,7 +460,10 @@ fn measure(
         error,
     })?;
     let sah = sah_cost(&collapsed);
-    let mesh = MeshBvh::new(collapsed, triangles);
+    let binary_tracing = arbor::bvh::Tracing { layout: TraceLayout::Binary, simd: arbor::bvh::SimdPath::Scalar };
+    let binary = MeshBvh::with_tracing(collapsed.clone(), triangles, binary_tracing);
+    let traced = MeshBvh::new(collapsed, triangles);
+    let wide = traced.tracing().layout != TraceLayout::Binary;
     let report = BuilderReport {
         name: builder.to_string(),
         engine: "arbor",
@@ -429,12 +478,17 @@ fn measure(
         primary_mrays: None,
         shadow_mrays: None,
         diffuse_mrays: None,
+        binary_primary_mrays: None,
+        binary_shadow_mrays: None,
+        binary_diffuse_mrays: None,
+        wide_collapse_ms: wide.then(|| traced.collapse_seconds() * 1e3),
+        wide_sah: wide.then(|| traced.traced_sah(&Default::default())),
         sah_curve,
         checksums: [0; 3],
         hits: [0; 3],
         differing_rays: None,
     };
-    Ok((report, Traced::Arbor(mesh)))
+    Ok((report, Traced::Arbor { traced: Box::new(traced), binary: Box::new(binary) }))
 }
 
 /// Builds Embree's scene at `quality` `runs` times (the build time is `rtcCommitScene`'s) and
@@ -469,6 +523,11 @@ fn measure_embree(
         primary_mrays: None,
         shadow_mrays: None,
         diffuse_mrays: None,
+        binary_primary_mrays: None,
+        binary_shadow_mrays: None,
+        binary_diffuse_mrays: None,
+        wide_collapse_ms: None,
+        wide_sah: None,
         sah_curve: Vec::new(),
         checksums: [0; 3],
         hits: [0; 3],

@@ -13,12 +13,17 @@
 //! - the box test is the slab test of [`crate::geometry::slab_interval`] lane by lane. `maxps`
 //!   and `minps` return their second operand when the first is NaN, which is the scalar code's
 //!   NaN-ignoring `max`/`min` with the accumulator second;
-//! - the triangle kernel is a *filter* over four triangles: it runs the watertight test's f32
-//!   part (the shear, the edge functions, `T` and `det`) and rejects a lane only where
+//! - the triangle kernel runs the watertight test's f32 part (the shear, the edge functions, `T`,
+//!   `det` and `t`) on four triangles and sorts the lanes three ways. *Rejected*: where
 //!   [`crate::geometry::Triangle::intersect`] would return no hit on the same floats (edge
-//!   functions of mixed sign, or a distance past `t_max`, with every quantity a normal float).
-//!   Every other lane, which the scalar test would send to its error bound or its f64 paths, is
-//!   a candidate and goes to the scalar test, so hits are exactly the scalar test's.
+//!   functions of mixed sign, a distance past `t_max`, or one below minus its error bound).
+//!   *Accepted*: where it would return this `t`, `u`, `v`, which the kernel computed with the
+//!   same operations: every quantity a normal float and `t` above its error bound. The bound is
+//!   the scalar test's (`t_error_bound`, evaluated there in f64), evaluated here in f32 and
+//!   enlarged by a factor that covers the f32 rounding of its dozen operations, and trusted only
+//!   where it is a normal float well above the subnormal range; so `t` above it is above the
+//!   scalar bound too. *Checked*: every other lane (a ray through an edge, a `t` near zero: the
+//!   scalar test's f64 paths) goes to the scalar test. Hits are exactly the scalar test's.
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -268,6 +273,18 @@ impl PacketRay {
     }
 }
 
+/// What [`Kernel::triangles`] makes of a packet's lanes (module docs): bit masks of the lanes
+/// whose hit is known (`t`, `u`, `v` hold it) and of those the scalar test must decide; the
+/// lanes in neither are rejected.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct PacketHits {
+    pub accept: u32,
+    pub check: u32,
+    pub t: [f32; 4],
+    pub u: [f32; 4],
+    pub v: [f32; 4],
+}
+
 /// A path's kernels. Each method is the whole of one test; the traversals in
 /// [`super::wide_mesh`] are written once over this trait and instantiated per path inside a
 /// function compiled for that path's features. The kernels are `inline(always)` functions
@@ -278,8 +295,9 @@ pub(crate) trait Kernel {
     /// Lanes of `node` (in use) whose box the ray enters before `limit`, as a bit mask, with
     /// every lane's entry distance in `dist`.
     fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32;
-    /// Lanes of `p` among `valid` that the scalar watertight test might hit within `t_max`.
-    fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> u32;
+    /// The lanes of `p` among `valid`, sorted by whether the watertight test hits them within
+    /// `t_max`.
+    fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits;
 }
 
 /// Portable kernels: a lane at a time.
@@ -298,17 +316,25 @@ impl Kernel for Scalar {
         mask
     }
 
+    /// Only rejects: the lanes it keeps go to the scalar test whole.
     #[inline(always)]
-    fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> u32 {
-        let mut mask = 0;
+    fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
+        let mut check = 0;
         for i in 0..4 {
             if valid & (1 << i) != 0 && scalar_candidate(p, i, ray, t_max) {
-                mask |= 1 << i;
+                check |= 1 << i;
             }
         }
-        mask
+        PacketHits { check, ..Default::default() }
     }
 }
+
+/// The factor the f32 evaluation of the error bound is enlarged by: its dozen roundings move it
+/// by less than 2^-19 of itself (module docs).
+const BOUND_MARGIN: f32 = 1.0 + 1.0 / 65536.0;
+/// The smallest f32 bound trusted: far enough above the subnormals that no term of it can have
+/// lost more to underflow than the margin covers.
+const BOUND_FLOOR: f32 = 1.0e-25;
 
 /// The triangle filter for one lane (module docs).
 #[inline(always)]
@@ -350,7 +376,8 @@ pub(crate) use x86::{Avx2, Sse4};
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::{BoxRay, Kernel, PacketRay, ROBUST_SLAB_SCALE, TrianglePacket};
+    use super::{BOUND_FLOOR, BOUND_MARGIN, BoxRay, Kernel, PacketHits, PacketRay, ROBUST_SLAB_SCALE, TrianglePacket};
+    use crate::geometry::gamma;
     use crate::bvh::INVALID_INDEX;
     use crate::bvh::wide::WideNode;
 
@@ -369,7 +396,7 @@ mod x86 {
         }
 
         #[inline(always)]
-        fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> u32 {
+        fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
             // SAFETY: as for `boxes`.
             unsafe { triangles_sse(p, ray, t_max, valid) }
         }
@@ -387,7 +414,7 @@ mod x86 {
         }
 
         #[inline(always)]
-        fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> u32 {
+        fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
             // SAFETY: as for `boxes`.
             unsafe { triangles_sse(p, ray, t_max, valid) }
         }
@@ -474,13 +501,13 @@ mod x86 {
         }
     }
 
-    /// The triangle filter on four lanes (the module docs; [`super::scalar_candidate`] lane by
-    /// lane, with the same operations in the same order).
+    /// The triangle kernel on four lanes (the module docs; [`super::scalar_candidate`] and the
+    /// scalar test's error bound lane by lane, with the same operations in the same order).
     #[inline(always)]
-    unsafe fn triangles_sse(p: &TrianglePacket, r: &PacketRay, t_max: f32, valid: u32) -> u32 {
+    unsafe fn triangles_sse(p: &TrianglePacket, r: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
         let [kx, ky, kz] = r.k;
         // SAFETY: every load reads one 16-byte-aligned row of `p` (`TrianglePacket` is
-        // `align(16)` and its rows are 16 bytes each).
+        // `align(16)` and its rows are 16 bytes each); the stores write whole arrays of four.
         unsafe {
             let rel = |vertex: usize, axis: usize, o: f32| _mm_sub_ps(_mm_load_ps(p.v[vertex][axis].as_ptr()), _mm_set1_ps(o));
             let (sx, sy, sz) = (_mm_set1_ps(r.sx), _mm_set1_ps(r.sy), _mm_set1_ps(r.sz));
@@ -495,11 +522,12 @@ mod x86 {
             let v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
             let w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
             let zero = _mm_setzero_ps();
-            // Normal: MIN_POSITIVE <= |x| < inf (NaN fails both).
             let abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fff_ffff));
+            let abs = |x: __m128| _mm_and_ps(x, abs_mask);
             let (min_normal, inf) = (_mm_set1_ps(f32::MIN_POSITIVE), _mm_set1_ps(f32::INFINITY));
+            // Normal: MIN_POSITIVE <= |x| < inf (NaN fails both).
             let normal = |x: __m128| {
-                let a = _mm_and_ps(x, abs_mask);
+                let a = abs(x);
                 _mm_and_ps(_mm_cmpge_ps(a, min_normal), _mm_cmplt_ps(a, inf))
             };
             let all_normal = _mm_and_ps(_mm_and_ps(normal(u), normal(v)), normal(w));
@@ -507,17 +535,145 @@ mod x86 {
             let any_pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)), _mm_cmpgt_ps(w, zero));
             let mixed = _mm_and_ps(any_neg, any_pos);
             let det = _mm_add_ps(_mm_add_ps(u, v), w);
-            let t_scaled = _mm_add_ps(
-                _mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(sz, az)), _mm_mul_ps(v, _mm_mul_ps(sz, bz))),
-                _mm_mul_ps(w, _mm_mul_ps(sz, cz)),
-            );
+            let (zs_a, zs_b, zs_c) = (_mm_mul_ps(sz, az), _mm_mul_ps(sz, bz), _mm_mul_ps(sz, cz));
+            let t_scaled =
+                _mm_add_ps(_mm_add_ps(_mm_mul_ps(u, zs_a), _mm_mul_ps(v, zs_b)), _mm_mul_ps(w, zs_c));
             let rcp = _mm_div_ps(_mm_set1_ps(1.0), det);
             let t_ok = _mm_and_ps(normal(t_scaled), normal(rcp));
-            let beyond = _mm_cmpgt_ps(_mm_mul_ps(t_scaled, rcp), _mm_set1_ps(t_max));
-            // Rejected: every edge function normal, and mixed signs, or a normal distance
-            // past `t_max`.
-            let reject = _mm_and_ps(all_normal, _mm_or_ps(mixed, _mm_and_ps(t_ok, beyond)));
-            (!(_mm_movemask_ps(reject) as u32)) & valid
+            let t = _mm_mul_ps(t_scaled, rcp);
+            let beyond = _mm_cmpgt_ps(t, _mm_set1_ps(t_max));
+            // The scalar test's bound on `t`'s error (`t_error_bound`), in f32, enlarged.
+            let max3 = |a: __m128, b: __m128, c: __m128| _mm_max_ps(_mm_max_ps(abs(a), abs(b)), abs(c));
+            let (max_x, max_y) = (max3(ax, bx, cx), max3(ay, by, cy));
+            let (max_z, shear_z) = (max3(zs_a, zs_b, zs_c), max3(az, bz, cz));
+            let max_e = max3(u, v, w);
+            let g = |n: u32| _mm_set1_ps(gamma(n));
+            let delta_z = _mm_mul_ps(g(3), max_z);
+            let delta_x = _mm_mul_ps(g(5), _mm_add_ps(max_x, _mm_mul_ps(_mm_set1_ps(r.sx.abs()), shear_z)));
+            let delta_y = _mm_mul_ps(g(5), _mm_add_ps(max_y, _mm_mul_ps(_mm_set1_ps(r.sy.abs()), shear_z)));
+            let delta_e = _mm_mul_ps(
+                _mm_set1_ps(2.0),
+                _mm_add_ps(
+                    _mm_add_ps(_mm_mul_ps(_mm_mul_ps(g(2), max_x), max_y), _mm_mul_ps(delta_y, max_x)),
+                    _mm_mul_ps(delta_x, max_y),
+                ),
+            );
+            let inner = _mm_mul_ps(
+                _mm_set1_ps(3.0),
+                _mm_add_ps(
+                    _mm_add_ps(_mm_mul_ps(_mm_mul_ps(g(3), max_e), max_z), _mm_mul_ps(delta_e, max_z)),
+                    _mm_mul_ps(delta_z, max_e),
+                ),
+            );
+            let bound = _mm_mul_ps(_mm_mul_ps(inner, abs(rcp)), _mm_set1_ps(BOUND_MARGIN));
+            let floor = _mm_set1_ps(BOUND_FLOOR);
+            let bound_ok = _mm_and_ps(
+                _mm_and_ps(_mm_cmpge_ps(inner, floor), _mm_cmpge_ps(bound, floor)),
+                _mm_cmplt_ps(bound, inf),
+            );
+            let known = _mm_and_ps(_mm_and_ps(all_normal, _mm_andnot_ps(mixed, t_ok)), bound_ok);
+            let in_range = _mm_andnot_ps(beyond, known);
+            let accept = _mm_and_ps(in_range, _mm_cmpgt_ps(t, bound));
+            let behind = _mm_and_ps(in_range, _mm_cmplt_ps(t, _mm_sub_ps(zero, bound)));
+            // Rejected as the scalar test rejects: every edge function normal with mixed signs,
+            // a normal distance past `t_max`, or one known to be behind the origin.
+            let reject = _mm_or_ps(
+                _mm_and_ps(all_normal, _mm_or_ps(mixed, _mm_and_ps(t_ok, beyond))),
+                behind,
+            );
+            let valid = valid & 0xf;
+            let accept = _mm_movemask_ps(accept) as u32 & valid;
+            let check = !(_mm_movemask_ps(reject) as u32) & valid & !accept;
+            let mut hits = PacketHits { accept, check, ..Default::default() };
+            _mm_storeu_ps(hits.t.as_mut_ptr(), t);
+            _mm_storeu_ps(hits.u.as_mut_ptr(), _mm_mul_ps(v, rcp));
+            _mm_storeu_ps(hits.v.as_mut_ptr(), _mm_mul_ps(w, rcp));
+            hits
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Ray, Triangle};
+    use glam::Vec3;
+
+    /// A small deterministic generator, enough for test inputs.
+    struct Lcg(u64);
+
+    impl Lcg {
+        fn f32(&mut self) -> f32 {
+            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (self.0 >> 40) as f32 / (1u64 << 24) as f32
+        }
+
+        fn vec3(&mut self) -> Vec3 {
+            Vec3::new(self.f32(), self.f32(), self.f32()) * 2.0 - 1.0
+        }
+    }
+
+    fn pack(tris: &[Triangle]) -> TrianglePacket {
+        let mut p = TrianglePacket { v: [[[0.0; 4]; 3]; 3], prim: [0, 1, 2, 3] };
+        for (i, t) in tris.iter().enumerate() {
+            for (k, v) in [t.v0, t.v1, t.v2].into_iter().enumerate() {
+                (p.v[k][0][i], p.v[k][1][i], p.v[k][2][i]) = (v.x, v.y, v.z);
+            }
+        }
+        p
+    }
+
+    /// Every kernel this CPU runs sorts every lane as the scalar watertight test decides it:
+    /// an accepted lane carries exactly the scalar hit, a rejected lane is one the scalar test
+    /// misses. Rays aimed at vertices and edges (the f64 paths), rays leaving a triangle's
+    /// surface (`t` within its bound of zero), at scales from 10^-6 to 10^6.
+    #[test]
+    fn kernels_sort_lanes_as_the_scalar_test_does() {
+        let mut r = Lcg(7);
+        let (mut accepted, mut checked) = (0, 0);
+        for case in 0..40_000 {
+            let scale = [1e-6f32, 1.0, 1e3, 1e6][case % 4];
+            let offset = Vec3::splat([0.0f32, 0.0, 1e5, 0.0][case % 4]);
+            let tris: Vec<Triangle> = (0..4)
+                .map(|_| {
+                    let c = r.vec3();
+                    Triangle::new(c + r.vec3() * 0.3, c + r.vec3() * 0.3, c + r.vec3() * 0.3)
+                })
+                .map(|t| Triangle::new(t.v0 * scale + offset, t.v1 * scale + offset, t.v2 * scale + offset))
+                .collect();
+            let target = match case % 3 {
+                0 => tris[case % 4].v1,
+                1 => tris[case % 4].v0.lerp(tris[case % 4].v2, r.f32()),
+                _ => tris[case % 4].point(r.f32() * 0.5, r.f32() * 0.5),
+            };
+            let origin = if case % 5 == 0 { target } else { offset + r.vec3() * 3.0 * scale };
+            let dir = if case % 5 == 0 { r.vec3() } else { target - origin };
+            let ray = Ray::new(origin, dir);
+            let t_max = if case % 7 == 0 { r.f32() * 2.0 } else { f32::INFINITY };
+            let p = pack(&tris);
+            let pr = PacketRay::new(WatertightRay::new(&ray));
+            let mut kernels: Vec<(&str, PacketHits)> = vec![("scalar", Scalar::triangles(&p, &pr, t_max, 0xf))];
+            #[cfg(target_arch = "x86_64")]
+            if SimdPath::Sse4.is_available() {
+                kernels.push(("sse4", Sse4::triangles(&p, &pr, t_max, 0xf)));
+            }
+            for (name, hits) in kernels {
+                for (i, tri) in tris.iter().enumerate() {
+                    let scalar = tri.intersect(&pr.wr, t_max);
+                    if hits.accept & (1 << i) != 0 {
+                        let h = scalar.unwrap_or_else(|| panic!("{name}, case {case}: lane {i} accepted, scalar misses"));
+                        let bits = |h: (f32, f32, f32)| (h.0.to_bits(), h.1.to_bits(), h.2.to_bits());
+                        assert_eq!(bits((hits.t[i], hits.u[i], hits.v[i])), bits((h.t, h.u, h.v)), "{name}, case {case}");
+                        accepted += 1;
+                    } else if hits.check & (1 << i) != 0 {
+                        checked += 1;
+                    } else {
+                        assert_eq!(scalar, None, "{name}, case {case}: lane {i} rejected, scalar hits");
+                    }
+                }
+            }
+        }
+        // Both kinds of lane occur, so the comparison above tested something.
+        assert!(accepted > 1000 && checked > 1000, "accepted {accepted}, checked {checked}");
     }
 }

@@ -266,7 +266,8 @@ impl<const N: usize> WideMesh<N> {
                 for j in 0..current.count.div_ceil(4) {
                     let p = &self.packets[(current.child + j) as usize];
                     let valid = (1u32 << (current.count - 4 * j).min(4)) - 1;
-                    let mut lanes = K::triangles(p, pr, best.map_or(t_max, |b| b.t), valid);
+                    let hits = K::triangles(p, pr, best.map_or(t_max, |b| b.t), valid);
+                    let mut lanes = hits.accept | hits.check;
                     while lanes != 0 {
                         let i = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
@@ -274,10 +275,21 @@ impl<const N: usize> WideMesh<N> {
                         if prim == skip {
                             continue;
                         }
-                        let Some(h) = p.triangle(i).intersect(&pr.wr, best.map_or(t_max, |b| b.t)) else { continue };
+                        let t_limit = best.map_or(t_max, |b| b.t);
+                        let h = if hits.accept & (1 << i) != 0 {
+                            // Known hit, at most the limit the kernel was given; a nearer hit
+                            // found since may have lowered it.
+                            if hits.t[i] > t_limit {
+                                continue;
+                            }
+                            Hit { t: hits.t[i], prim_id: prim, u: hits.u[i], v: hits.v[i] }
+                        } else {
+                            let Some(h) = p.triangle(i).intersect(&pr.wr, t_limit) else { continue };
+                            Hit { t: h.t, prim_id: prim, u: h.u, v: h.v }
+                        };
                         if best.is_none_or(|b| h.t < b.t || (h.t == b.t && prim < b.prim_id)) {
-                            best = Some(Hit { t: h.t, prim_id: prim, u: h.u, v: h.v });
                             limit = cull_limit(h.t, *slack.get_or_insert_with(|| cull_slack(&self.bounds, ray)));
+                            best = Some(h);
                         }
                     }
                 }
@@ -339,11 +351,14 @@ impl<const N: usize> WideMesh<N> {
                 for j in 0..current.count.div_ceil(4) {
                     let p = &self.packets[(current.child + j) as usize];
                     let valid = (1u32 << (current.count - 4 * j).min(4)) - 1;
-                    let mut lanes = K::triangles(p, pr, t_max, valid);
+                    let hits = K::triangles(p, pr, t_max, valid);
+                    let mut lanes = hits.accept | hits.check;
                     while lanes != 0 {
                         let i = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
-                        if p.prim[i] != skip && p.triangle(i).intersect(&pr.wr, t_max).is_some() {
+                        if p.prim[i] != skip
+                            && (hits.accept & (1 << i) != 0 || p.triangle(i).intersect(&pr.wr, t_max).is_some())
+                        {
                             return true;
                         }
                     }

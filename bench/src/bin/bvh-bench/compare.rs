@@ -97,7 +97,42 @@ pub(crate) fn print_table(r: &Report) {
             speed(b.diffuse_mrays)
         );
     }
-    outln!("(trace speeds in Mrays/s; SAH after Arbor's leaf collapse, max 8 per leaf)");
+    outln!(
+        "(trace speeds in Mrays/s, Arbor's through its {} tree on the {} path; SAH after Arbor's leaf collapse, max 8 per leaf)",
+        r.trace,
+        r.simd
+    );
+    if r.builders.iter().any(|b| b.binary_primary_mrays.is_some()) {
+        outln!(
+            "{:<26} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+            "binary tree against wide",
+            "wide ms",
+            "wide SAH",
+            "primary",
+            "shadow",
+            "diffuse",
+            "w/b prim",
+            "w/b diff"
+        );
+        let ratio = |w: Option<f64>, b: Option<f64>| match (w, b) {
+            (Some(w), Some(b)) if b > 0.0 => format!("{:.2}x", w / b),
+            _ => "-".to_string(),
+        };
+        for b in r.builders.iter().filter(|b| b.binary_primary_mrays.is_some()) {
+            outln!(
+                "{:<26} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+                b.name,
+                ms(b.wide_collapse_ms),
+                sah(b.wide_sah),
+                speed(b.binary_primary_mrays),
+                speed(b.binary_shadow_mrays),
+                speed(b.binary_diffuse_mrays),
+                ratio(b.primary_mrays, b.binary_primary_mrays),
+                ratio(b.diffuse_mrays, b.binary_diffuse_mrays)
+            );
+        }
+        outln!("(binary: the leaf-collapsed binary tree, scalar code; wide ms: its collapse into the traced form)");
+    }
     if let Some(reference) = &r.peer_reference {
         outln!("(embree-*: Embree's own trees and traversal; `-`: does not apply to them)");
         for b in r.builders.iter().filter(|b| b.differing_rays.is_some()) {
@@ -127,12 +162,12 @@ pub(crate) fn print_table(r: &Report) {
 pub(crate) fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {
     writeln!(
         f,
-        "name,build_ms,optimize_ms,collapse_ms,sah,sah_leaf1,nodes,leaves,depth,primary_mrays,shadow_mrays,diffuse_mrays"
+        "name,build_ms,optimize_ms,collapse_ms,sah,sah_leaf1,nodes,leaves,depth,primary_mrays,shadow_mrays,diffuse_mrays,binary_primary_mrays,binary_shadow_mrays,binary_diffuse_mrays,wide_collapse_ms,wide_sah"
     )?;
     for b in &r.builders {
         writeln!(
             f,
-            "{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
             b.name,
             b.build_ms,
             csv_value(b.optimize_ms),
@@ -144,7 +179,12 @@ pub(crate) fn write_csv(f: &mut dyn Write, r: &Report) -> Result<()> {
             csv_value(b.depth),
             csv_value(b.primary_mrays),
             csv_value(b.shadow_mrays),
-            csv_value(b.diffuse_mrays)
+            csv_value(b.diffuse_mrays),
+            csv_value(b.binary_primary_mrays),
+            csv_value(b.binary_shadow_mrays),
+            csv_value(b.binary_diffuse_mrays),
+            csv_value(b.wide_collapse_ms),
+            csv_value(b.wide_sah)
         )?;
     }
     Ok(())

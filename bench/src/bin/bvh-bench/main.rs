@@ -140,6 +140,8 @@ fn run() -> Result<()> {
     let args = Args::parse();
     arbor_bench::peers::register();
     cli::init_threads(args.threads)?;
+    // A bad ARBOR_SIMD fails here, before any tree is built.
+    arbor::bvh::Tracing::from_env(None)?.set_default();
     if let Some(builder) = &args.memory_child {
         return memory_child(&args, builder);
     }

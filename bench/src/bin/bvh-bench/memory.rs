@@ -37,36 +37,48 @@ pub(crate) fn run_memory(args: &Args) -> Result<()> {
     let triangles = reports.first().map_or(0, |r| r.triangles);
     outln!("{triangles} triangles; each builder in its own process");
     outln!(
-        "{:<26} {:>10} {:>12} {:>12} {:>14} {:>14}",
+        "{:<26} {:>10} {:>12} {:>12} {:>14} {:>14} {:>10}",
         "builder",
         "build ms",
         "kept MB",
         "peak MB",
         "kept B/tri",
-        "peak B/tri"
+        "peak B/tri",
+        "wide B/tri"
     );
     for r in &reports {
         outln!(
-            "{:<26} {:>10.1} {:>12.1} {:>12.1} {:>14.1} {:>14.1}",
+            "{:<26} {:>10.1} {:>12.1} {:>12.1} {:>14.1} {:>14.1} {:>10.1}",
             r.name,
             r.build_ms,
             r.kept_bytes as f64 / 1e6,
             r.peak_bytes as f64 / 1e6,
             r.kept_bytes_per_triangle,
-            r.peak_bytes_per_triangle
+            r.peak_bytes_per_triangle,
+            r.wide_bytes_per_triangle
         );
     }
     outln!(
-        "(kept: what tracing needs, triangles included; peak: the whole process, mesh and input triangles included)"
+        "(kept: what tracing needs, triangles included, Arbor's binary tree and the wide form it traces; wide: that form's part; peak: the whole process, mesh and input triangles included)"
     );
     let report = MemoryComparison { triangles, builders: &reports };
     let csv = |f: &mut dyn Write| -> Result<()> {
-        writeln!(f, "name,build_ms,kept_bytes,peak_bytes,kept_bytes_per_triangle,peak_bytes_per_triangle")?;
+        writeln!(
+            f,
+            "name,build_ms,kept_bytes,peak_bytes,kept_bytes_per_triangle,peak_bytes_per_triangle,wide_bytes,wide_bytes_per_triangle"
+        )?;
         for r in &reports {
             writeln!(
                 f,
-                "{},{},{},{},{},{}",
-                r.name, r.build_ms, r.kept_bytes, r.peak_bytes, r.kept_bytes_per_triangle, r.peak_bytes_per_triangle
+                "{},{},{},{},{},{},{},{}",
+                r.name,
+                r.build_ms,
+                r.kept_bytes,
+                r.peak_bytes,
+                r.kept_bytes_per_triangle,
+                r.peak_bytes_per_triangle,
+                r.wide_bytes,
+                r.wide_bytes_per_triangle
             )?;
         }
         Ok(())
@@ -83,16 +95,18 @@ pub(crate) fn memory_child(args: &Args, name: &str) -> Result<()> {
     let triangles = mesh.triangles();
     drop(mesh);
     let t = std::time::Instant::now();
-    let kept = match builder.to_string().strip_prefix("obvhs-") {
+    let (kept, wide) = match builder.to_string().strip_prefix("obvhs-") {
         Some(preset) => {
             let (tris, bvh) = arbor_bench::peers::obvhs_native_bytes(preset, &triangles);
-            tris + bvh
+            (tris + bvh, 0)
         }
         _ => {
+            // The binary tree, the leaf-ordered triangles and the wide form `render` traces.
             let m = builder.build_mesh(&triangles);
-            m.bvh.memory_bytes() + size_of_val(m.triangles.as_slice())
+            (m.memory_bytes(), m.wide_memory_bytes())
         }
-    } as u64;
+    };
+    let (kept, wide) = (kept as u64, wide as u64);
     let build_ms = t.elapsed().as_secs_f64() * 1e3;
     let peak = arbor::memory::peak_rss_bytes().context("--memory needs /proc/self/status (Linux)")?;
     let n = triangles.len().max(1) as f64;
@@ -103,6 +117,8 @@ pub(crate) fn memory_child(args: &Args, name: &str) -> Result<()> {
         kept_bytes: kept,
         peak_bytes: peak,
         kept_bytes_per_triangle: kept as f64 / n,
+        wide_bytes: wide,
+        wide_bytes_per_triangle: wide as f64 / n,
         peak_bytes_per_triangle: peak as f64 / n,
     };
     outln!("{}", serde_json::to_string(&r)?);

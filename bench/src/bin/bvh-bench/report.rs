@@ -14,12 +14,18 @@ pub(crate) struct MemoryReport {
     pub name: String,
     pub triangles: usize,
     pub build_ms: f64,
-    /// Bytes the built structure keeps to trace: nodes, indices and its copy of the triangles.
+    /// Bytes the built structure keeps to trace: nodes, indices and its copy of the triangles
+    /// (Arbor's: the binary tree, the leaf-ordered triangles and the wide form it traces).
     pub kept_bytes: u64,
     /// The process's peak resident memory: the mesh, its triangles and the build.
     pub peak_bytes: u64,
     pub kept_bytes_per_triangle: f64,
     pub peak_bytes_per_triangle: f64,
+    /// Of `kept_bytes`, the wide form's: its nodes and triangle packets (0 for obvhs).
+    #[serde(default)]
+    pub wide_bytes: u64,
+    #[serde(default)]
+    pub wide_bytes_per_triangle: f64,
 }
 
 /// `--memory`'s JSON report.
