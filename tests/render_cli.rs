@@ -50,6 +50,51 @@ fn renders_exr_and_png_with_a_summary() {
     assert!(quiet.status.success() && quiet.stdout.is_empty() && quiet.stderr.is_empty());
 }
 
+/// Every tree form and every SIMD path this CPU has renders the same image, bit for bit, and
+/// the summary names the form and path; a path the CPU lacks or a bad name is a clear error.
+#[test]
+fn every_trace_form_and_simd_path_renders_the_same_image() {
+    let dir = temp_dir("trace-forms");
+    let run = |trace: &str, simd: &str| {
+        let out = dir.join(format!("{trace}-{simd}.exr"));
+        let o = render()
+            .arg(scene("cornell-box.toml"))
+            .arg("-o")
+            .arg(&out)
+            .args(["--spp", "2", "--threads", "2", "--device", "cpu", "--builder", "lbvh", "--trace", trace])
+            .env("ARBOR_SIMD", simd)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(o.status.success(), "{trace} on {simd}: {}", String::from_utf8_lossy(&o.stderr));
+        let expected = format!("traced as a {trace} tree, {} kernels", if trace == "binary" { "scalar" } else { simd });
+        assert!(stdout.contains(&expected), "summary lacks `{expected}`: {stdout}");
+        std::fs::read(&out).unwrap()
+    };
+    let reference = run("binary", "scalar");
+    for simd in arbor::bvh::SimdPath::available() {
+        for trace in ["wide4", "wide8"] {
+            assert!(run(trace, simd.name()) == reference, "{trace} on {} renders another image", simd.name());
+        }
+    }
+    for (simd, trace, message) in [
+        ("neon", "wide4", "ARBOR_SIMD=\"neon\" is not a SIMD path"),
+        ("scalar", "wide16", "\"wide16\" is not a tree form"),
+    ] {
+        let o = render()
+            .arg(scene("cornell-box.toml"))
+            .arg("-o")
+            .arg(dir.join("bad.exr"))
+            .args(["--spp", "1", "--trace", trace])
+            .env("ARBOR_SIMD", simd)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && stderr.contains(message), "{simd}, {trace}: {stderr}");
+        assert!(!dir.join("bad.exr").exists());
+    }
+}
+
 /// Each bad call exits non-zero with a message naming the problem, and writes no image.
 #[test]
 fn errors_are_clear_and_leave_nothing_behind() {
