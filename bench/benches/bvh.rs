@@ -7,7 +7,12 @@
 //!   (`../shared/models/dragon_res2.obj`), in rays/s, for primary rays from a camera that frames
 //!   the mesh and diffuse rays bounced off their hits; over LBVH and over a top-down binned-SAH
 //!   tree, each after leaf collapse and with one triangle per leaf; `*-ordered` reads the
-//!   collapsed trees' triangles stored in leaf order ([`MeshBvh`]).
+//!   collapsed trees' triangles stored in leaf order ([`MeshBvh`], binary tree), and
+//!   `lbvh-wide4-PATH` / `lbvh-wide8-PATH` the wide forms `render` traces, on every SIMD path the
+//!   CPU has (`scalar`, `sse4`, `avx2`).
+//! - `kernels/PATH/{boxes-8,boxes-4,triangle-packet}`: the SIMD kernels alone on each path: one
+//!   wide node's box test and one packet of four triangles, per ray; `wide_collapse/dragon`: the
+//!   collapse into the wide forms (`wide4`, `wide8`) beside the LBVH build it comes from.
 //! - `refit/parallel` against `refit/sequential`: what the unsafe parallel bottom-up pass buys.
 //! - `prbvh_vs_obvhs/dragon`: parallel reinsertion with its default settings on the dragon's
 //!   LBVH (`arbor-prbvh`, the optimisation alone, on a fresh copy of the tree each time; and
@@ -25,7 +30,7 @@ use std::path::Path;
 
 use arbor::bvh::lbvh::LbvhBuilder;
 use arbor::bvh::prbvh::{self, PrbvhConfig};
-use arbor::bvh::{self, Bvh, CollapseConfig, MeshBvh, binned_sah, collapse_leaves, lbvh};
+use arbor::bvh::{self, Bvh, CollapseConfig, MeshBvh, SimdPath, TraceLayout, Tracing, binned_sah, collapse_leaves, lbvh};
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
 use arbor_bench::rays as bench_rays;
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
@@ -177,10 +182,17 @@ fn trace_dragon(c: &mut Criterion) {
     let primary = bench_rays::primary_rays(&mesh.bounds(), 512, 512);
     // Bounced off the binned tree's hits; every tree then traces the same rays.
     let diffuse = bench_rays::diffuse_rays(&trees[1].1, &tris, &primary);
-    let ordered = [
-        ("lbvh-ordered", MeshBvh::new(trees[0].1.clone(), &tris)),
-        ("binned-sah-ordered", MeshBvh::new(trees[1].1.clone(), &tris)),
-    ];
+    // The leaf-ordered binary tree, and the wide forms on every SIMD path this CPU has.
+    let mut ordered = vec![(
+        "lbvh-ordered".to_string(),
+        MeshBvh::with_tracing(trees[0].1.clone(), &tris, Tracing { layout: TraceLayout::Binary, simd: SimdPath::Scalar }),
+    )];
+    for simd in SimdPath::available() {
+        for layout in [TraceLayout::Wide4, TraceLayout::Wide8] {
+            let name = format!("lbvh-{}-{}", layout.name(), simd.name());
+            ordered.push((name, MeshBvh::with_tracing(trees[0].1.clone(), &tris, Tracing { layout, simd })));
+        }
+    }
     let theirs = arbor_bench::peers::to_obvhs_triangles(&tris);
     let theirs_bvh = obvhs_build(&theirs, obvhs::BvhBuildParams::very_fast_build());
     for (kind, rays) in [("primary", &primary), ("diffuse", &diffuse)] {
@@ -191,7 +203,7 @@ fn trace_dragon(c: &mut Criterion) {
             g.bench_function(*name, |b| b.iter(|| black_box(trace(tree, &tris, rays))));
         }
         for (name, mesh) in &ordered {
-            g.bench_function(*name, |b| b.iter(|| black_box(trace_ordered(mesh, rays))));
+            g.bench_function(name.as_str(), |b| b.iter(|| black_box(trace_ordered(mesh, rays))));
         }
         let their_rays: Vec<obvhs::ray::Ray> =
             rays.iter().map(|r| obvhs::ray::Ray::new(r.origin.into(), r.dir.into(), 0.0, f32::INFINITY)).collect();
@@ -200,5 +212,53 @@ fn trace_dragon(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, lbvh_build, build_vs_obvhs, refit, prbvh_vs_obvhs, trace_dragon);
+/// The SIMD kernels alone, per path: one 8-wide and one 4-wide node's box test and one packet
+/// of four triangles against 4096 prepared rays (the dragon's nodes and packets, its primary
+/// rays), and the wide collapse.
+fn kernels(c: &mut Criterion) {
+    use arbor::bvh::simd::{BoxRay, PacketRay, test_boxes, test_triangles};
+    use arbor::bvh::wide_mesh::WideMesh;
+    use arbor::geometry::WatertightRay;
+    let Some(mesh) = dragon() else { return };
+    let tris = mesh.triangles();
+    let prims: Vec<Aabb> = tris.iter().map(Triangle::aabb).collect();
+    let bvh = collapse_leaves(&lbvh::build(&prims), &CollapseConfig::default());
+    let ordered: Vec<Triangle> = bvh.prim_ids.iter().map(|&p| tris[p as usize]).collect();
+    let w8 = WideMesh::<8>::from_binary(&bvh, &ordered, SimdPath::Scalar);
+    let w4 = WideMesh::<4>::from_binary(&bvh, &ordered, SimdPath::Scalar);
+    let rays = bench_rays::primary_rays(&mesh.bounds(), 64, 64);
+    let box_rays: Vec<BoxRay> = rays.iter().map(|r| BoxRay::new(r.inv())).collect();
+    let packet_rays: Vec<PacketRay> = rays.iter().map(|r| PacketRay::new(WatertightRay::new(r))).collect();
+    let packets = &w8.packets()[..64];
+    for simd in SimdPath::available() {
+        let mut g = c.benchmark_group(format!("kernels/{}", simd.name()));
+        g.throughput(Throughput::Elements(rays.len() as u64));
+        g.bench_function("boxes-8", |b| {
+            let mut dist = [0.0; 8];
+            b.iter(|| box_rays.iter().map(|r| test_boxes(simd, &w8.nodes()[0], r, f32::INFINITY, &mut dist)).sum::<u32>())
+        });
+        g.bench_function("boxes-4", |b| {
+            let mut dist = [0.0; 4];
+            b.iter(|| box_rays.iter().map(|r| test_boxes(simd, &w4.nodes()[0], r, f32::INFINITY, &mut dist)).sum::<u32>())
+        });
+        g.bench_function("triangle-packet", |b| {
+            b.iter(|| {
+                packet_rays
+                    .iter()
+                    .zip(packets.iter().cycle())
+                    .map(|(r, p)| test_triangles(simd, p, r, f32::INFINITY).check)
+                    .sum::<u32>()
+            })
+        });
+        g.finish();
+    }
+    let mut g = c.benchmark_group("wide_collapse/dragon");
+    g.sample_size(10);
+    g.bench_function("lbvh-build", |b| b.iter(|| lbvh::build(&prims)));
+    g.bench_function("wide8", |b| b.iter(|| WideMesh::<8>::from_binary(&bvh, &ordered, SimdPath::Avx2)));
+    g.bench_function("wide4", |b| b.iter(|| WideMesh::<4>::from_binary(&bvh, &ordered, SimdPath::Sse4)));
+    g.finish();
+}
+
+criterion_group!(benches, lbvh_build, build_vs_obvhs, refit, prbvh_vs_obvhs, trace_dragon, kernels);
 criterion_main!(benches);

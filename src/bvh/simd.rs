@@ -205,12 +205,12 @@ impl Tracing {
 /// each axis's near and far planes sit among a node's six plane arrays
 /// (`min_x min_y min_z max_x max_y max_z`).
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct BoxRay {
-    pub origin: [f32; 3],
-    pub inv_dir: [f32; 3],
-    pub near: [usize; 3],
-    pub far: [usize; 3],
-    pub inv: RayInv,
+pub struct BoxRay {
+    pub(crate) origin: [f32; 3],
+    pub(crate) inv_dir: [f32; 3],
+    pub(crate) near: [usize; 3],
+    pub(crate) far: [usize; 3],
+    pub(crate) inv: RayInv,
 }
 
 impl BoxRay {
@@ -254,15 +254,15 @@ impl TrianglePacket {
 /// A ray prepared for the triangle kernel: the watertight test's permutation and shear, with the
 /// origin's coordinates in the permuted order.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct PacketRay {
-    pub wr: WatertightRay,
+pub struct PacketRay {
+    pub(crate) wr: WatertightRay,
     /// `[kx, ky, kz]`.
-    pub k: [usize; 3],
+    pub(crate) k: [usize; 3],
     /// The origin's coordinates on `kx`, `ky`, `kz`.
-    pub o: [f32; 3],
-    pub sx: f32,
-    pub sy: f32,
-    pub sz: f32,
+    pub(crate) o: [f32; 3],
+    pub(crate) sx: f32,
+    pub(crate) sy: f32,
+    pub(crate) sz: f32,
 }
 
 impl PacketRay {
@@ -277,12 +277,63 @@ impl PacketRay {
 /// whose hit is known (`t`, `u`, `v` hold it) and of those the scalar test must decide; the
 /// lanes in neither are rejected.
 #[derive(Clone, Copy, Debug, Default)]
-pub(crate) struct PacketHits {
+pub struct PacketHits {
     pub accept: u32,
     pub check: u32,
     pub t: [f32; 4],
     pub u: [f32; 4],
     pub v: [f32; 4],
+}
+
+/// One node's box test on `path`, for benchmarks of the kernels alone: the mask of the lanes
+/// the ray enters before `limit`, their entry distances in `dist`. A path this CPU lacks runs
+/// the scalar kernel.
+pub fn test_boxes<const N: usize>(path: SimdPath, node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        unsafe fn avx2<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+            Avx2::boxes(node, ray, limit, dist)
+        }
+        #[target_feature(enable = "sse4.1")]
+        unsafe fn sse4<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+            Sse4::boxes(node, ray, limit, dist)
+        }
+        match path {
+            // SAFETY: taken only where the CPU has the path's features.
+            SimdPath::Avx2 if path.is_available() => return unsafe { avx2(node, ray, limit, dist) },
+            // SAFETY: as above.
+            SimdPath::Sse4 if path.is_available() => return unsafe { sse4(node, ray, limit, dist) },
+            _ => {}
+        }
+    }
+    let _ = path;
+    Scalar::boxes(node, ray, limit, dist)
+}
+
+/// One packet's triangle test on `path`, for benchmarks of the kernels alone (a path this CPU
+/// lacks runs the scalar kernel, which accepts nothing and leaves its candidates checked).
+pub fn test_triangles(path: SimdPath, packet: &TrianglePacket, ray: &PacketRay, t_max: f32) -> PacketHits {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2")]
+        unsafe fn avx2(packet: &TrianglePacket, ray: &PacketRay, t_max: f32) -> PacketHits {
+            Avx2::triangles(packet, ray, t_max, 0xf)
+        }
+        #[target_feature(enable = "sse4.1")]
+        unsafe fn sse4(packet: &TrianglePacket, ray: &PacketRay, t_max: f32) -> PacketHits {
+            Sse4::triangles(packet, ray, t_max, 0xf)
+        }
+        match path {
+            // SAFETY: taken only where the CPU has the path's features.
+            SimdPath::Avx2 if path.is_available() => return unsafe { avx2(packet, ray, t_max) },
+            // SAFETY: as above.
+            SimdPath::Sse4 if path.is_available() => return unsafe { sse4(packet, ray, t_max) },
+            _ => {}
+        }
+    }
+    let _ = path;
+    Scalar::triangles(packet, ray, t_max, 0xf)
 }
 
 /// A path's kernels. Each method is the whole of one test; the traversals in

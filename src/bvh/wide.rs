@@ -156,7 +156,7 @@ impl<const N: usize> WideBvh<N> {
     /// Collapses `bvh` (any builder's, after the leaf collapse or not) into `N`-wide nodes by
     /// the largest-area pull-up (see the module docs). Leaves stay the binary tree's leaves.
     pub fn from_binary(bvh: &Bvh) -> Self {
-        let nodes = collapse(bvh, |n| n.is_leaf().then_some((n.first, n.prim_count)), |n, _| (n.first, n.prim_count));
+        let nodes = collapse(bvh, |_, n| n.is_leaf().then_some((n.first, n.prim_count)), |n, _| (n.first, n.prim_count));
         Self { nodes, prim_ids: bvh.prim_ids.clone() }
     }
 
@@ -291,13 +291,14 @@ impl<const N: usize> WideBvh<N> {
     }
 }
 
-/// The largest-area pull-up (module docs) over `bvh`, shared by every wide form: `leaf(node)`
-/// says whether a binary node ends the descent as one leaf lane, and `place(node, lane)` gives
+/// The largest-area pull-up (module docs) over `bvh`, shared by every wide form:
+/// `leaf(index, node)` says whether a binary node ends the descent as one leaf lane (and with
+/// what range), and `place(node, range)` gives
 /// that lane's `(child, count)` (it may store the leaf's contents elsewhere as a side effect;
 /// it is called once per leaf lane, depth first). `leaf` must hold for every binary leaf.
 pub(crate) fn collapse<const N: usize>(
     bvh: &Bvh,
-    mut leaf: impl FnMut(&super::BvhNode) -> Option<(u32, u32)>,
+    mut leaf: impl FnMut(u32, &super::BvhNode) -> Option<(u32, u32)>,
     mut place: impl FnMut(&super::BvhNode, (u32, u32)) -> (u32, u32),
 ) -> Vec<WideNode<N>> {
     const { assert!(N >= 2, "a wide node holds at least two children") };
@@ -307,7 +308,7 @@ pub(crate) fn collapse<const N: usize>(
     // About one wide node per N - 1 binary inner nodes.
     let mut wide = Vec::with_capacity(nodes.len() / (2 * (N - 1)) + 1);
     wide.push(WideNode::empty());
-    if let Some(range) = leaf(root) {
+    if let Some(range) = leaf(0, root) {
         let (child, count) = place(root, range);
         wide[0].set_lane(0, root.aabb(), child, count);
         return wide;
@@ -325,7 +326,7 @@ pub(crate) fn collapse<const N: usize>(
         let mut add = |c: u32, at: usize, children: &mut [u32; N], ranges: &mut [Option<(u32, u32)>; N], areas: &mut [f32; N]| {
             let n = &nodes[c as usize];
             children[at] = c;
-            ranges[at] = leaf(n);
+            ranges[at] = leaf(c, n);
             areas[at] = if ranges[at].is_some() { -1.0 } else { n.aabb().half_area() };
         };
         add(first, 0, &mut children, &mut ranges, &mut areas);

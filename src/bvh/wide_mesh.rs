@@ -19,6 +19,8 @@
 //! it), and that test was the costly one, since its `t` is within its error bound of zero and
 //! goes to the f64 path.
 
+use rayon::prelude::*;
+
 use crate::geometry::{Aabb, Ray, Triangle, WatertightRay};
 
 use super::simd::{BoxRay, Kernel, PacketRay, Scalar, SimdPath, TrianglePacket};
@@ -62,44 +64,65 @@ impl<const N: usize> WideMesh<N> {
     pub fn from_binary(bvh: &Bvh, leaf_ordered: &[Triangle], simd: SimdPath) -> Self {
         let nodes: &[BvhNode] = &bvh.nodes;
         let prim_ids = &bvh.prim_ids;
-        let mut packets: Vec<TrianglePacket> = Vec::with_capacity(prim_ids.len().div_ceil(3) + 1);
-        let mut positions: Vec<u32> = Vec::with_capacity(8);
-        let leaf = |n: &BvhNode| {
+        // First the nodes, each leaf lane given its packets' place; then the packets, filled in
+        // parallel: most of the time goes to faulting in their memory and gathering triangles.
+        // Each leaf: its first `prim_ids` position (a binary leaf) or the first child of the
+        // subtree it merges, its triangle count, and whether it is merged.
+        let mut leaves: Vec<(u32, u32, bool)> = Vec::with_capacity(prim_ids.len() / 2 + 1);
+        let mut total = 0usize;
+        let small = small_subtrees(nodes);
+        let leaf = |i: u32, n: &BvhNode| {
             if n.is_leaf() {
                 return Some((n.first, n.prim_count));
             }
-            let count = small_subtree(nodes, n, 4)?;
-            Some((INVALID_INDEX, count))
+            let count = small[i as usize];
+            (count <= 4).then_some((INVALID_INDEX, u32::from(count)))
         };
         let place = |n: &BvhNode, (first, count): (u32, u32)| {
-            positions.clear();
-            if first == INVALID_INDEX {
-                leaf_positions(nodes, n, &mut positions);
-            } else {
-                positions.extend(first..first + count);
+            let merged = first == INVALID_INDEX;
+            leaves.push((if merged { n.first } else { first }, count, merged));
+            let index = total as u32;
+            total += count.div_ceil(4) as usize;
+            (index, count)
+        };
+        let wide = collapse::<N>(bvh, leaf, place);
+        let mut packets: Vec<TrianglePacket> = Vec::with_capacity(total);
+        let mut rest = &mut packets.spare_capacity_mut()[..total];
+        let mut jobs = Vec::with_capacity(leaves.len());
+        for &(first, count, merged) in &leaves {
+            let (mine, tail) = rest.split_at_mut(count.div_ceil(4) as usize);
+            jobs.push((first, count, merged, mine));
+            rest = tail;
+        }
+        jobs.into_par_iter().with_min_len(1024).for_each(|(first, count, merged, out)| {
+            let mut merged_positions = [0u32; 4];
+            if merged {
+                leaf_positions(nodes, first, &mut merged_positions);
             }
-            let index = packets.len() as u32;
-            for chunk in positions.chunks(4) {
+            let position = |k: usize| if merged { merged_positions[k] as usize } else { first as usize + k };
+            for (j, slot) in out.iter_mut().enumerate() {
+                let lanes = (count as usize - 4 * j).min(4);
                 let mut p = TrianglePacket { v: [[[0.0; 4]; 3]; 3], prim: [INVALID_INDEX; 4] };
                 for i in 0..4 {
                     // Lanes past the leaf's count repeat its first triangle (never tested).
-                    let pos = chunk.get(i).copied().unwrap_or(chunk[0]) as usize;
+                    let pos = position(4 * j + if i < lanes { i } else { 0 });
                     let t = &leaf_ordered[pos];
                     for (k, v) in [t.v0, t.v1, t.v2].into_iter().enumerate() {
                         (p.v[k][0][i], p.v[k][1][i], p.v[k][2][i]) = (v.x, v.y, v.z);
                     }
-                    if i < chunk.len() {
+                    if i < lanes {
                         p.prim[i] = prim_ids[pos];
                     }
                 }
-                packets.push(p);
+                slot.write(p);
             }
-            (index, count)
-        };
-        let nodes = collapse::<N>(bvh, leaf, place);
-        let bounds = nodes_bounds(&nodes);
+        });
+        // SAFETY: the jobs' slices partition the first `total` slots of the spare capacity, and
+        // every job wrote each slot of its slice.
+        unsafe { packets.set_len(total) };
+        let bounds = nodes_bounds(&wide);
         let simd = if simd.is_available() { simd } else { SimdPath::best() };
-        Self { nodes, packets, bounds, simd }
+        Self { nodes: wide, packets, bounds, simd }
     }
 
     /// The path this tree is traced with.
@@ -386,42 +409,52 @@ impl<const N: usize> WideMesh<N> {
     }
 }
 
-/// The number of primitives under inner node `n` if it is at most `limit`, found by a walk that
-/// stops as soon as it passes `limit` (so it visits at most about `2 limit` nodes).
-fn small_subtree(nodes: &[BvhNode], n: &BvhNode, limit: u32) -> Option<u32> {
-    let mut stack = [0u32; 16];
-    let (mut len, mut count) = (2, 0u32);
-    (stack[0], stack[1]) = (n.first, n.first + 1);
+/// Each node's primitive count, capped at 5 (all a caller asks is whether it is at most four):
+/// one pass over the nodes, backwards where every inner node's children come after it (the
+/// layout of the leaf collapse and of most builders), else depth first.
+fn small_subtrees(nodes: &[BvhNode]) -> Vec<u8> {
+    let mut count = vec![0u8; nodes.len()];
+    let own = |n: &BvhNode| n.prim_count.min(5) as u8;
+    let ordered = nodes.iter().enumerate().all(|(i, n)| n.is_leaf() || n.first as usize > i);
+    if ordered {
+        for i in (0..nodes.len()).rev() {
+            let n = &nodes[i];
+            count[i] = if n.is_leaf() { own(n) } else { (count[n.first as usize] + count[n.first as usize + 1]).min(5) };
+        }
+        return count;
+    }
+    let mut stack = vec![(0u32, false)];
+    while let Some((i, expanded)) = stack.pop() {
+        let n = &nodes[i as usize];
+        if n.is_leaf() {
+            count[i as usize] = own(n);
+        } else if expanded {
+            count[i as usize] = (count[n.first as usize] + count[n.first as usize + 1]).min(5);
+        } else {
+            stack.extend([(i, true), (n.first, false), (n.first + 1, false)]);
+        }
+    }
+    count
+}
+
+/// The `prim_ids` positions of every leaf under the inner node whose children start at `first`,
+/// a subtree [`small_subtrees`] found small (at most four primitives, so at most seven nodes),
+/// depth first.
+fn leaf_positions(nodes: &[BvhNode], first: u32, out: &mut [u32; 4]) {
+    let mut stack = [0u32; 8];
+    let (mut len, mut n) = (2, 0);
+    (stack[0], stack[1]) = (first, first + 1);
     while len > 0 {
         len -= 1;
         let c = &nodes[stack[len] as usize];
         if c.is_leaf() {
-            count += c.prim_count;
-            if count > limit {
-                return None;
+            for pos in c.first..c.first + c.prim_count {
+                out[n] = pos;
+                n += 1;
             }
         } else {
-            // Every inner node holds at least two primitives, so a walk within `limit` never
-            // stacks more than `limit + 1` entries.
-            if len + 2 > stack.len() {
-                return None;
-            }
             (stack[len], stack[len + 1]) = (c.first, c.first + 1);
             len += 2;
-        }
-    }
-    Some(count)
-}
-
-/// The `prim_ids` positions of every leaf under `n`, depth first.
-fn leaf_positions(nodes: &[BvhNode], n: &BvhNode, out: &mut Vec<u32>) {
-    let mut stack = vec![n.first, n.first + 1];
-    while let Some(i) = stack.pop() {
-        let c = &nodes[i as usize];
-        if c.is_leaf() {
-            out.extend(c.first..c.first + c.prim_count);
-        } else {
-            stack.extend([c.first, c.first + 1]);
         }
     }
 }
