@@ -240,30 +240,6 @@ impl<const N: usize> WideMesh<N> {
         self.any::<super::simd::Sse4>(ray, t_max, skip)
     }
 
-    /// Asks the cache for what the hit lanes of `node` lead to (their nodes or first packets):
-    /// a traversal waits mostly on memory, and all of them are visited unless a hit culls them.
-    #[inline(always)]
-    fn prefetch(&self, node: &WideNode<N>, mut mask: u32) {
-        #[cfg(target_arch = "x86_64")]
-        while mask != 0 {
-            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-            let i = mask.trailing_zeros() as usize;
-            mask &= mask - 1;
-            let (child, count) = (node.child[i] as usize, node.count[i]);
-            let (base, bytes) = if count == 0 {
-                (self.nodes.as_ptr().wrapping_add(child).cast::<i8>(), size_of::<WideNode<N>>())
-            } else {
-                (self.packets.as_ptr().wrapping_add(child).cast::<i8>(), size_of::<TrianglePacket>())
-            };
-            for line in (0..bytes).step_by(64) {
-                // SAFETY: a prefetch is a hint that never faults, whatever the address.
-                unsafe { _mm_prefetch::<_MM_HINT_T0>(base.wrapping_add(line)) };
-            }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = (node, mask);
-    }
-
     #[inline(always)]
     fn closest<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
         if self.nodes.is_empty() {
@@ -319,7 +295,6 @@ impl<const N: usize> WideMesh<N> {
             } else {
                 let node = &self.nodes[current.child as usize];
                 let mut mask = K::boxes(node, &br, limit, &mut dist);
-                self.prefetch(node, mask);
                 if mask != 0 {
                     let entry = |i: usize| Entry { child: node.child[i], count: node.count[i], t: dist[i] };
                     if mask & (mask - 1) == 0 {
@@ -389,7 +364,6 @@ impl<const N: usize> WideMesh<N> {
             } else {
                 let node = &self.nodes[current.child as usize];
                 let mut mask = K::boxes(node, &br, limit, &mut dist);
-                self.prefetch(node, mask);
                 if mask != 0 {
                     // Any order finds a blocker; the first lane is visited next, the rest wait.
                     let i = mask.trailing_zeros() as usize;
