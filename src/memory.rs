@@ -42,10 +42,10 @@ pub struct OutOfMemory {
     pub available: u64,
 }
 
-/// Peak bytes per triangle of a flat scene rendered on the CPU, its BVH built and collapsed:
-/// the peak measured on a large city with several builders (docs/benchmarks.md, "Memory"), with
-/// room to spare.
-pub const RENDER_BYTES_PER_TRIANGLE: f64 = 320.0;
+/// Peak bytes per triangle of a flat scene rendered on the CPU, its BVH built and collapsed and
+/// the wide form it traces derived: the peak measured on a large city with several builders
+/// (docs/benchmarks.md, "Memory"), with room to spare.
+pub const RENDER_BYTES_PER_TRIANGLE: f64 = 480.0;
 
 /// The whole file at `path`, refusing one longer than `limit` bytes: a path that never ends
 /// (`/dev/zero`, a FIFO fed without end) is an error once past it, not a read until memory runs

@@ -233,8 +233,8 @@ pub enum BenchError {
 
 /// A built tree, ready to trace.
 enum Traced {
-    /// The form traced by default, and the binary tree it comes from.
-    Arbor { traced: Box<MeshBvh>, binary: Box<MeshBvh> },
+    /// The form traced by default, with the binary tree it comes from.
+    Arbor(Box<MeshBvh>),
     #[cfg(feature = "embree")]
     Embree(crate::embree::Scene),
 }
@@ -245,7 +245,7 @@ impl Traced {
     /// 1 or 0 for a shadow ray.
     fn trace(&self, rays: &[Ray], t_max: f32) -> (Duration, Vec<u64>) {
         match self {
-            Traced::Arbor { traced, .. } => trace_mesh(traced, rays, t_max),
+            Traced::Arbor(mesh) => trace_mesh(rays, t_max, |r| mesh.closest_hit(r, t_max), |r| mesh.any_hit(r, t_max)),
             #[cfg(feature = "embree")]
             Traced::Embree(scene) => trace_codes(rays, |r| {
                 if t_max.is_finite() {
@@ -257,26 +257,31 @@ impl Traced {
         }
     }
 
-    /// Arbor's binary tree, traced beside the wide one.
-    fn binary(&self) -> Option<&MeshBvh> {
+    /// [`Traced::trace`] through Arbor's binary tree, traced beside the wide one (`None` for
+    /// Embree).
+    fn trace_binary(&self, rays: &[Ray], t_max: f32) -> Option<(Duration, Vec<u64>)> {
         match self {
-            Traced::Arbor { binary, .. } => Some(binary),
+            Traced::Arbor(mesh) => Some(trace_mesh(
+                rays,
+                t_max,
+                |r| mesh.closest_hit_binary(r, t_max),
+                |r| mesh.any_hit_binary(r, t_max),
+            )),
             #[cfg(feature = "embree")]
             Traced::Embree(_) => None,
         }
     }
 }
 
-/// [`Traced::trace`] through `mesh`.
-fn trace_mesh(mesh: &MeshBvh, rays: &[Ray], t_max: f32) -> (Duration, Vec<u64>) {
+/// [`Traced::trace`] by a closest-hit and an any-hit query.
+fn trace_mesh(
+    rays: &[Ray],
+    t_max: f32,
+    closest: impl Fn(&Ray) -> Option<arbor::bvh::Hit> + Send + Sync,
+    any: impl Fn(&Ray) -> bool + Send + Sync,
+) -> (Duration, Vec<u64>) {
     let shadow = t_max.is_finite();
-    trace_codes(rays, |r| {
-        if shadow {
-            mesh.any_hit(r, t_max) as u64
-        } else {
-            mesh.closest_hit(r, t_max).map_or(0, |h| h.prim_id as u64 + 1)
-        }
-    })
+    trace_codes(rays, |r| if shadow { any(r) as u64 } else { closest(r).map_or(0, |h| h.prim_id as u64 + 1) })
 }
 
 /// Runs the comparison. Fails only on a tree that does not validate (a bug) or an Embree call
@@ -354,8 +359,7 @@ pub fn run_with_progress(
                     r.checksums[k] = checksum(&codes);
                     r.hits[k] = codes.iter().filter(|&&c| c != 0).count();
                 }
-                if let Some(binary) = mesh.binary() {
-                    let (time, binary_codes) = trace_mesh(binary, set, t_max);
+                if let Some((time, binary_codes)) = mesh.trace_binary(set, t_max) {
                     binary_times[b][k].push(time);
                     if round == 0 && binary_codes != codes {
                         let set = ["primary", "shadow", "diffuse"][k];
@@ -395,8 +399,7 @@ pub fn run_with_progress(
             Some(b) => (report.builders[b].name.clone(), first_codes[b].take().expect("kept in round 0")),
             None => {
                 // Only peers listed: compare them with the tree the rays were made with.
-                let mesh = MeshBvh::new(reference_lbvh(&prim_aabbs), triangles);
-                let mesh = Traced::Arbor { binary: Box::new(mesh.clone()), traced: Box::new(mesh) };
+                let mesh = Traced::Arbor(Box::new(MeshBvh::new(reference_lbvh(&prim_aabbs), triangles)));
                 ("lbvh".to_string(), sets.map(|(set, t_max)| mesh.trace(set, t_max).1))
             }
         };
@@ -460,8 +463,6 @@ fn measure(
         error,
     })?;
     let sah = sah_cost(&collapsed);
-    let binary_tracing = arbor::bvh::Tracing { layout: TraceLayout::Binary, simd: arbor::bvh::SimdPath::Scalar };
-    let binary = MeshBvh::with_tracing(collapsed.clone(), triangles, binary_tracing);
     let traced = MeshBvh::new(collapsed, triangles);
     let wide = traced.tracing().layout != TraceLayout::Binary;
     let report = BuilderReport {
@@ -488,7 +489,7 @@ fn measure(
         hits: [0; 3],
         differing_rays: None,
     };
-    Ok((report, Traced::Arbor { traced: Box::new(traced), binary: Box::new(binary) }))
+    Ok((report, Traced::Arbor(Box::new(traced))))
 }
 
 /// Builds Embree's scene at `quality` `runs` times (the build time is `rtcCommitScene`'s) and

@@ -112,6 +112,36 @@ impl MeshBvh {
         }
     }
 
+    /// [`MeshBvh::closest_hit`] through the binary tree, whatever form the mesh traces (for
+    /// comparisons of the two: the answer is the same).
+    pub fn closest_hit_binary(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
+        self.binary_closest(ray, t_max, INVALID_INDEX)
+    }
+
+    /// [`MeshBvh::any_hit`] through the binary tree, whatever form the mesh traces.
+    pub fn any_hit_binary(&self, ray: &Ray, t_max: f32) -> bool {
+        self.binary_any(ray, t_max, INVALID_INDEX)
+    }
+
+    fn binary_closest(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        let wr = WatertightRay::new(ray);
+        self.bvh
+            .closest_hit(ray, t_max, |pos, prim, t_limit| {
+                if prim == skip {
+                    return None;
+                }
+                self.triangles[pos as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
+            })
+            .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
+    }
+
+    fn binary_any(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        let wr = WatertightRay::new(ray);
+        self.bvh.any_hit(ray, t_max, |pos, prim, t_limit| {
+            prim != skip && self.triangles[pos as usize].intersect(&wr, t_limit).is_some()
+        })
+    }
+
     /// Closest hit with `0 < t <= t_max`; the same answer as [`Bvh::closest_hit_triangles`].
     #[inline]
     pub fn closest_hit(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
@@ -125,17 +155,7 @@ impl MeshBvh {
         match &self.wide {
             Wide::Eight(w) => w.closest_hit(ray, t_max, skip),
             Wide::Four(w) => w.closest_hit(ray, t_max, skip),
-            Wide::None => {
-                let wr = WatertightRay::new(ray);
-                self.bvh
-                    .closest_hit(ray, t_max, |pos, prim, t_limit| {
-                        if prim == skip {
-                            return None;
-                        }
-                        self.triangles[pos as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
-                    })
-                    .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
-            }
+            Wide::None => self.binary_closest(ray, t_max, skip),
         }
     }
 
@@ -151,12 +171,7 @@ impl MeshBvh {
         match &self.wide {
             Wide::Eight(w) => w.any_hit(ray, t_max, skip),
             Wide::Four(w) => w.any_hit(ray, t_max, skip),
-            Wide::None => {
-                let wr = WatertightRay::new(ray);
-                self.bvh.any_hit(ray, t_max, |pos, prim, t_limit| {
-                    prim != skip && self.triangles[pos as usize].intersect(&wr, t_limit).is_some()
-                })
-            }
+            Wide::None => self.binary_any(ray, t_max, skip),
         }
     }
 }

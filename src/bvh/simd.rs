@@ -132,11 +132,15 @@ impl TraceLayout {
         Self::ALL.into_iter().find(|l| l.name() == name)
     }
 
-    /// The form that suits a path: 8-wide where one instruction tests eight boxes, else 4-wide.
+    /// The form that traces fastest on a path: 8-wide where one instruction tests eight boxes,
+    /// 4-wide on SSE4.1, and the binary tree for portable code, where a wide node's lanes are
+    /// tested one at a time and the wide tree measured no faster (docs/benchmarks.md, "Wide
+    /// trees and SIMD traversal").
     pub fn default_for(path: SimdPath) -> Self {
         match path {
             SimdPath::Avx2 => TraceLayout::Wide8,
-            SimdPath::Sse4 | SimdPath::Scalar => TraceLayout::Wide4,
+            SimdPath::Sse4 => TraceLayout::Wide4,
+            SimdPath::Scalar => TraceLayout::Binary,
         }
     }
 }

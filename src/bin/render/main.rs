@@ -65,7 +65,7 @@ struct Args {
     #[arg(long)]
     threads: Option<usize>,
     /// The tree the CPU traces: binary, wide4 or wide8 (default: wide8 where the CPU has AVX2,
-    /// else wide4). Every form gives the same image; `ARBOR_SIMD=scalar|sse4|avx2` forces the
+    /// wide4 where it has SSE4.1, else binary). Every form gives the same image; `ARBOR_SIMD=scalar|sse4|avx2` forces the
     /// instruction set.
     #[arg(long, value_name = "FORM", value_parser = parse_trace)]
     trace: Option<TraceLayout>,
