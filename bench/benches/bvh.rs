@@ -93,7 +93,7 @@ fn obvhs_build(tris: &[obvhs::triangle::Triangle], params: obvhs::BvhBuildParams
 }
 
 fn dragon() -> Option<TriangleMesh> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/models/dragon_res2.obj");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models/dragon_res2.obj");
     let mesh = TriangleMesh::load_obj(&path).ok();
     if mesh.is_none() {
         eprintln!("skipping the dragon benchmarks: {} not found", path.display());

@@ -11,8 +11,9 @@
 //! path compiled with that path's target features, so the kernels inline into it. It is the
 //! traversal of [`WideBvh::closest_hit`] (hit lanes visited near to far, the same culling slack,
 //! ties to the lowest primitive id), with the leaves tested four triangles at a time: the kernel
-//! rejects the lanes the scalar watertight test would reject, and the scalar test decides the
-//! rest, so every path returns exactly the hits of [`super::Bvh::closest_hit_triangles`].
+//! rejects the lanes the scalar watertight test would reject, accepts those it would hit with
+//! the same `t`, `u`, `v`, and leaves the rest to the scalar test ([`super::simd`]), so every
+//! path returns exactly the hits of [`super::Bvh::closest_hit_triangles`].
 //!
 //! `skip` names a primitive to leave out: a ray spawned from a triangle never needs to test it
 //! (its origin is offset to the side of the plane the ray leaves to, so the plane lies behind
