@@ -589,6 +589,12 @@ mod x86 {
             let any_neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)), _mm_cmplt_ps(w, zero));
             let any_pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)), _mm_cmpgt_ps(w, zero));
             let mixed = _mm_and_ps(any_neg, any_pos);
+            let valid = valid & 0xf;
+            // Most packets a ray reaches miss it on every lane: then the division and the error
+            // bound are not needed.
+            if _mm_movemask_ps(_mm_and_ps(all_normal, mixed)) as u32 & valid == valid {
+                return PacketHits::default();
+            }
             let det = _mm_add_ps(_mm_add_ps(u, v), w);
             let (zs_a, zs_b, zs_c) = (_mm_mul_ps(sz, az), _mm_mul_ps(sz, bz), _mm_mul_ps(sz, cz));
             let t_scaled =
@@ -636,7 +642,6 @@ mod x86 {
                 _mm_and_ps(all_normal, _mm_or_ps(mixed, _mm_and_ps(t_ok, beyond))),
                 behind,
             );
-            let valid = valid & 0xf;
             let accept = _mm_movemask_ps(accept) as u32 & valid;
             let check = !(_mm_movemask_ps(reject) as u32) & valid & !accept;
             let mut hits = PacketHits { accept, check, ..Default::default() };
