@@ -141,7 +141,8 @@ fn spawned_rays_do_not_self_intersect() {
         let mesh = sphere.transformed(m);
         let tris = mesh.triangles();
         let bvh = tree(&tris);
-        let traced: Vec<MeshBvh> = tracings().into_iter().map(|t| MeshBvh::with_tracing(bvh.clone(), &tris, t)).collect();
+        let traced: Vec<MeshBvh> =
+            tracings().into_iter().map(|t| MeshBvh::with_tracing(bvh.clone(), &tris, t)).collect();
         let center = m.transform_point3(Vec3::ZERO);
         let radius = m.transform_vector3(Vec3::X).length();
         let mut r = rng(2);

@@ -30,7 +30,9 @@ use std::path::Path;
 
 use arbor::bvh::lbvh::LbvhBuilder;
 use arbor::bvh::prbvh::{self, PrbvhConfig};
-use arbor::bvh::{self, Bvh, CollapseConfig, MeshBvh, SimdPath, TraceLayout, Tracing, binned_sah, collapse_leaves, lbvh};
+use arbor::bvh::{
+    self, Bvh, CollapseConfig, MeshBvh, SimdPath, TraceLayout, Tracing, binned_sah, collapse_leaves, lbvh,
+};
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
 use arbor_bench::rays as bench_rays;
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
@@ -185,7 +187,11 @@ fn trace_dragon(c: &mut Criterion) {
     // The leaf-ordered binary tree, and the wide forms on every SIMD path this CPU has.
     let mut ordered = vec![(
         "lbvh-ordered".to_string(),
-        MeshBvh::with_tracing(trees[0].1.clone(), &tris, Tracing { layout: TraceLayout::Binary, simd: SimdPath::Scalar }),
+        MeshBvh::with_tracing(
+            trees[0].1.clone(),
+            &tris,
+            Tracing { layout: TraceLayout::Binary, simd: SimdPath::Scalar },
+        ),
     )];
     for simd in SimdPath::available() {
         for layout in [TraceLayout::Wide4, TraceLayout::Wide8] {
@@ -235,11 +241,15 @@ fn kernels(c: &mut Criterion) {
         g.throughput(Throughput::Elements(rays.len() as u64));
         g.bench_function("boxes-8", |b| {
             let mut dist = [0.0; 8];
-            b.iter(|| box_rays.iter().map(|r| test_boxes(simd, &w8.nodes()[0], r, f32::INFINITY, &mut dist)).sum::<u32>())
+            b.iter(|| {
+                box_rays.iter().map(|r| test_boxes(simd, &w8.nodes()[0], r, f32::INFINITY, &mut dist)).sum::<u32>()
+            })
         });
         g.bench_function("boxes-4", |b| {
             let mut dist = [0.0; 4];
-            b.iter(|| box_rays.iter().map(|r| test_boxes(simd, &w4.nodes()[0], r, f32::INFINITY, &mut dist)).sum::<u32>())
+            b.iter(|| {
+                box_rays.iter().map(|r| test_boxes(simd, &w4.nodes()[0], r, f32::INFINITY, &mut dist)).sum::<u32>()
+            })
         });
         g.bench_function("triangle-packet", |b| {
             b.iter(|| {

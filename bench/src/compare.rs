@@ -261,12 +261,9 @@ impl Traced {
     /// Embree).
     fn trace_binary(&self, rays: &[Ray], t_max: f32) -> Option<(Duration, Vec<u64>)> {
         match self {
-            Traced::Arbor(mesh) => Some(trace_mesh(
-                rays,
-                t_max,
-                |r| mesh.closest_hit_binary(r, t_max),
-                |r| mesh.any_hit_binary(r, t_max),
-            )),
+            Traced::Arbor(mesh) => {
+                Some(trace_mesh(rays, t_max, |r| mesh.closest_hit_binary(r, t_max), |r| mesh.any_hit_binary(r, t_max)))
+            }
             #[cfg(feature = "embree")]
             Traced::Embree(_) => None,
         }
@@ -363,7 +360,9 @@ pub fn run_with_progress(
                     binary_times[b][k].push(time);
                     if round == 0 && binary_codes != codes {
                         let set = ["primary", "shadow", "diffuse"][k];
-                        report.mismatches.push(format!("{set} rays: {}'s binary and wide trees hit differently", r.name));
+                        report
+                            .mismatches
+                            .push(format!("{set} rays: {}'s binary and wide trees hit differently", r.name));
                     }
                 }
                 if keep {

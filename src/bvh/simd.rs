@@ -27,7 +27,7 @@
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
-use crate::geometry::{RayInv, ROBUST_SLAB_SCALE, WatertightRay};
+use crate::geometry::{ROBUST_SLAB_SCALE, RayInv, WatertightRay};
 
 use super::wide::WideNode;
 
@@ -292,7 +292,13 @@ pub struct PacketHits {
 /// One node's box test on `path`, for benchmarks of the kernels alone: the mask of the lanes
 /// the ray enters before `limit`, their entry distances in `dist`. A path this CPU lacks runs
 /// the scalar kernel.
-pub fn test_boxes<const N: usize>(path: SimdPath, node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+pub fn test_boxes<const N: usize>(
+    path: SimdPath,
+    node: &WideNode<N>,
+    ray: &BoxRay,
+    limit: f32,
+    dist: &mut [f32; N],
+) -> u32 {
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx2")]
@@ -432,9 +438,9 @@ mod x86 {
     use std::arch::x86_64::*;
 
     use super::{BOUND_FLOOR, BOUND_MARGIN, BoxRay, Kernel, PacketHits, PacketRay, ROBUST_SLAB_SCALE, TrianglePacket};
-    use crate::geometry::gamma;
     use crate::bvh::INVALID_INDEX;
     use crate::bvh::wide::WideNode;
+    use crate::geometry::gamma;
 
     /// SSE4.1 kernels.
     pub(crate) struct Sse4;
@@ -463,9 +469,7 @@ mod x86 {
             // SAFETY: instantiated only inside functions compiled with AVX2, which run only
             // where the CPU has it (`SimdPath::is_available`), so the AVX intrinsics inline
             // there. AVX2 implies SSE4.1.
-            unsafe {
-                if N == 8 { boxes_avx2(node, ray, limit, dist) } else { boxes_sse(node, ray, limit, dist) }
-            }
+            unsafe { if N == 8 { boxes_avx2(node, ray, limit, dist) } else { boxes_sse(node, ray, limit, dist) } }
         }
 
         #[inline(always)]
@@ -540,7 +544,10 @@ mod x86 {
         unsafe {
             let row = |k: usize| _mm256_loadu_ps(rows[k].as_ptr());
             let slab = |axis: usize, k: usize| {
-                _mm256_mul_ps(_mm256_sub_ps(row(k), _mm256_set1_ps(ray.origin[axis])), _mm256_set1_ps(ray.inv_dir[axis]))
+                _mm256_mul_ps(
+                    _mm256_sub_ps(row(k), _mm256_set1_ps(ray.origin[axis])),
+                    _mm256_set1_ps(ray.inv_dir[axis]),
+                )
             };
             let mut enter = _mm256_setzero_ps();
             let mut exit = _mm256_set1_ps(limit);
@@ -564,7 +571,9 @@ mod x86 {
         // SAFETY: every load reads one 16-byte-aligned row of `p` (`TrianglePacket` is
         // `align(16)` and its rows are 16 bytes each); the stores write whole arrays of four.
         unsafe {
-            let rel = |vertex: usize, axis: usize, o: f32| _mm_sub_ps(_mm_load_ps(p.v[vertex][axis].as_ptr()), _mm_set1_ps(o));
+            let rel = |vertex: usize, axis: usize, o: f32| {
+                _mm_sub_ps(_mm_load_ps(p.v[vertex][axis].as_ptr()), _mm_set1_ps(o))
+            };
             let (sx, sy, sz) = (_mm_set1_ps(r.sx), _mm_set1_ps(r.sy), _mm_set1_ps(r.sz));
             let (az, bz, cz) = (rel(0, kz, r.o[2]), rel(1, kz, r.o[2]), rel(2, kz, r.o[2]));
             let ax = _mm_sub_ps(rel(0, kx, r.o[0]), _mm_mul_ps(sx, az));
@@ -597,8 +606,7 @@ mod x86 {
             }
             let det = _mm_add_ps(_mm_add_ps(u, v), w);
             let (zs_a, zs_b, zs_c) = (_mm_mul_ps(sz, az), _mm_mul_ps(sz, bz), _mm_mul_ps(sz, cz));
-            let t_scaled =
-                _mm_add_ps(_mm_add_ps(_mm_mul_ps(u, zs_a), _mm_mul_ps(v, zs_b)), _mm_mul_ps(w, zs_c));
+            let t_scaled = _mm_add_ps(_mm_add_ps(_mm_mul_ps(u, zs_a), _mm_mul_ps(v, zs_b)), _mm_mul_ps(w, zs_c));
             let rcp = _mm_div_ps(_mm_set1_ps(1.0), det);
             let t_ok = _mm_and_ps(normal(t_scaled), normal(rcp));
             let t = _mm_mul_ps(t_scaled, rcp);
@@ -638,10 +646,7 @@ mod x86 {
             let behind = _mm_and_ps(in_range, _mm_cmplt_ps(t, _mm_sub_ps(zero, bound)));
             // Rejected as the scalar test rejects: every edge function normal with mixed signs,
             // a normal distance past `t_max`, or one known to be behind the origin.
-            let reject = _mm_or_ps(
-                _mm_and_ps(all_normal, _mm_or_ps(mixed, _mm_and_ps(t_ok, beyond))),
-                behind,
-            );
+            let reject = _mm_or_ps(_mm_and_ps(all_normal, _mm_or_ps(mixed, _mm_and_ps(t_ok, beyond))), behind);
             let accept = _mm_movemask_ps(accept) as u32 & valid;
             let check = !(_mm_movemask_ps(reject) as u32) & valid & !accept;
             let mut hits = PacketHits { accept, check, ..Default::default() };
@@ -721,9 +726,14 @@ mod tests {
                 for (i, tri) in tris.iter().enumerate() {
                     let scalar = tri.intersect(&pr.wr, t_max);
                     if hits.accept & (1 << i) != 0 {
-                        let h = scalar.unwrap_or_else(|| panic!("{name}, case {case}: lane {i} accepted, scalar misses"));
+                        let h =
+                            scalar.unwrap_or_else(|| panic!("{name}, case {case}: lane {i} accepted, scalar misses"));
                         let bits = |h: (f32, f32, f32)| (h.0.to_bits(), h.1.to_bits(), h.2.to_bits());
-                        assert_eq!(bits((hits.t[i], hits.u[i], hits.v[i])), bits((h.t, h.u, h.v)), "{name}, case {case}");
+                        assert_eq!(
+                            bits((hits.t[i], hits.u[i], hits.v[i])),
+                            bits((h.t, h.u, h.v)),
+                            "{name}, case {case}"
+                        );
                         accepted += 1;
                     } else if hits.check & (1 << i) != 0 {
                         checked += 1;

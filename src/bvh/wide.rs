@@ -156,7 +156,8 @@ impl<const N: usize> WideBvh<N> {
     /// Collapses `bvh` (any builder's, after the leaf collapse or not) into `N`-wide nodes by
     /// the largest-area pull-up (see the module docs). Leaves stay the binary tree's leaves.
     pub fn from_binary(bvh: &Bvh) -> Self {
-        let nodes = collapse(bvh, |_, n| n.is_leaf().then_some((n.first, n.prim_count)), |n, _| (n.first, n.prim_count));
+        let nodes =
+            collapse(bvh, |_, n| n.is_leaf().then_some((n.first, n.prim_count)), |n, _| (n.first, n.prim_count));
         Self { nodes, prim_ids: bvh.prim_ids.clone() }
     }
 
@@ -323,12 +324,13 @@ pub(crate) fn collapse<const N: usize>(
         let mut children = [0u32; N];
         let mut ranges = [None; N];
         let mut areas = [-1.0f32; N];
-        let mut add = |c: u32, at: usize, children: &mut [u32; N], ranges: &mut [Option<(u32, u32)>; N], areas: &mut [f32; N]| {
-            let n = &nodes[c as usize];
-            children[at] = c;
-            ranges[at] = leaf(c, n);
-            areas[at] = if ranges[at].is_some() { -1.0 } else { n.aabb().half_area() };
-        };
+        let mut add =
+            |c: u32, at: usize, children: &mut [u32; N], ranges: &mut [Option<(u32, u32)>; N], areas: &mut [f32; N]| {
+                let n = &nodes[c as usize];
+                children[at] = c;
+                ranges[at] = leaf(c, n);
+                areas[at] = if ranges[at].is_some() { -1.0 } else { n.aabb().half_area() };
+            };
         add(first, 0, &mut children, &mut ranges, &mut areas);
         add(first + 1, 1, &mut children, &mut ranges, &mut areas);
         let mut len = 2;

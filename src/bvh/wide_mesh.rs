@@ -394,7 +394,8 @@ fn small_subtrees(nodes: &[BvhNode]) -> Vec<u8> {
     if ordered {
         for i in (0..nodes.len()).rev() {
             let n = &nodes[i];
-            count[i] = if n.is_leaf() { own(n) } else { (count[n.first as usize] + count[n.first as usize + 1]).min(5) };
+            count[i] =
+                if n.is_leaf() { own(n) } else { (count[n.first as usize] + count[n.first as usize + 1]).min(5) };
         }
         return count;
     }

@@ -117,16 +117,15 @@ impl RenderScene {
             (mesh.tracing(), mesh.collapse_seconds() * 1e3, mesh.traced_sah(&Default::default()));
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
         let lights = flat_lights(&triangles, &material_of, &materials);
-        let report =
-            BuildReport {
-                build_ms: start.elapsed().as_secs_f64() * 1e3,
-                sah,
-                triangles: triangles.len(),
-                builder,
-                tracing,
-                collapse_ms,
-                traced_sah,
-            };
+        let report = BuildReport {
+            build_ms: start.elapsed().as_secs_f64() * 1e3,
+            sah,
+            triangles: triangles.len(),
+            builder,
+            tracing,
+            collapse_ms,
+            traced_sah,
+        };
         let geometry = Geometry::Flat(Flat { mesh, triangles, material_of });
         (Self::with_geometry(scene, geometry, materials, lights), report)
     }

@@ -143,7 +143,9 @@ impl RenderScene {
         let length = robust_length(shadow.dir);
         let short_of_plane = lp.normal.abs().dot(lp.point_error) / (cos_light.abs() * length);
         let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
-        if !(clear.is_finite() && clear < dist && t_max > 0.0) || self.geometry.occluded_from(&shadow, t_max, Some(surface)) {
+        if !(clear.is_finite() && clear < dist && t_max > 0.0)
+            || self.geometry.occluded_from(&shadow, t_max, Some(surface))
+        {
             return 1;
         }
         let p_light = solid_angle_pdf(lp.pdf_area, to, cos_light.abs());

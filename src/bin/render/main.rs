@@ -11,9 +11,9 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use arbor::bvh::{TraceLayout, Tracing};
 use arbor::device::{BuilderChoice, DeviceChoice, Progress, RenderedFrame, Renderer};
 use arbor::image_io::{check_output_path, write_image};
-use arbor::bvh::{TraceLayout, Tracing};
 use arbor::render::BuildReport;
 use arbor::render::geometry::wants_instancing;
 use arbor::scene::{RenderSettings, Scene};
@@ -215,10 +215,7 @@ fn run() -> Result<()> {
 fn print_build(scene: &Path, build: &BuildReport, cpu: bool) {
     // What the CPU traces; a GPU render traces its own copy of the binary tree.
     let traced = if cpu && build.tracing.layout != TraceLayout::Binary {
-        format!(
-            ", traced as a {} (collapse {:.1} ms, SAH {:.2})",
-            build.tracing, build.collapse_ms, build.traced_sah
-        )
+        format!(", traced as a {} (collapse {:.1} ms, SAH {:.2})", build.tracing, build.collapse_ms, build.traced_sah)
     } else if cpu {
         format!(", traced as a {}", build.tracing)
     } else {
