@@ -271,7 +271,7 @@ impl Renderer {
             };
             match (built_on_gpu, builder) {
                 (Some(built), _) => built,
-                (None, BuilderChoice::Fixed(b)) => RenderScene::build(scene, b),
+                (None, BuilderChoice::Fixed(b)) => RenderScene::build_traced(scene, b, crate::bvh::Tracing::gpu()),
                 (None, BuilderChoice::Auto) => {
                     let (rs, report, partial) = trace::build_auto(ctx, scene, settings, frames);
                     timed = partial;

@@ -47,6 +47,10 @@ pub struct OutOfMemory {
 /// (docs/benchmarks.md, "Memory"), with room to spare.
 pub const RENDER_BYTES_PER_TRIANGLE: f64 = 480.0;
 
+/// [`RENDER_BYTES_PER_TRIANGLE`] where only the binary tree is kept: a GPU render, or a CPU
+/// render that traces the binary tree (measured before the wide form existed).
+pub const RENDER_BYTES_PER_TRIANGLE_BINARY: f64 = 320.0;
+
 /// The whole file at `path`, refusing one longer than `limit` bytes: a path that never ends
 /// (`/dev/zero`, a FIFO fed without end) is an error once past it, not a read until memory runs
 /// out.

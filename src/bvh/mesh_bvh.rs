@@ -6,8 +6,8 @@
 //!
 //! The binary tree stays what builders, PRBVH and refits work on. Unless told otherwise
 //! ([`Tracing::current`]) a mesh is traced through a wide tree collapsed from it, with its
-//! triangles in packets ([`WideMesh`]): 8 wide on AVX2, 4 wide elsewhere. Every form returns the
-//! same hits, bit for bit.
+//! triangles in packets ([`WideMesh`]): 8 wide on AVX2, 4 wide on SSE4.1; the portable path
+//! traces the binary tree. Every form returns the same hits, bit for bit.
 
 use rayon::prelude::*;
 
@@ -18,7 +18,7 @@ use crate::geometry::{Ray, Triangle, WatertightRay};
 
 /// A [`Bvh`] over triangles, with `triangles[k]` the triangle whose id is `bvh.prim_ids[k]`, and
 /// the wide form it is traced through, if any.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct MeshBvh {
     pub bvh: Bvh,
     pub triangles: Vec<Triangle>,
@@ -32,6 +32,14 @@ enum Wide {
     None,
     Four(WideMesh<4>),
     Eight(WideMesh<8>),
+}
+
+/// Equal trees, triangles and traced forms; the collapse's timing is not compared.
+impl PartialEq for MeshBvh {
+    fn eq(&self, other: &Self) -> bool {
+        (&self.bvh, &self.triangles, &self.wide, self.tracing)
+            == (&other.bvh, &other.triangles, &other.wide, other.tracing)
+    }
 }
 
 impl Default for MeshBvh {
@@ -67,7 +75,7 @@ impl MeshBvh {
         Self { bvh, triangles: ordered, wide, tracing: Tracing { simd, ..tracing }, collapse_seconds }
     }
 
-    /// How this mesh is traced (the binary form with scalar code).
+    /// How this mesh is traced: its form and SIMD path (scalar for the binary form).
     pub fn tracing(&self) -> Tracing {
         self.tracing
     }

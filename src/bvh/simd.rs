@@ -21,8 +21,8 @@
 //!   same operations: every quantity a normal float and `t` above its error bound. The bound is
 //!   the scalar test's (`t_error_bound`, evaluated there in f64), evaluated here in f32 and
 //!   enlarged by a factor that covers the f32 rounding of its dozen operations, and trusted only
-//!   where it is a normal float well above the subnormal range; so `t` above it is above the
-//!   scalar bound too. *Checked*: every other lane (a ray through an edge, a `t` near zero: the
+//!   where it and every maximum it is made of are well above the subnormal range (no term lost
+//!   to underflow); so `t` above it is above the scalar bound too. *Checked*: every other lane (a ray through an edge, a `t` near zero: the
 //!   scalar test's f64 paths) goes to the scalar test. Hits are exactly the scalar test's.
 
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -233,8 +233,8 @@ impl BoxRay {
 
 /// Four triangles by vertex, axis and lane, laid out for the watertight test: each of the nine
 /// coordinate rows loads as one vector. 160 bytes: the rows (144) and the lanes' primitive ids
-/// (16). A leaf holds `ceil(count / 4)` packets; the lanes past its count repeat its first
-/// triangle and are masked off by the count, never tested.
+/// (16). A leaf holds `ceil(count / 4)` packets; the lanes past its count repeat the packet's
+/// first triangle and are masked off by the count, never tested.
 #[repr(C, align(16))]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TrianglePacket {
@@ -303,11 +303,13 @@ pub fn test_boxes<const N: usize>(
     {
         #[target_feature(enable = "avx2")]
         unsafe fn avx2<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-            Avx2::boxes(node, ray, limit, dist)
+            // SAFETY: compiled for AVX2 and called only where the CPU has it.
+            unsafe { Avx2::boxes(node, ray, limit, dist) }
         }
         #[target_feature(enable = "sse4.1")]
         unsafe fn sse4<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-            Sse4::boxes(node, ray, limit, dist)
+            // SAFETY: compiled for SSE4.1 and called only where the CPU has it.
+            unsafe { Sse4::boxes(node, ray, limit, dist) }
         }
         match path {
             // SAFETY: taken only where the CPU has the path's features.
@@ -318,7 +320,8 @@ pub fn test_boxes<const N: usize>(
         }
     }
     let _ = path;
-    Scalar::boxes(node, ray, limit, dist)
+    // SAFETY: portable code.
+    unsafe { Scalar::boxes(node, ray, limit, dist) }
 }
 
 /// One packet's triangle test on `path`, for benchmarks of the kernels alone (a path this CPU
@@ -328,11 +331,13 @@ pub fn test_triangles(path: SimdPath, packet: &TrianglePacket, ray: &PacketRay, 
     {
         #[target_feature(enable = "avx2")]
         unsafe fn avx2(packet: &TrianglePacket, ray: &PacketRay, t_max: f32) -> PacketHits {
-            Avx2::triangles(packet, ray, t_max, 0xf)
+            // SAFETY: compiled for AVX2 and called only where the CPU has it.
+            unsafe { Avx2::triangles(packet, ray, t_max, 0xf) }
         }
         #[target_feature(enable = "sse4.1")]
         unsafe fn sse4(packet: &TrianglePacket, ray: &PacketRay, t_max: f32) -> PacketHits {
-            Sse4::triangles(packet, ray, t_max, 0xf)
+            // SAFETY: compiled for SSE4.1 and called only where the CPU has it.
+            unsafe { Sse4::triangles(packet, ray, t_max, 0xf) }
         }
         match path {
             // SAFETY: taken only where the CPU has the path's features.
@@ -343,7 +348,8 @@ pub fn test_triangles(path: SimdPath, packet: &TrianglePacket, ray: &PacketRay, 
         }
     }
     let _ = path;
-    Scalar::triangles(packet, ray, t_max, 0xf)
+    // SAFETY: portable code.
+    unsafe { Scalar::triangles(packet, ray, t_max, 0xf) }
 }
 
 /// A path's kernels. Each method is the whole of one test; the traversals in
@@ -352,21 +358,32 @@ pub fn test_triangles(path: SimdPath, packet: &TrianglePacket, ray: &PacketRay, 
 /// without target features of their own (a `target_feature` function cannot be
 /// `inline(always)`, and as a plain `inline` one it stayed a call), so they compile into that
 /// function with its features.
-pub(crate) trait Kernel {
+///
+/// # Safety
+/// A kernel's methods run its instruction set: call them only where the CPU has it
+/// ([`SimdPath::is_available`]).
+pub(crate) unsafe trait Kernel {
     /// Lanes of `node` (in use) whose box the ray enters before `limit`, as a bit mask, with
-    /// every lane's entry distance in `dist`.
-    fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32;
+    /// every lane's entry distance in `dist`. `N` is 4 or 8.
+    ///
+    /// # Safety
+    /// The CPU has the kernel's instruction set.
+    unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32;
     /// The lanes of `p` among `valid`, sorted by whether the watertight test hits them within
     /// `t_max`.
-    fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits;
+    ///
+    /// # Safety
+    /// The CPU has the kernel's instruction set.
+    unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits;
 }
 
 /// Portable kernels: a lane at a time.
 pub(crate) struct Scalar;
 
-impl Kernel for Scalar {
+// SAFETY: portable code, for every CPU.
+unsafe impl Kernel for Scalar {
     #[inline(always)]
-    fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+    unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
         let mut mask = 0;
         for (i, d) in dist.iter_mut().enumerate().take(node.lanes()) {
             if let Some(t) = node.intersect_lane(i, &ray.inv, limit) {
@@ -379,7 +396,7 @@ impl Kernel for Scalar {
 
     /// Only rejects: the lanes it keeps go to the scalar test whole.
     #[inline(always)]
-    fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
+    unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
         let mut check = 0;
         for i in 0..4 {
             if valid & (1 << i) != 0 && scalar_candidate(p, i, ray, t_max) {
@@ -393,9 +410,13 @@ impl Kernel for Scalar {
 /// The factor the f32 evaluation of the error bound is enlarged by: its dozen roundings move it
 /// by less than 2^-19 of itself (module docs).
 const BOUND_MARGIN: f32 = 1.0 + 1.0 / 65536.0;
-/// The smallest f32 bound trusted: far enough above the subnormals that no term of it can have
-/// lost more to underflow than the margin covers.
+/// The smallest f32 bound trusted, and the smallest coordinate, edge-function and depth maxima it
+/// is computed from: with every maximum at least 2^-30, every product in the bound (at most
+/// three maxima and a `γ` of about 2^-23) is at least 2^-113, a normal float, so no term loses
+/// more to underflow than the margin covers. (A tiny maximum multiplied into a huge one lost its
+/// term to underflow; such lanes go to the scalar test.)
 const BOUND_FLOOR: f32 = 1.0e-25;
+const MAXIMUM_FLOOR: f32 = 1.0 / (1u64 << 30) as f32;
 
 /// The triangle filter for one lane (module docs).
 #[inline(always)]
@@ -437,7 +458,10 @@ pub(crate) use x86::{Avx2, Sse4};
 mod x86 {
     use std::arch::x86_64::*;
 
-    use super::{BOUND_FLOOR, BOUND_MARGIN, BoxRay, Kernel, PacketHits, PacketRay, ROBUST_SLAB_SCALE, TrianglePacket};
+    use super::{
+        BOUND_FLOOR, BOUND_MARGIN, BoxRay, Kernel, MAXIMUM_FLOOR, PacketHits, PacketRay, ROBUST_SLAB_SCALE,
+        TrianglePacket,
+    };
     use crate::bvh::INVALID_INDEX;
     use crate::bvh::wide::WideNode;
     use crate::geometry::gamma;
@@ -447,33 +471,32 @@ mod x86 {
     /// AVX2 kernels: the box test eight lanes at once; triangles as [`Sse4`] (VEX-encoded).
     pub(crate) struct Avx2;
 
-    impl Kernel for Sse4 {
+    // SAFETY: the methods run SSE4.1 (x86-64's SSE2 baseline, in fact) and require it.
+    unsafe impl Kernel for Sse4 {
         #[inline(always)]
-        fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-            // SAFETY: the SSE intrinsics these use are part of x86-64's baseline; the kernels are
-            // instantiated only inside functions compiled with SSE4.1, which run only where the
-            // CPU has it (`SimdPath::is_available`).
+        unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+            // SAFETY: the caller's contract (the CPU has SSE4.1); N is 4 or 8.
             unsafe { boxes_sse(node, ray, limit, dist) }
         }
 
         #[inline(always)]
-        fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
+        unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
             // SAFETY: as for `boxes`.
             unsafe { triangles_sse(p, ray, t_max, valid) }
         }
     }
 
-    impl Kernel for Avx2 {
+    // SAFETY: the methods run AVX2 and require it; AVX2 implies SSE4.1.
+    unsafe impl Kernel for Avx2 {
         #[inline(always)]
-        fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-            // SAFETY: instantiated only inside functions compiled with AVX2, which run only
-            // where the CPU has it (`SimdPath::is_available`), so the AVX intrinsics inline
-            // there. AVX2 implies SSE4.1.
+        unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+            // SAFETY: the caller's contract (the CPU has AVX2), under which the AVX intrinsics
+            // inline into the AVX2-compiled caller; N is 4 or 8.
             unsafe { if N == 8 { boxes_avx2(node, ray, limit, dist) } else { boxes_sse(node, ray, limit, dist) } }
         }
 
         #[inline(always)]
-        fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
+        unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
             // SAFETY: as for `boxes`.
             unsafe { triangles_sse(p, ray, t_max, valid) }
         }
@@ -636,9 +659,14 @@ mod x86 {
             );
             let bound = _mm_mul_ps(_mm_mul_ps(inner, abs(rcp)), _mm_set1_ps(BOUND_MARGIN));
             let floor = _mm_set1_ps(BOUND_FLOOR);
+            let max_floor = _mm_set1_ps(MAXIMUM_FLOOR);
+            let maxima_ok = _mm_and_ps(
+                _mm_and_ps(_mm_cmpge_ps(max_x, max_floor), _mm_cmpge_ps(max_y, max_floor)),
+                _mm_and_ps(_mm_cmpge_ps(max_z, max_floor), _mm_cmpge_ps(max_e, max_floor)),
+            );
             let bound_ok = _mm_and_ps(
-                _mm_and_ps(_mm_cmpge_ps(inner, floor), _mm_cmpge_ps(bound, floor)),
-                _mm_cmplt_ps(bound, inf),
+                _mm_and_ps(maxima_ok, _mm_cmpge_ps(bound, floor)),
+                _mm_and_ps(_mm_cmpge_ps(inner, floor), _mm_cmplt_ps(bound, inf)),
             );
             let known = _mm_and_ps(_mm_and_ps(all_normal, _mm_andnot_ps(mixed, t_ok)), bound_ok);
             let in_range = _mm_andnot_ps(beyond, known);
@@ -717,11 +745,10 @@ mod tests {
             let t_max = if case % 7 == 0 { r.f32() * 2.0 } else { f32::INFINITY };
             let p = pack(&tris);
             let pr = PacketRay::new(WatertightRay::new(&ray));
-            let mut kernels: Vec<(&str, PacketHits)> = vec![("scalar", Scalar::triangles(&p, &pr, t_max, 0xf))];
-            #[cfg(target_arch = "x86_64")]
-            if SimdPath::Sse4.is_available() {
-                kernels.push(("sse4", Sse4::triangles(&p, &pr, t_max, 0xf)));
-            }
+            let kernels: Vec<(&str, PacketHits)> = SimdPath::available()
+                .into_iter()
+                .map(|path| (path.name(), test_triangles(path, &p, &pr, t_max)))
+                .collect();
             for (name, hits) in kernels {
                 for (i, tri) in tris.iter().enumerate() {
                     let scalar = tri.intersect(&pr.wr, t_max);
@@ -745,5 +772,23 @@ mod tests {
         }
         // Both kinds of lane occur, so the comparison above tested something.
         assert!(accepted > 1000 && checked > 1000, "accepted {accepted}, checked {checked}");
+        // Coordinates of very different scales on one triangle: the f32 bound's terms underflow
+        // where the f64 bound's do not (found by a reading of the kernel). The kernel must then
+        // defer, not accept its own `t`.
+        let anisotropic =
+            Triangle::new(Vec3::new(-1e-40, -1e30, 1.0), Vec3::new(1e-40, -1e30, 1.0), Vec3::new(0.0, 1e30, -0.999998));
+        let ray = Ray::new(Vec3::ZERO, Vec3::Z);
+        let pr = PacketRay::new(WatertightRay::new(&ray));
+        let p = pack(&[anisotropic; 4]);
+        for path in SimdPath::available() {
+            let hits = test_triangles(path, &p, &pr, f32::INFINITY);
+            let scalar = anisotropic.intersect(&pr.wr, f32::INFINITY);
+            if hits.accept & 1 != 0 {
+                let h = scalar.expect("accepted, so the scalar test hits");
+                assert_eq!((hits.t[0], hits.u[0], hits.v[0]), (h.t, h.u, h.v), "{}", path.name());
+            } else if hits.check & 1 == 0 {
+                assert_eq!(scalar, None, "{}", path.name());
+            }
+        }
     }
 }

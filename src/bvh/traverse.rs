@@ -25,21 +25,25 @@ pub const CULL_SCALE: f32 = 1.0 + 1.0 / 65536.0;
 /// corner of the tree's bounds.
 pub const CULL_ABS_ULPS: f32 = 64.0;
 
-/// How far past `t` a box may begin and still be opened, for a ray with origin `o`, direction
-/// length `dir_len` and a tree bounded by `bounds`: `CULL_ABS_ULPS` ULPs of the distance to the
-/// tree's farthest corner, in units of the direction's length. Computed in f32 with norms that
-/// bound the Euclidean ones from the safe side (the sum of the coordinates for the corner's
-/// distance, the largest coordinate for the direction's length, and 1% on top for the rounding),
-/// so it is never below the exact value and costs no square root; it only decides which boxes
-/// are opened. (Euclidean lengths cost two square roots per ray, in f64, since their f32 squares
-/// overflow for scenes beyond about 10^19.) Where the quotient overflows (scenes beyond about
-/// 10^37, directions below about 10^-37) or is undefined it is infinite, and every box along the
-/// ray is opened.
+/// How far past `t` a box may begin and still be opened, for `ray` and a tree bounded by
+/// `bounds`: `CULL_ABS_ULPS` ULPs of the distance from the origin to the tree's farthest corner,
+/// in units of the direction's length. Computed in f32 with norms that bound the Euclidean ones
+/// from the safe side (the sum of the corner's coordinates, the direction's largest coordinate,
+/// and 1% on top for the rounding), so it is never below the exact value and costs no square
+/// root; it only decides which boxes are opened. Where that quotient leaves f32's normal range
+/// (scenes and directions of very different scales), it is computed as before, from Euclidean
+/// lengths in f64, whose squares neither overflow nor underflow.
 #[inline]
 pub(super) fn cull_slack(bounds: &crate::geometry::Aabb, ray: &Ray) -> f32 {
     let far = (bounds.min - ray.origin).abs().max((bounds.max - ray.origin).abs());
-    let slack = CULL_ABS_ULPS * f32::EPSILON * 1.01 * (far.x + far.y + far.z) / ray.dir.abs().max_element();
-    if slack.is_nan() { f32::INFINITY } else { slack }
+    let slack = CULL_ABS_ULPS * f32::EPSILON * 1.01 * ((far.x + far.y + far.z) / ray.dir.abs().max_element());
+    if slack.is_normal() {
+        return slack;
+    }
+    let exact =
+        (f64::from(CULL_ABS_ULPS * f32::EPSILON) * far.as_dvec3().length() / ray.dir.as_dvec3().length()) as f32;
+    // Undefined (a zero direction): open every box.
+    if exact.is_nan() { f32::INFINITY } else { exact }
 }
 
 /// The box-culling limit for a best distance `t` (see the module docs).

@@ -63,6 +63,7 @@ impl<const N: usize> WideMesh<N> {
     /// triangles at once costs about what one box test does, and the binary tree's leaves,
     /// sized for one triangle at a time, would leave most lanes of their packets empty.
     pub fn from_binary(bvh: &Bvh, leaf_ordered: &[Triangle], simd: SimdPath) -> Self {
+        const { assert!(N == 4 || N == 8, "the SIMD kernels test 4 or 8 lanes") };
         let nodes: &[BvhNode] = &bvh.nodes;
         let prim_ids = &bvh.prim_ids;
         // First the nodes, each leaf lane given its packets' place; then the packets, filled in
@@ -105,7 +106,7 @@ impl<const N: usize> WideMesh<N> {
                 let lanes = (count as usize - 4 * j).min(4);
                 let mut p = TrianglePacket { v: [[[0.0; 4]; 3]; 3], prim: [INVALID_INDEX; 4] };
                 for i in 0..4 {
-                    // Lanes past the leaf's count repeat its first triangle (never tested).
+                    // Lanes past the leaf's count repeat the packet's first triangle (never tested).
                     let pos = position(4 * j + if i < lanes { i } else { 0 });
                     let t = &leaf_ordered[pos];
                     for (k, v) in [t.v0, t.v1, t.v2].into_iter().enumerate() {
@@ -193,13 +194,14 @@ impl<const N: usize> WideMesh<N> {
     #[inline]
     pub fn closest_hit(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
         match self.simd {
-            // SAFETY: `simd` is a path this CPU has (checked in `new`).
+            // SAFETY: `simd` is a path this CPU has (checked in `from_binary`).
             #[cfg(target_arch = "x86_64")]
             SimdPath::Avx2 => unsafe { self.closest_avx2(ray, t_max, skip) },
             // SAFETY: as above.
             #[cfg(target_arch = "x86_64")]
             SimdPath::Sse4 => unsafe { self.closest_sse4(ray, t_max, skip) },
-            _ => self.closest::<Scalar>(ray, t_max, skip),
+            // SAFETY: portable code.
+            _ => unsafe { self.closest::<Scalar>(ray, t_max, skip) },
         }
     }
 
@@ -207,48 +209,60 @@ impl<const N: usize> WideMesh<N> {
     #[inline]
     pub fn any_hit(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
         match self.simd {
-            // SAFETY: `simd` is a path this CPU has (checked in `new`).
+            // SAFETY: `simd` is a path this CPU has (checked in `from_binary`).
             #[cfg(target_arch = "x86_64")]
             SimdPath::Avx2 => unsafe { self.any_avx2(ray, t_max, skip) },
             // SAFETY: as above.
             #[cfg(target_arch = "x86_64")]
             SimdPath::Sse4 => unsafe { self.any_sse4(ray, t_max, skip) },
-            _ => self.any::<Scalar>(ray, t_max, skip),
+            // SAFETY: portable code.
+            _ => unsafe { self.any::<Scalar>(ray, t_max, skip) },
         }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn closest_avx2(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
-        self.closest::<super::simd::Avx2>(ray, t_max, skip)
+        // SAFETY: this function is compiled for the kernel's features and called only where
+        // the CPU has them.
+        unsafe { self.closest::<super::simd::Avx2>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "sse4.1")]
     unsafe fn closest_sse4(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
-        self.closest::<super::simd::Sse4>(ray, t_max, skip)
+        // SAFETY: this function is compiled for the kernel's features and called only where
+        // the CPU has them.
+        unsafe { self.closest::<super::simd::Sse4>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn any_avx2(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
-        self.any::<super::simd::Avx2>(ray, t_max, skip)
+        // SAFETY: this function is compiled for the kernel's features and called only where
+        // the CPU has them.
+        unsafe { self.any::<super::simd::Avx2>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "sse4.1")]
     unsafe fn any_sse4(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
-        self.any::<super::simd::Sse4>(ray, t_max, skip)
+        // SAFETY: this function is compiled for the kernel's features and called only where
+        // the CPU has them.
+        unsafe { self.any::<super::simd::Sse4>(ray, t_max, skip) }
     }
 
+    /// # Safety
+    /// The CPU has `K`'s instruction set.
     #[inline(always)]
-    fn closest<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+    unsafe fn closest<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
         if self.nodes.is_empty() {
             return None;
         }
         let br = BoxRay::new(ray.inv());
         // Set up at the first leaf and the first hit: most primary rays miss everything, and
-        // for them this set-up (six divisions, two f64 square roots) was most of the cost.
+        // for them this set-up (three divisions and a permutation; the slack's division) was a
+        // large part of the cost.
         let mut pr: Option<PacketRay> = None;
         let mut slack: Option<f32> = None;
         let mut limit = if t_max == f32::INFINITY {
@@ -266,7 +280,8 @@ impl<const N: usize> WideMesh<N> {
                 for j in 0..current.count.div_ceil(4) {
                     let p = &self.packets[(current.child + j) as usize];
                     let valid = (1u32 << (current.count - 4 * j).min(4)) - 1;
-                    let hits = K::triangles(p, pr, best.map_or(t_max, |b| b.t), valid);
+                    // SAFETY: the caller's contract.
+                    let hits = unsafe { K::triangles(p, pr, best.map_or(t_max, |b| b.t), valid) };
                     let mut lanes = hits.accept | hits.check;
                     while lanes != 0 {
                         let i = lanes.trailing_zeros() as usize;
@@ -295,7 +310,8 @@ impl<const N: usize> WideMesh<N> {
                 }
             } else {
                 let node = &self.nodes[current.child as usize];
-                let mut mask = K::boxes(node, &br, limit, &mut dist);
+                // SAFETY: the caller's contract.
+                let mut mask = unsafe { K::boxes(node, &br, limit, &mut dist) };
                 if mask != 0 {
                     let entry = |i: usize| Entry { child: node.child[i], count: node.count[i], t: dist[i] };
                     if mask & (mask - 1) == 0 {
@@ -333,8 +349,10 @@ impl<const N: usize> WideMesh<N> {
         }
     }
 
+    /// # Safety
+    /// The CPU has `K`'s instruction set.
     #[inline(always)]
-    fn any<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+    unsafe fn any<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
         if self.nodes.is_empty() {
             return false;
         }
@@ -350,7 +368,8 @@ impl<const N: usize> WideMesh<N> {
                 for j in 0..current.count.div_ceil(4) {
                     let p = &self.packets[(current.child + j) as usize];
                     let valid = (1u32 << (current.count - 4 * j).min(4)) - 1;
-                    let hits = K::triangles(p, pr, t_max, valid);
+                    // SAFETY: the caller's contract.
+                    let hits = unsafe { K::triangles(p, pr, t_max, valid) };
                     let mut lanes = hits.accept | hits.check;
                     while lanes != 0 {
                         let i = lanes.trailing_zeros() as usize;
@@ -364,7 +383,8 @@ impl<const N: usize> WideMesh<N> {
                 }
             } else {
                 let node = &self.nodes[current.child as usize];
-                let mut mask = K::boxes(node, &br, limit, &mut dist);
+                // SAFETY: the caller's contract.
+                let mut mask = unsafe { K::boxes(node, &br, limit, &mut dist) };
                 if mask != 0 {
                     // Any order finds a blocker; the first lane is visited next, the rest wait.
                     let i = mask.trailing_zeros() as usize;
@@ -390,7 +410,9 @@ impl<const N: usize> WideMesh<N> {
 fn small_subtrees(nodes: &[BvhNode]) -> Vec<u8> {
     let mut count = vec![0u8; nodes.len()];
     let own = |n: &BvhNode| n.prim_count.min(5) as u8;
-    let ordered = nodes.iter().enumerate().all(|(i, n)| n.is_leaf() || n.first as usize > i);
+    // The padding node (`PAD_INDEX`) is neither leaf nor parent.
+    let ordered =
+        nodes.iter().enumerate().all(|(i, n)| i == super::PAD_INDEX as usize || n.is_leaf() || n.first as usize > i);
     if ordered {
         for i in (0..nodes.len()).rev() {
             let n = &nodes[i];

@@ -64,6 +64,12 @@ impl RenderScene {
     /// ([`wants_instancing`]) gets one such BVH per distinct mesh, in object space, under a
     /// top-level tree of its objects.
     pub fn build(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
+        Self::build_traced(scene, builder, Tracing::current())
+    }
+
+    /// [`RenderScene::build`] with a flat scene's tree traced as `tracing` says
+    /// ([`Tracing::gpu`] for a GPU render, which traces its own copy of the binary tree).
+    pub fn build_traced(scene: &Scene, builder: &Builder, tracing: Tracing) -> (Self, BuildReport) {
         if wants_instancing(scene) {
             return Self::build_instanced(scene, builder);
         }
@@ -71,7 +77,7 @@ impl RenderScene {
         let (triangles, material_of) = scene.world_triangles();
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
         let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
-        Self::assemble(scene, triangles, material_of, &built.bvh, t, builder.to_string(), Tracing::current())
+        Self::assemble(scene, triangles, material_of, &built.bvh, t, builder.to_string(), tracing)
     }
 
     /// The two-level build (see [`RenderScene::build`]).

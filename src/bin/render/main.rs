@@ -177,7 +177,13 @@ fn run() -> Result<()> {
     }
     // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
     if device.name() == "gpu" || !wants_instancing(&scene) {
-        scene.check_flat_fits(&args.scene, arbor::memory::RENDER_BYTES_PER_TRIANGLE)?;
+        let binary = device.name() == "gpu" || Tracing::current().layout == TraceLayout::Binary;
+        let per_triangle = if binary {
+            arbor::memory::RENDER_BYTES_PER_TRIANGLE_BINARY
+        } else {
+            arbor::memory::RENDER_BYTES_PER_TRIANGLE
+        };
+        scene.check_flat_fits(&args.scene, per_triangle)?;
     }
     // A frame range moves the scene to each frame (its BVH update is reported); a still renders
     // the scene as built, at its first frame.
