@@ -164,6 +164,37 @@ pub struct BuilderReport {
     pub differing_rays: Option<[usize; 3]>,
 }
 
+impl BuilderReport {
+    /// A row with its name, engine and build time, and nothing measured yet: the speeds are
+    /// filled by the trace rounds, the rest by the builder's own measurement.
+    fn new(name: String, engine: &'static str, build_ms: f64) -> Self {
+        Self {
+            name,
+            engine,
+            build_ms,
+            optimize_ms: None,
+            collapse_ms: None,
+            sah: None,
+            sah_leaf1: None,
+            nodes: None,
+            leaves: None,
+            depth: None,
+            primary_mrays: None,
+            shadow_mrays: None,
+            diffuse_mrays: None,
+            binary_primary_mrays: None,
+            binary_shadow_mrays: None,
+            binary_diffuse_mrays: None,
+            wide_collapse_ms: None,
+            wide_sah: None,
+            sah_curve: Vec::new(),
+            checksums: [0; 3],
+            hits: [0; 3],
+            differing_rays: None,
+        }
+    }
+}
+
 /// Everything `bvh-bench` reports.
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
@@ -465,9 +496,6 @@ fn measure(
     let traced = MeshBvh::new(collapsed, triangles);
     let wide = traced.tracing().layout != TraceLayout::Binary;
     let report = BuilderReport {
-        name: builder.to_string(),
-        engine: "arbor",
-        build_ms,
         optimize_ms: Some(median_ms(optimizations)),
         collapse_ms: Some(collapse_ms),
         sah: Some(sah),
@@ -475,18 +503,10 @@ fn measure(
         nodes: Some(stats.node_count),
         leaves: Some(stats.leaf_count),
         depth: Some(stats.depth),
-        primary_mrays: None,
-        shadow_mrays: None,
-        diffuse_mrays: None,
-        binary_primary_mrays: None,
-        binary_shadow_mrays: None,
-        binary_diffuse_mrays: None,
         wide_collapse_ms: wide.then(|| traced.collapse_seconds() * 1e3),
         wide_sah: wide.then(|| traced.traced_sah(&Default::default())),
         sah_curve,
-        checksums: [0; 3],
-        hits: [0; 3],
-        differing_rays: None,
+        ..BuilderReport::new(builder.to_string(), "arbor", build_ms)
     };
     Ok((report, Traced::Arbor(Box::new(traced))))
 }
@@ -509,30 +529,7 @@ fn measure_embree(
         builds.push(time);
         last = Some(scene);
     }
-    let report = BuilderReport {
-        name: quality.name().to_string(),
-        engine: "embree",
-        build_ms: median_ms(builds),
-        optimize_ms: None,
-        collapse_ms: None,
-        sah: None,
-        sah_leaf1: None,
-        nodes: None,
-        leaves: None,
-        depth: None,
-        primary_mrays: None,
-        shadow_mrays: None,
-        diffuse_mrays: None,
-        binary_primary_mrays: None,
-        binary_shadow_mrays: None,
-        binary_diffuse_mrays: None,
-        wide_collapse_ms: None,
-        wide_sah: None,
-        sah_curve: Vec::new(),
-        checksums: [0; 3],
-        hits: [0; 3],
-        differing_rays: None,
-    };
+    let report = BuilderReport::new(quality.name().to_string(), "embree", median_ms(builds));
     Ok((report, Traced::Embree(last.expect("at least one run"))))
 }
 

@@ -16,22 +16,12 @@ fn bench() -> Command {
 }
 
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("arbor-bench-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    common::fresh_temp_dir("arbor-bench", name)
 }
 
 /// A small closed mesh as OBJ.
 fn write_obj(path: &Path) {
-    let mesh = arbor::geometry::TriangleMesh::torus(glam::Vec3::ZERO, 2.0, 0.7, 40, 20);
-    let mut s = String::new();
-    for p in &mesh.positions {
-        s += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &mesh.indices {
-        s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(path, s).unwrap();
+    common::write_obj(path, &arbor::geometry::TriangleMesh::torus(glam::Vec3::ZERO, 2.0, 0.7, 40, 20));
 }
 
 #[test]

@@ -12,7 +12,7 @@
 
 #![cfg(feature = "embree")]
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::Command;
 
 use glam::Vec3;
@@ -22,6 +22,11 @@ use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh, procedural};
 use arbor_bench::compare::{self, BenchConfig};
 use arbor_bench::embree::{Device, Quality, Scene};
 use arbor_bench::rays;
+
+// The tools' test helpers; the GPU ones go unused here.
+#[allow(dead_code)]
+#[path = "../../tests/common/tools.rs"]
+mod common;
 
 /// One triangle in the z = 0 plane: a ray from above hits it at its own `t` (the direction is
 /// not unit length), misses past `t_max`, and a ray starting on the plane does not hit it at
@@ -205,20 +210,7 @@ fn the_comparison_reports_embree_beside_arbor() {
 }
 
 fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("arbor-bench-embree-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn write_obj(path: &Path, mesh: &TriangleMesh) {
-    let mut s = String::new();
-    for p in &mesh.positions {
-        s += &format!("v {} {} {}\n", p.x, p.y, p.z);
-    }
-    for t in &mesh.indices {
-        s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
-    std::fs::write(path, s).unwrap();
+    common::fresh_temp_dir("arbor-bench-embree", name)
 }
 
 /// `bvh-bench MESH --builders lbvh+prbvh,embree-medium`, as the README runs it: a JSON row for
@@ -227,7 +219,7 @@ fn write_obj(path: &Path, mesh: &TriangleMesh) {
 fn the_cli_compares_with_embree_medium() {
     let dir = temp_dir("cli");
     let (obj, json, csv) = (dir.join("torus.obj"), dir.join("r.json"), dir.join("r.csv"));
-    write_obj(&obj, &TriangleMesh::torus(glam::Vec3::ZERO, 2.0, 0.7, 60, 30));
+    common::write_obj(&obj, &TriangleMesh::torus(glam::Vec3::ZERO, 2.0, 0.7, 60, 30));
     let out = Command::new(env!("CARGO_BIN_EXE_bvh-bench"))
         .arg(&obj)
         .args(["--builders", "lbvh+prbvh,embree-medium", "--runs", "2", "--resolution", "96", "--threads", "2"])

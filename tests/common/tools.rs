@@ -22,3 +22,24 @@ pub fn gpu_or_skip(test: &str) -> Option<&'static arbor::gpu::GpuContext> {
         }
     }
 }
+
+/// A fresh folder for one test's files under the system's temporary folder, named by `prefix`,
+/// `name` and this process.
+pub fn fresh_temp_dir(prefix: &str, name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("{prefix}-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Writes `mesh` as an OBJ file (positions and faces).
+pub fn write_obj(path: &std::path::Path, mesh: &arbor::geometry::TriangleMesh) {
+    let mut s = String::new();
+    for p in &mesh.positions {
+        s += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in &mesh.indices {
+        s += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(path, s).unwrap();
+}
