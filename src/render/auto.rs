@@ -49,10 +49,28 @@ pub enum AutoDevice<'a> {
     Unmeasured,
 }
 
-/// Rays per second of closest-hit queries on the leaf-collapsed `bvh`, measured on a 64x64 grid
-/// of camera rays.
-fn probe_trace_speed(bvh: &crate::bvh::Bvh, triangles: &[Triangle], camera: &crate::scene::Camera) -> f64 {
-    let mesh = MeshBvh::new(collapse_leaves(bvh, &CollapseConfig::default()), triangles);
+impl AutoDevice<'_> {
+    /// The form the CPU keeps for a render on this device: the one it traces on the CPU, the
+    /// binary tree alone for another device (which traces its own copy of it, so the camera
+    /// probes that calibrate against it time the binary tree too, and no probe pays for a wide
+    /// collapse).
+    fn tracing(&self) -> Tracing {
+        match self {
+            AutoDevice::Cpu | AutoDevice::CpuPaths { .. } => Tracing::current(),
+            AutoDevice::Measured { .. } | AutoDevice::Unmeasured => Tracing::gpu(),
+        }
+    }
+}
+
+/// Rays per second of closest-hit queries on the leaf-collapsed `bvh`, traced as `tracing` says
+/// (the form the render's device traces), measured on a 64x64 grid of camera rays.
+fn probe_trace_speed(
+    bvh: &crate::bvh::Bvh,
+    triangles: &[Triangle],
+    camera: &crate::scene::Camera,
+    tracing: Tracing,
+) -> f64 {
+    let mesh = MeshBvh::with_tracing(collapse_leaves(bvh, &CollapseConfig::default()), triangles, tracing);
     let model = CameraModel::new(camera);
     let (w, h) = (camera.width as f32 / 64.0, camera.height as f32 / 64.0);
     let rays: Vec<Ray> = (0..64 * 64)
@@ -200,10 +218,7 @@ impl RenderScene {
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
         let mut bvh = lbvh::build(&prims);
         let lbvh_seconds = t.elapsed().as_secs_f64();
-        let tracing = match device {
-            AutoDevice::Cpu | AutoDevice::CpuPaths { .. } => Tracing::current(),
-            AutoDevice::Measured { .. } | AutoDevice::Unmeasured => Tracing::gpu(),
-        };
+        let tracing = device.tracing();
         let assemble = |b: &crate::bvh::Bvh| {
             Self::assemble(scene, triangles.clone(), material_of.clone(), b, Instant::now(), String::new(), tracing)
         };
@@ -215,7 +230,9 @@ impl RenderScene {
         let Baseline { judge, render_seconds, mut timed, probe_cost, measured, .. } = baseline;
         // A tree's estimated render time, and its scene where it was assembled to time paths.
         let probe = |b: &crate::bvh::Bvh| match judge {
-            Judge::Camera { speedup } => (rays / (probe_trace_speed(b, &triangles, &scene.camera) * speedup), None),
+            Judge::Camera { speedup } => {
+                (rays / (probe_trace_speed(b, &triangles, &scene.camera, tracing) * speedup), None)
+            }
             Judge::Paths { samples, seed, max_depth } => {
                 let (rs, report) = assemble(b);
                 (rs.fastest_seconds_per_sample(seed, max_depth) * samples, Some((rs, report)))
@@ -273,10 +290,11 @@ impl RenderScene {
             measured: String::new(),
             excluded: std::time::Duration::ZERO,
         };
+        let tracing = device.tracing();
         match device {
             AutoDevice::Cpu => {}
             AutoDevice::CpuPaths { samples, seed, max_depth, budget } => {
-                let camera_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera);
+                let camera_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera, tracing);
                 let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
                 // One timing's cost (3 × TIMED_PATHS paths), priced by the camera estimate, which
                 // overstates it.
@@ -301,7 +319,7 @@ impl RenderScene {
             }
             AutoDevice::Unmeasured => return None,
             AutoDevice::Measured { samples, budget, measure } => {
-                let cpu_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera);
+                let cpu_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera, tracing);
                 let lbvh_scene = assemble(bvh);
                 let mut device_seconds = cpu_seconds;
                 if let Some((seconds_per_sample, excluded)) = measure(&lbvh_scene.0) {
