@@ -51,6 +51,12 @@ pub const RENDER_BYTES_PER_TRIANGLE: f64 = 480.0;
 /// render that traces the binary tree (measured before the wide form existed).
 pub const RENDER_BYTES_PER_TRIANGLE_BINARY: f64 = 320.0;
 
+/// The peak bytes per triangle a flat render is checked against: with the wide form, or
+/// (`binary`) with the binary tree alone.
+pub fn render_bytes_per_triangle(binary: bool) -> f64 {
+    if binary { RENDER_BYTES_PER_TRIANGLE_BINARY } else { RENDER_BYTES_PER_TRIANGLE }
+}
+
 /// The whole file at `path`, refusing one longer than `limit` bytes: a path that never ends
 /// (`/dev/zero`, a FIFO fed without end) is an error once past it, not a read until memory runs
 /// out.

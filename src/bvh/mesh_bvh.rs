@@ -23,7 +23,6 @@ pub struct MeshBvh {
     pub bvh: Bvh,
     pub triangles: Vec<Triangle>,
     wide: Wide,
-    tracing: Tracing,
     collapse_seconds: f64,
 }
 
@@ -37,8 +36,7 @@ enum Wide {
 /// Equal trees, triangles and traced forms; the collapse's timing is not compared.
 impl PartialEq for MeshBvh {
     fn eq(&self, other: &Self) -> bool {
-        (&self.bvh, &self.triangles, &self.wide, self.tracing)
-            == (&other.bvh, &other.triangles, &other.wide, other.tracing)
+        (&self.bvh, &self.triangles, &self.wide) == (&other.bvh, &other.triangles, &other.wide)
     }
 }
 
@@ -66,18 +64,18 @@ impl MeshBvh {
             TraceLayout::Wide4 => Wide::Four(WideMesh::from_binary(&bvh, &ordered, tracing.simd)),
             TraceLayout::Wide8 => Wide::Eight(WideMesh::from_binary(&bvh, &ordered, tracing.simd)),
         };
-        let simd = match &wide {
-            Wide::None => super::SimdPath::Scalar,
-            Wide::Four(w) => w.simd(),
-            Wide::Eight(w) => w.simd(),
-        };
         let collapse_seconds = start.elapsed().as_secs_f64();
-        Self { bvh, triangles: ordered, wide, tracing: Tracing { simd, ..tracing }, collapse_seconds }
+        Self { bvh, triangles: ordered, wide, collapse_seconds }
     }
 
     /// How this mesh is traced: its form and SIMD path (scalar for the binary form).
     pub fn tracing(&self) -> Tracing {
-        self.tracing
+        let (layout, simd) = match &self.wide {
+            Wide::None => (TraceLayout::Binary, super::SimdPath::Scalar),
+            Wide::Four(w) => (TraceLayout::Wide4, w.simd()),
+            Wide::Eight(w) => (TraceLayout::Wide8, w.simd()),
+        };
+        Tracing { layout, simd }
     }
 
     /// Seconds spent collapsing the binary tree into the wide one and packing its triangles
@@ -140,7 +138,7 @@ impl MeshBvh {
                 }
                 self.triangles[pos as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
             })
-            .map(|(prim_id, t, (u, v))| Hit { t, prim_id, u, v })
+            .map(Hit::from_traversal)
     }
 
     fn binary_any(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {

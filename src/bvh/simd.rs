@@ -190,7 +190,9 @@ impl Tracing {
         if l != 0 && s != 0 {
             return Self { layout: TraceLayout::ALL[l as usize - 1], simd: SimdPath::ALL[s as usize - 1] };
         }
-        Self::from_env(None).unwrap_or_else(|_| Self::best())
+        // The environment is read once: every mesh built asks.
+        static FROM_ENV: std::sync::OnceLock<Tracing> = std::sync::OnceLock::new();
+        *FROM_ENV.get_or_init(|| Self::from_env(None).unwrap_or_else(|_| Self::best()))
     }
 
     /// Sets what [`Tracing::current`] returns for the rest of the process. A path this CPU lacks
@@ -210,8 +212,6 @@ impl Tracing {
 /// (`min_x min_y min_z max_x max_y max_z`).
 #[derive(Clone, Copy, Debug)]
 pub struct BoxRay {
-    pub(crate) origin: [f32; 3],
-    pub(crate) inv_dir: [f32; 3],
     pub(crate) near: [usize; 3],
     pub(crate) far: [usize; 3],
     pub(crate) inv: RayInv,
@@ -222,8 +222,6 @@ impl BoxRay {
     pub fn new(inv: RayInv) -> Self {
         let neg = [inv.negative.x, inv.negative.y, inv.negative.z].map(usize::from);
         Self {
-            origin: inv.origin.to_array(),
-            inv_dir: inv.inv_dir.to_array(),
             near: [neg[0] * 3, 1 + neg[1] * 3, 2 + neg[2] * 3],
             far: [(1 - neg[0]) * 3, 1 + (1 - neg[1]) * 3, 2 + (1 - neg[2]) * 3],
             inv,
@@ -525,7 +523,7 @@ mod x86 {
         unsafe {
             let row = |k: usize| _mm_loadu_ps(rows[k].as_ptr().add(offset));
             let slab = |axis: usize, k: usize| {
-                _mm_mul_ps(_mm_sub_ps(row(k), _mm_set1_ps(ray.origin[axis])), _mm_set1_ps(ray.inv_dir[axis]))
+                _mm_mul_ps(_mm_sub_ps(row(k), _mm_set1_ps(ray.inv.origin[axis])), _mm_set1_ps(ray.inv.inv_dir[axis]))
             };
             // `max(x, acc)` is `x > acc ? x : acc`: NaN planes keep the accumulator.
             let mut enter = _mm_setzero_ps();
@@ -568,8 +566,8 @@ mod x86 {
             let row = |k: usize| _mm256_loadu_ps(rows[k].as_ptr());
             let slab = |axis: usize, k: usize| {
                 _mm256_mul_ps(
-                    _mm256_sub_ps(row(k), _mm256_set1_ps(ray.origin[axis])),
-                    _mm256_set1_ps(ray.inv_dir[axis]),
+                    _mm256_sub_ps(row(k), _mm256_set1_ps(ray.inv.origin[axis])),
+                    _mm256_set1_ps(ray.inv.inv_dir[axis]),
                 )
             };
             let mut enter = _mm256_setzero_ps();

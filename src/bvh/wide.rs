@@ -243,12 +243,12 @@ impl<const N: usize> WideBvh<N> {
         if self.nodes.is_empty() {
             return;
         }
-        // Entries (child, count, entry distance) still to visit; the nearest on top.
-        let mut stack = Stack::<(u32, u32, f32), STACK_SIZE>::new();
-        stack.push((0, 0, 0.0));
-        let mut hits: [(f32, u32, u32); N] = [(0.0, 0, 0); N];
-        while let Some((child, count, t_enter)) = stack.pop() {
-            if t_enter > *limit {
+        // Entries still to visit; the nearest on top.
+        let mut stack = Stack::<Entry, STACK_SIZE>::new();
+        stack.push(Entry::default());
+        let mut dist = [0.0f32; N];
+        while let Some(Entry { child, count, t }) = stack.pop() {
+            if t > *limit {
                 continue;
             }
             if count > 0 {
@@ -258,21 +258,15 @@ impl<const N: usize> WideBvh<N> {
                 continue;
             }
             let node = &self.nodes[child as usize];
-            let mut hit_count = 0;
-            for i in 0..node.lanes() {
+            let mut mask = 0;
+            for (i, d) in dist.iter_mut().enumerate().take(node.lanes()) {
                 if let Some(t) = node.intersect_lane(i, ray, *limit) {
-                    // Insertion by entry distance, farthest first, so the nearest is pushed last.
-                    let mut j = hit_count;
-                    while j > 0 && hits[j - 1].0 < t {
-                        hits[j] = hits[j - 1];
-                        j -= 1;
-                    }
-                    hits[j] = (t, node.child[i], node.count[i]);
-                    hit_count += 1;
+                    (*d, mask) = (t, mask | 1 << i);
                 }
             }
-            for &(t, c, n) in &hits[..hit_count] {
-                stack.push((c, n, t));
+            let (hits, n) = far_to_near(node, mask, &dist);
+            for &e in &hits[..n] {
+                stack.push(e);
             }
         }
     }
@@ -363,6 +357,38 @@ pub(crate) fn collapse<const N: usize>(
         }
     }
     wide
+}
+
+/// A wide traversal's stack entry: a node (`count == 0`) or a leaf (`child`, `count` as in its
+/// lane), with the distance its box is entered at.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Entry {
+    pub child: u32,
+    pub count: u32,
+    pub t: f32,
+}
+
+/// The lanes of `node` in `mask`, with their entry distances `dist`, farthest first (so that
+/// pushed in this order, the nearest is popped first), and how many there are. Shared by the
+/// wide traversals, so that all visit lanes alike.
+#[inline(always)]
+pub(crate) fn far_to_near<const N: usize>(node: &WideNode<N>, mut mask: u32, dist: &[f32; N]) -> ([Entry; N], usize) {
+    let mut hits = [Entry::default(); N];
+    let mut n = 0;
+    while mask != 0 {
+        let i = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        let e = Entry { child: node.child[i], count: node.count[i], t: dist[i] };
+        // Insertion by entry distance; equal distances keep lane order.
+        let mut j = n;
+        while j > 0 && hits[j - 1].t < e.t {
+            hits[j] = hits[j - 1];
+            j -= 1;
+        }
+        hits[j] = e;
+        n += 1;
+    }
+    (hits, n)
 }
 
 /// The box of everything under `nodes[0]`.

@@ -26,7 +26,9 @@ use crate::geometry::{Aabb, Ray, Triangle, WatertightRay};
 
 use super::simd::{BoxRay, Kernel, PacketRay, Scalar, SimdPath, TrianglePacket};
 use super::traverse::{Stack, cull_limit, cull_slack};
-use super::wide::{WideNode, WideValidationError, collapse, nodes_bounds, nodes_sah, validate_nodes};
+use super::wide::{
+    Entry, WideNode, WideValidationError, collapse, far_to_near, nodes_bounds, nodes_sah, validate_nodes,
+};
 use super::{Bvh, BvhNode, Hit, INVALID_INDEX, SahCosts};
 
 #[cfg(doc)]
@@ -42,15 +44,6 @@ pub struct WideMesh<const N: usize> {
     packets: Vec<TrianglePacket>,
     bounds: Aabb,
     simd: SimdPath,
-}
-
-/// A traversal stack entry: a node (`count == 0`) or a leaf, with the distance its box is
-/// entered at.
-#[derive(Clone, Copy, Debug, Default)]
-struct Entry {
-    child: u32,
-    count: u32,
-    t: f32,
 }
 
 impl<const N: usize> WideMesh<N> {
@@ -311,7 +304,7 @@ impl<const N: usize> WideMesh<N> {
             } else {
                 let node = &self.nodes[current.child as usize];
                 // SAFETY: the caller's contract.
-                let mut mask = unsafe { K::boxes(node, &br, limit, &mut dist) };
+                let mask = unsafe { K::boxes(node, &br, limit, &mut dist) };
                 if mask != 0 {
                     let entry = |i: usize| Entry { child: node.child[i], count: node.count[i], t: dist[i] };
                     if mask & (mask - 1) == 0 {
@@ -319,19 +312,7 @@ impl<const N: usize> WideMesh<N> {
                         continue;
                     }
                     // Several: farthest first onto the stack, the nearest visited next.
-                    let mut hits = [Entry::default(); N];
-                    let mut n = 0;
-                    while mask != 0 {
-                        let e = entry(mask.trailing_zeros() as usize);
-                        mask &= mask - 1;
-                        let mut j = n;
-                        while j > 0 && hits[j - 1].t < e.t {
-                            hits[j] = hits[j - 1];
-                            j -= 1;
-                        }
-                        hits[j] = e;
-                        n += 1;
-                    }
+                    let (hits, n) = far_to_near(node, mask, &dist);
                     for &e in &hits[..n - 1] {
                         stack.push(e);
                     }

@@ -65,8 +65,8 @@ struct Args {
     #[arg(long)]
     threads: Option<usize>,
     /// The tree the CPU traces: binary, wide4 or wide8 (default: wide8 where the CPU has AVX2,
-    /// wide4 where it has SSE4.1, else binary). Every form gives the same image; `ARBOR_SIMD=scalar|sse4|avx2` forces the
-    /// instruction set.
+    /// wide4 where it has SSE4.1, else binary). Every form gives the same image;
+    /// `ARBOR_SIMD=scalar|sse4|avx2` forces the instruction set.
     #[arg(long, value_name = "FORM", value_parser = parse_trace)]
     trace: Option<TraceLayout>,
     /// Clamp fireflies: scale down any sample whose largest channel exceeds this radiance.
@@ -178,12 +178,7 @@ fn run() -> Result<()> {
     // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
     if device.name() == "gpu" || !wants_instancing(&scene) {
         let binary = device.name() == "gpu" || Tracing::current().layout == TraceLayout::Binary;
-        let per_triangle = if binary {
-            arbor::memory::RENDER_BYTES_PER_TRIANGLE_BINARY
-        } else {
-            arbor::memory::RENDER_BYTES_PER_TRIANGLE
-        };
-        scene.check_flat_fits(&args.scene, per_triangle)?;
+        scene.check_flat_fits(&args.scene, arbor::memory::render_bytes_per_triangle(binary))?;
     }
     // A frame range moves the scene to each frame (its BVH update is reported); a still renders
     // the scene as built, at its first frame.
