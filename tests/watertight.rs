@@ -6,11 +6,13 @@
 //!   origin, and scaled by 10^-3 and 10^4.
 //! - Self-intersection: rays spawned from hit points with the ray-origin offset
 //!   (`geometry::spawn_ray`) never hit their own triangle, and rays leaving a convex mesh never hit
-//!   it again.
+//!   it again, also where they leave within 10^-5 of an edge, almost tangent to the surface.
 
 use crate::common;
 
-use arbor::bvh::{Bvh, CollapseConfig, MeshBvh, TraceLayout, Tracing, collapse_leaves, hit_point_and_normal, lbvh};
+use arbor::bvh::{
+    Bvh, CollapseConfig, Hit, INVALID_INDEX, MeshBvh, TraceLayout, Tracing, collapse_leaves, hit_point_and_normal, lbvh,
+};
 use arbor::geometry::{Ray, Triangle, TriangleMesh, spawn_ray};
 use common::*;
 use glam::{Mat4, Vec3};
@@ -174,7 +176,87 @@ fn spawned_rays_do_not_self_intersect() {
     }
 }
 
-/// Without the offset, the same rays do hit their own surface: the test above can fail.
+/// Rays spawned off a convex sphere as the renderer spawns them (offset, skipping the triangle
+/// they leave), half of them within 10^-5 of an edge (where the offset clears the spawn
+/// triangle's plane but not its neighbour's) and within 10^-2 radians of tangent, the rest
+/// anywhere on the triangle in cosine-distributed directions. Outward ones never hit the sphere
+/// again; inward ones hit it from inside, never a face from its front. In every traced form on
+/// every SIMD path, closest and any hit. The same rays without the offset do go wrong (counted,
+/// so the test can fail).
+#[test]
+fn spawns_off_a_convex_mesh_leave_or_hit_it_from_inside() {
+    let sphere = TriangleMesh::uv_sphere(Vec3::ZERO, 1.0, 32, 64);
+    let mut unoffset = 0;
+    for (placement, m) in placements() {
+        let mesh = sphere.transformed(m);
+        let tris = mesh.triangles();
+        let bvh = tree(&tris);
+        let traced: Vec<MeshBvh> =
+            tracings().into_iter().map(|t| MeshBvh::with_tracing(bvh.clone(), &tris, t)).collect();
+        let center = m.transform_point3(Vec3::ZERO);
+        let outward = |k: u32| {
+            let t = &tris[k as usize];
+            let n = t.unit_normal();
+            if n.dot(t.v0 - center) < 0.0 { -n } else { n }
+        };
+        // (spawn triangle, ray, the ray from the unoffset point, leaves outwards)
+        let rays: Vec<(u32, Ray, Ray, bool)> = (0..200_000u64)
+            .into_par_iter()
+            .flat_map_iter(|i| {
+                let mut r = rng(1000 + i);
+                let prim = r.random_range(0..tris.len() as u32);
+                // Barycentrics (u, v) of v1, v2: along one edge, `inside` of the triangle's
+                // extent away from it.
+                let grazing = i % 2 == 0;
+                let along: f32 = r.random_range(0.02..0.98);
+                let inside: f32 =
+                    if grazing { 10f32.powf(r.random_range(-12.0..-5.0)) } else { r.random_range(0.0..0.5) };
+                let (u, v) = match r.random_range(0..3) {
+                    0 => (along * (1.0 - inside), inside),                         // near edge v0-v1
+                    1 => (inside, along * (1.0 - inside)),                         // near edge v0-v2
+                    _ => (along * (1.0 - inside), (1.0 - along) * (1.0 - inside)), // near edge v1-v2
+                };
+                let (p, err, _) = hit_point_and_normal(&tris, &Hit { t: 1.0, prim_id: prim, u, v });
+                let n = outward(prim);
+                let (t1, t2) = n.any_orthonormal_pair();
+                let phi: f32 = r.random_range(0.0..std::f32::consts::TAU);
+                let tangent = t1 * phi.cos() + t2 * phi.sin();
+                // Tangent to within `lift` radians; cosine-distributed when not grazing.
+                let lift = if grazing {
+                    10f32.powf(r.random_range(-8.0..-2.0))
+                } else {
+                    let cos = r.random_range(0.0f32..1.0).sqrt();
+                    cos / (1.0 - cos * cos).sqrt()
+                };
+                // Rounding can tip the flattest directions across the plane: those are dropped.
+                [true, false].into_iter().filter_map(move |out| {
+                    let dir = (tangent + n * if out { lift } else { -lift }).normalize();
+                    (dir.dot(n) != 0.0 && (dir.dot(n) > 0.0) == out)
+                        .then(|| (prim, spawn_ray(p, err, n, dir), Ray::new(p, dir), out))
+                })
+            })
+            .collect();
+        assert!(rays.len() > 370_000, "{placement}: only {} rays", rays.len());
+        let wrong = |t: &MeshBvh, ray: &Ray, skip: u32, out: bool| {
+            let closest = t.closest_hit_skipping(ray, f32::INFINITY, skip);
+            let any = t.any_hit_skipping(ray, f32::INFINITY, skip);
+            if out {
+                closest.is_some() || any
+            } else {
+                !any || closest.is_none_or(|h| ray.dir.dot(outward(h.prim_id)) <= 0.0)
+            }
+        };
+        for t in &traced {
+            let n = rays.par_iter().filter(|&&(prim, ref ray, _, out)| wrong(t, ray, prim, out)).count();
+            assert_eq!(n, 0, "{placement}, {}: {n} of {} rays hit the sphere wrongly", t.tracing(), rays.len());
+        }
+        unoffset += rays.par_iter().filter(|&(_, _, ray, out)| wrong(&traced[0], ray, INVALID_INDEX, *out)).count();
+    }
+    assert!(unoffset > 1000, "only {unoffset} wrong hits without the offset: the test cannot fail");
+}
+
+/// Without the offset, the same rays do hit their own surface: `spawned_rays_do_not_self_intersect`
+/// can fail.
 #[test]
 fn unoffset_rays_do_self_intersect() {
     let mesh = TriangleMesh::uv_sphere(Vec3::ZERO, 1.0, 32, 64).transformed(Mat4::from_scale(Vec3::splat(1e4)));
