@@ -19,12 +19,13 @@ use std::time::Duration;
 use std::time::Instant;
 
 use crate::bvh::builders::{Builder, UnknownBuilder};
+use crate::bvh::dynamic::DynamicConfig;
 use crate::bvh::instances::TopLevelUpdate;
 #[cfg(feature = "gpu")]
 use crate::gpu::{GpuContext, GpuError, trace};
 use crate::render::film::Film;
-#[cfg(feature = "gpu")]
 use crate::render::geometry::wants_instancing;
+use crate::render::refine::{RefineReport, Refiner};
 use crate::render::{BuildReport, RenderScene, first_frame_time};
 use crate::scene::{RenderSettings, Scene};
 
@@ -160,6 +161,44 @@ pub struct Progress {
     pub rays: u64,
 }
 
+/// `auto`'s rule for an animation's per-frame top-level update on the CPU: its local PRBVH
+/// runs while it repays itself, that is while the share of the top level's SAH it removed,
+/// times the frame's render time, exceeds what it took (a generous bound on its gain: the
+/// top level is only part of every ray's path). A frame that finds it does not pay skips it
+/// for the next [`FramePrbvh::RETRY`] frames, then tries again: motion changes what it gains.
+#[derive(Clone, Debug, Default)]
+struct FramePrbvh {
+    /// The last update's local PRBVH: (seconds, share of the SAH removed).
+    last: Option<(f64, f64)>,
+    /// Frames left to skip it.
+    skip: u32,
+}
+
+impl FramePrbvh {
+    const RETRY: u32 = 8;
+
+    fn runs(&self) -> bool {
+        self.skip == 0
+    }
+
+    fn updated(&mut self, stats: &crate::bvh::dynamic::UpdateStats) {
+        if self.skip > 0 {
+            self.skip -= 1;
+            self.last = None;
+        } else if !stats.rebuilt {
+            self.last = Some((stats.prbvh_seconds, stats.prbvh_sah_drop));
+        }
+    }
+
+    fn rendered(&mut self, seconds: f64) {
+        if let Some((spent, drop)) = self.last.take()
+            && drop * seconds <= spent
+        {
+            self.skip = Self::RETRY;
+        }
+    }
+}
+
 /// A rendered frame.
 pub struct RenderedFrame {
     pub film: Film,
@@ -188,6 +227,12 @@ pub struct Renderer {
     kernel_note: Option<String>,
     /// Seconds spent compiling GPU kernels while building (once per process and variant).
     compile_seconds: f64,
+    /// `auto` on the CPU: the optimisation it carries out between passes.
+    refiner: Option<Refiner>,
+    /// Frames still to start after the one rendering, for `auto`'s estimate of the rest.
+    frames_after: usize,
+    /// `auto` on the CPU: whether an animated frame's top-level update runs its local PRBVH.
+    frame_prbvh: Option<FramePrbvh>,
     #[cfg(feature = "gpu")]
     gpu: Option<GpuState>,
 }
@@ -221,10 +266,19 @@ impl Renderer {
         };
         #[cfg(not(feature = "gpu"))]
         let _ = time; // the CPU builds at the scene's first frame and moves with `set_time`
+        let mut refiner = None;
         let (mut render_scene, build) = match device {
             Device::Cpu => match builder {
                 BuilderChoice::Fixed(b) => RenderScene::build(scene, b),
-                BuilderChoice::Auto => RenderScene::build_auto_cpu(scene, settings, frames),
+                // Meshes of a two-level scene are built once, with `lbvh+prbvh`.
+                BuilderChoice::Auto if wants_instancing(scene) => {
+                    RenderScene::build(scene, &"lbvh+prbvh".parse().expect("a builder name"))
+                }
+                BuilderChoice::Auto => {
+                    let (rs, report, r) = Refiner::start(scene, crate::bvh::Tracing::current());
+                    refiner = Some(r);
+                    (rs, report)
+                }
             },
             #[cfg(feature = "gpu")]
             Device::Gpu(ctx) => return Self::new_gpu(ctx, scene, builder, settings, frames, time, flat_builder),
@@ -238,6 +292,9 @@ impl Renderer {
             time: first_frame_time(scene),
             kernel_note: None,
             compile_seconds: 0.0,
+            refiner,
+            frames_after: frames,
+            frame_prbvh: matches!(builder, BuilderChoice::Auto).then(FramePrbvh::default),
             #[cfg(feature = "gpu")]
             gpu: None,
         })
@@ -287,6 +344,9 @@ impl Renderer {
             time,
             kernel_note: None,
             compile_seconds: 0.0,
+            refiner: None,
+            frames_after: frames,
+            frame_prbvh: None,
             gpu: None,
         };
         renderer.upload(settings.clamp, timed)?;
@@ -323,6 +383,11 @@ impl Renderer {
         &self.build
     }
 
+    /// What `auto` did while a CPU render ran (`None` for other builders and devices).
+    pub fn refine_report(&self) -> Option<&RefineReport> {
+        self.refiner.as_ref().map(Refiner::report)
+    }
+
     /// The scene as the CPU's integrator reads it (on the GPU, what was uploaded).
     pub fn render_scene(&self) -> &RenderScene {
         &self.render_scene
@@ -347,8 +412,14 @@ impl Renderer {
         match self.device {
             Device::Cpu => {
                 let t = Instant::now();
-                let update = TopLevelUpdate::Dynamic(Default::default());
-                let stats = self.render_scene.set_time(scene, time, &update);
+                let mut config = DynamicConfig::default();
+                if self.frame_prbvh.as_ref().is_some_and(|f| !f.runs()) {
+                    config.prbvh_rounds = 0;
+                }
+                let stats = self.render_scene.set_time(scene, time, &TopLevelUpdate::Dynamic(config));
+                if let (Some(f), Some(stats)) = (self.frame_prbvh.as_mut(), &stats) {
+                    f.updated(stats);
+                }
                 self.time = time;
                 Ok(stats.map(|_| t.elapsed().as_secs_f64() * 1e3))
             }
@@ -378,6 +449,7 @@ impl Renderer {
     ) -> Result<RenderedFrame, DeviceError> {
         let film = Film::new(self.render_scene.width, self.render_scene.height);
         let start = RenderedFrame { film, rays: 0, seconds: 0.0, samples: 0, timed_seconds: 0.0 };
+        self.frames_after = self.frames_after.saturating_sub(1);
         self.render_more(start, settings, progress)
     }
 
@@ -399,36 +471,53 @@ impl Renderer {
     }
 
     fn render_cpu(
-        &self,
+        &mut self,
         frame: RenderedFrame,
         s: &RenderSettings,
         progress: &(dyn Fn(Progress) + Sync),
     ) -> RenderedFrame {
         let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: mut done, timed_seconds } =
             frame;
-        let rs = &self.render_scene;
-        let total = u64::from(s.spp) * u64::from(rs.height);
-        let units = AtomicU64::new(u64::from(done) * u64::from(rs.height));
+        let height = u64::from(self.render_scene.height);
+        let total = u64::from(s.spp) * height;
+        let units = AtomicU64::new(u64::from(done) * height);
         let rays = AtomicU64::new(rays_before);
         let start = Instant::now();
         // Passes of a few samples each, so that a time budget can stop between passes and
         // progress is heard of even when one pixel's samples take long (a row reports when it
-        // has done the pass). The image depends only on the samples taken, not on where passes
-        // fall.
+        // has done the pass); of one sample while `auto` still decides between them. The image
+        // depends only on the samples taken, not on where passes fall or on the tree.
         let pass = if s.time.is_some() { 4 } else { 16 }.min(s.spp.max(1));
         while done < s.spp {
-            let n = pass.min(s.spp - done);
-            rs.render(&mut film, s.seed, s.max_depth, done..done + n, &|r| {
+            let deciding = self.refiner.as_ref().is_some_and(Refiner::is_active);
+            let n = if deciding { 1 } else { pass.min(s.spp - done) };
+            let pass_start = Instant::now();
+            self.render_scene.render(&mut film, s.seed, s.max_depth, done..done + n, &|r| {
                 let rays = rays.fetch_add(r, Ordering::Relaxed) + r;
                 let done = units.fetch_add(u64::from(n), Ordering::Relaxed) + u64::from(n);
                 progress(Progress { done, total, rays });
             });
             done += n;
-            if s.time.is_some_and(|t| seconds_before + start.elapsed().as_secs_f64() >= t) {
+            let elapsed = seconds_before + start.elapsed().as_secs_f64();
+            if s.time.is_some_and(|t| elapsed >= t) {
                 break;
+            }
+            let samples_left = f64::from(s.spp - done) + self.frames_after as f64 * f64::from(s.spp);
+            if deciding && samples_left > 0.0 {
+                let per_sample = pass_start.elapsed().as_secs_f64() / f64::from(n);
+                let mut rest = per_sample * samples_left;
+                if let Some(t) = s.time {
+                    // A time budget is per frame.
+                    rest = rest.min(t - elapsed + self.frames_after as f64 * t);
+                }
+                let refiner = self.refiner.as_mut().expect("deciding");
+                refiner.after_pass(&mut self.render_scene, per_sample, done, rest);
             }
         }
         let seconds = seconds_before + start.elapsed().as_secs_f64();
+        if let Some(f) = self.frame_prbvh.as_mut() {
+            f.rendered(seconds);
+        }
         RenderedFrame { film, rays: rays.into_inner(), seconds, samples: done, timed_seconds }
     }
 
@@ -459,5 +548,41 @@ impl Renderer {
             samples: out.samples,
             timed_seconds: out.carried.1,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::dynamic::UpdateStats;
+
+    fn update(prbvh_seconds: f64, prbvh_sah_drop: f64) -> UpdateStats {
+        UpdateStats { prbvh_seconds, prbvh_sah_drop, ..Default::default() }
+    }
+
+    /// The local PRBVH of an animation's frames runs while the SAH share it removes, times the
+    /// frame's render, exceeds its time; once it does not, the next `RETRY` frames skip it and
+    /// the one after tries again.
+    #[test]
+    fn frame_prbvh_runs_while_it_repays_itself() {
+        let mut f = FramePrbvh::default();
+        assert!(f.runs());
+        // 1% of a 1 s render is 10 ms, more than the 1 ms it took: keep it.
+        f.updated(&update(1e-3, 0.01));
+        f.rendered(1.0);
+        assert!(f.runs());
+        // 1% of a 50 ms render is 0.5 ms, less than 1 ms: skip it.
+        f.updated(&update(1e-3, 0.01));
+        f.rendered(0.05);
+        for _ in 0..FramePrbvh::RETRY {
+            assert!(!f.runs());
+            f.updated(&update(0.0, 0.0));
+            f.rendered(0.05);
+        }
+        assert!(f.runs());
+        // A frame the monitor rebuilt says nothing about the local PRBVH.
+        f.updated(&UpdateStats { rebuilt: true, ..update(1.0, 0.0) });
+        f.rendered(0.05);
+        assert!(f.runs());
     }
 }

@@ -149,6 +149,10 @@ pub struct UpdateStats {
     /// Whether the monitor replaced the tree by the fresh build.
     pub rebuilt: bool,
     pub seconds: f64,
+    /// Of `seconds`, the local PRBVH rounds'.
+    pub prbvh_seconds: f64,
+    /// The share of the tree's SAH the local PRBVH rounds removed.
+    pub prbvh_sah_drop: f64,
 }
 
 /// A binary BVH over primitive boxes, one primitive per leaf, that supports deletion, batched
@@ -509,13 +513,21 @@ impl DynamicBvh {
         for &(p, b) in moves {
             self.insert(p, b);
         }
-        for _ in 0..config.prbvh_rounds {
-            let applied = self.local_prbvh(moves.iter().map(|m| m.0), config.prbvh_strategy);
-            stats.reinsertions += applied;
-            stats.clean_visits += self.clean();
-            if applied == 0 {
-                break;
+        if config.prbvh_rounds > 0 {
+            let prbvh_start = Instant::now();
+            let before = self.sah_estimate(&config.costs);
+            for _ in 0..config.prbvh_rounds {
+                let applied = self.local_prbvh(moves.iter().map(|m| m.0), config.prbvh_strategy);
+                stats.reinsertions += applied;
+                stats.clean_visits += self.clean();
+                if applied == 0 {
+                    break;
+                }
             }
+            if before > 0.0 {
+                stats.prbvh_sah_drop = (before - self.sah_estimate(&config.costs)) / before;
+            }
+            stats.prbvh_seconds = prbvh_start.elapsed().as_secs_f64();
         }
         self.updates_since_check += 1;
         let estimate = self.sah_estimate(&config.costs);

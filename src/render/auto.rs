@@ -1,5 +1,8 @@
-//! `--builder auto`: the tree that makes build plus render shortest, judged by the render's
-//! estimated length on the device it runs on (see [`RenderScene::build_auto`]).
+//! `--builder auto` decided before the render: the tree that makes build plus render shortest,
+//! judged by the render's estimated length on the device it runs on (see
+//! [`RenderScene::build_auto`]). A GPU render decides this way, timing a little of its render on
+//! the GPU; a CPU render through [`crate::device::Renderer`] instead starts at once on the LBVH
+//! and optimises between passes ([`super::refine`]).
 
 use std::time::Instant;
 
@@ -9,7 +12,6 @@ use rayon::prelude::*;
 use super::camera::CameraModel;
 use super::geometry::wants_instancing;
 use super::integrator::RR_DEPTH;
-use super::rng::Rng;
 use super::{BuildReport, RenderScene};
 use crate::bvh::Tracing;
 use crate::bvh::prbvh::{self, PrbvhConfig};
@@ -29,17 +31,14 @@ pub fn total_budget(settings: &RenderSettings, frames: usize) -> Option<f64> {
 
 /// The device a render for [`RenderScene::build_auto_for`] runs on.
 pub enum AutoDevice<'a> {
-    /// The CPU, whose speed the camera-ray probes measure.
+    /// The CPU, whose speed the camera-ray probes measure. (`render` on the CPU does not build
+    /// ahead of the render: it optimises while rendering, [`super::refine`].)
     Cpu,
-    /// The CPU, each tree judged by timing paths on it (see [`RenderScene::build_auto_cpu`])
-    /// for a render of `samples` samples per pixel over all its frames, within `budget`
-    /// seconds over all frames if it has a time budget.
-    CpuPaths { samples: f64, seed: u64, max_depth: u32, budget: Option<f64> },
     /// Another device (a GPU), timed by rendering a little of the LBVH scene: `measure` returns
     /// the seconds one sample per pixel takes there and the time to leave out of the build (a
     /// kernel's compilation, paid once per process), or `None` to fall back on the CPU's
     /// estimate. `samples` is the render's samples per pixel over all its frames.
-    /// `budget` is as for [`AutoDevice::CpuPaths`].
+    /// `budget` is the time limit over all frames, if the render has one.
     Measured {
         samples: f64,
         budget: Option<f64>,
@@ -56,7 +55,7 @@ impl AutoDevice<'_> {
     /// collapse).
     fn tracing(&self) -> Tracing {
         match self {
-            AutoDevice::Cpu | AutoDevice::CpuPaths { .. } => Tracing::current(),
+            AutoDevice::Cpu => Tracing::current(),
             AutoDevice::Measured { .. } | AutoDevice::Unmeasured => Tracing::gpu(),
         }
     }
@@ -82,13 +81,6 @@ fn probe_trace_speed(
     rays.len() as f64 / t.elapsed().as_secs_f64().max(1e-9)
 }
 
-/// Paths [`RenderScene::cpu_seconds_per_sample`] traces: one from each cell of a 64 × 64 grid
-/// over the image.
-pub const TIMED_PATHS: u32 = 64 * 64;
-
-/// The sample index of the timed paths' random numbers: no render reaches it.
-const TIMING_SAMPLE: u64 = 1 << 63;
-
 /// A tree's assembled scene and its report, kept while it is the tree `auto` holds.
 type Assembled = (RenderScene, BuildReport);
 
@@ -100,7 +92,7 @@ struct Baseline {
     render_seconds: Option<f64>,
     /// The scene assembled for the last tree timed, while the tree is still that one.
     timed: Option<Assembled>,
-    /// What one probe costs beyond the camera rays: assembling and timing paths.
+    /// What one probe costs beyond the camera rays.
     probe_cost: f64,
     /// How the render was timed, for the label.
     measured: String,
@@ -108,33 +100,12 @@ struct Baseline {
     excluded: std::time::Duration,
 }
 
-/// How `auto` judges a tree's render time.
+/// How `auto` judges a tree's render time: by the camera-ray probe's estimate, divided by
+/// `speedup` (that estimate for the LBVH over the time the render is taken to last: the
+/// device's measured time, or the time budget; 1 with neither).
 #[derive(Clone, Copy)]
-enum Judge {
-    /// By the camera-ray probe's estimate, divided by `speedup`: that estimate for the LBVH
-    /// over the time the render is taken to last (the device's measured time, or the time
-    /// budget); 1 with neither.
-    Camera { speedup: f64 },
-    /// By timing paths on the CPU, for a render of `samples` samples per pixel.
-    Paths { samples: f64, seed: u64, max_depth: u32 },
-}
-
-impl Judge {
-    fn is_camera(self) -> bool {
-        matches!(self, Judge::Camera { .. })
-    }
-}
-
-/// Whether the CPU's `auto` times paths, for a render of `samples` samples in all (pixels ×
-/// spp × frames) where one timing (3 × [`TIMED_PATHS`] paths) is estimated at
-/// `timing_seconds` and the LBVH took `lbvh_seconds`: only where the timing costs at most a
-/// sixteenth of the render (and of its time budget, if it has one), and no more than what is
-/// at stake, a reinsertion sweep (8 LBVH builds): on a scene as small as the Cornell box a
-/// timing costs more than every build together (docs/benchmarks.md, "The CPU thresholds").
-fn worth_timing(samples: f64, timing_seconds: f64, lbvh_seconds: f64, budget: Option<f64>) -> bool {
-    samples >= 16.0 * 3.0 * f64::from(TIMED_PATHS)
-        && budget.is_none_or(|b| 16.0 * timing_seconds <= b)
-        && timing_seconds <= 8.0 * lbvh_seconds
+struct Judge {
+    speedup: f64,
 }
 
 impl RenderScene {
@@ -167,37 +138,8 @@ impl RenderScene {
         Self::build_auto_for(scene, rays, AutoDevice::Cpu)
     }
 
-    /// `--builder auto` for a CPU render.
-    ///
-    /// Each tree is judged by timing paths on it, not by the camera-ray probe: its scene is
-    /// assembled and [`RenderScene::cpu_seconds_per_sample`] traces real paths from
-    /// [`TIMED_PATHS`] pixels, three times (the fastest counts: the first runs on cold caches).
-    /// The render's length is that time per sample times the render's samples. The camera-ray
-    /// estimate it replaces counted five segments and a shadow ray for every path and priced
-    /// them all as camera rays, and it compared trees by coherent rays, so it overstated both
-    /// the render and the gain from a better tree (docs/benchmarks.md, "Estimates against real
-    /// renders"). Timing is done only where one timing costs at most a sixteenth of the render
-    /// (16 × 3 × [`TIMED_PATHS`] samples in all) and of its time budget, and no more than a
-    /// reinsertion sweep (8 LBVH builds); otherwise the camera-ray estimate is kept (on the
-    /// Cornell box, timing cost more than it could gain).
-    ///
-    /// Under a time limit (`render --time`, `settings.time` per frame) the render lasts no longer than it, and a faster
-    /// tree is worth the time it saves on the samples the LBVH would render in it.
-    pub fn build_auto_cpu(scene: &Scene, settings: &RenderSettings, frames: usize) -> (Self, BuildReport) {
-        let device = AutoDevice::CpuPaths {
-            samples: total_samples(settings, frames),
-            seed: settings.seed,
-            max_depth: settings.max_depth,
-            budget: total_budget(settings, frames),
-        };
-        let rays = Self::estimated_rays(scene, settings.spp, settings.max_depth, frames);
-        Self::build_auto_for(scene, rays, device)
-    }
-
     /// [`RenderScene::build_auto`] for a render on `device`.
     ///
-    /// - [`AutoDevice::CpuPaths`]: each tree is timed on paths ([`RenderScene::build_auto_cpu`]),
-    ///   and the scene of the last tree timed is returned if the tree did not change after it.
     /// - [`AutoDevice::Measured`]: on another device than the CPU the CPU's probe cannot tell the
     ///   render's length: it predicts the CPU's render, and a GPU can render many times as fast,
     ///   so `auto` optimised for long renders that were in fact short, spending more than the
@@ -222,21 +164,15 @@ impl RenderScene {
         let assemble = |b: &crate::bvh::Bvh| {
             Self::assemble(scene, triangles.clone(), material_of.clone(), b, Instant::now(), String::new(), tracing)
         };
-        let Some(baseline) = Self::auto_baseline(scene, rays, device, &bvh, &triangles, lbvh_seconds, &assemble) else {
+        let Some(baseline) = Self::auto_baseline(scene, rays, device, &bvh, &triangles, &assemble) else {
             let label = "auto: lbvh, a render too short to time on the device".to_owned();
             return Self::assemble(scene, triangles, material_of, &bvh, t, label, tracing);
         };
         t += baseline.excluded;
         let Baseline { judge, render_seconds, mut timed, probe_cost, measured, .. } = baseline;
-        // A tree's estimated render time, and its scene where it was assembled to time paths.
-        let probe = |b: &crate::bvh::Bvh| match judge {
-            Judge::Camera { speedup } => {
-                (rays / (probe_trace_speed(b, &triangles, &scene.camera, tracing) * speedup), None)
-            }
-            Judge::Paths { samples, seed, max_depth } => {
-                let (rs, report) = assemble(b);
-                (rs.fastest_seconds_per_sample(seed, max_depth) * samples, Some((rs, report)))
-            }
+        // A tree's estimated render time (no scene is assembled to judge it).
+        let probe = |b: &crate::bvh::Bvh| -> (f64, Option<Assembled>) {
+            (rays / (probe_trace_speed(b, &triangles, &scene.camera, tracing) * judge.speedup), None)
         };
         let mut render_seconds = render_seconds.unwrap_or_else(|| probe(&bvh).0);
         let mut base = "lbvh";
@@ -250,7 +186,7 @@ impl RenderScene {
             if binned_seconds < render_seconds {
                 (bvh, render_seconds, base) = (binned, binned_seconds, "binned-sah");
                 timed = binned_scene;
-            } else if judge.is_camera() {
+            } else {
                 // The camera probe assembles nothing: the LBVH's scene (a GPU's timed one) stays.
                 timed = lbvh_scene;
             }
@@ -269,21 +205,20 @@ impl RenderScene {
         }
     }
 
-    /// `auto`'s first step, on `device`: how trees will be judged (camera-ray probes, or paths
-    /// timed on the CPU), the render's length with the LBVH `bvh` where that step estimates it,
-    /// and the LBVH's scene where it was assembled to time it. `None` where the device's render
-    /// is too short to time ([`AutoDevice::Unmeasured`]): the LBVH is kept.
+    /// `auto`'s first step, on `device`: how trees will be judged, the render's length with the
+    /// LBVH `bvh` where that step estimates it, and the LBVH's scene where it was assembled to
+    /// time it. `None` where the device's render is too short to time
+    /// ([`AutoDevice::Unmeasured`]): the LBVH is kept.
     fn auto_baseline(
         scene: &Scene,
         rays: f64,
         device: AutoDevice<'_>,
         bvh: &crate::bvh::Bvh,
         triangles: &[Triangle],
-        lbvh_seconds: f64,
         assemble: &dyn Fn(&crate::bvh::Bvh) -> Assembled,
     ) -> Option<Baseline> {
         let mut b = Baseline {
-            judge: Judge::Camera { speedup: 1.0 },
+            judge: Judge { speedup: 1.0 },
             render_seconds: None,
             timed: None,
             probe_cost: 0.0,
@@ -293,30 +228,6 @@ impl RenderScene {
         let tracing = device.tracing();
         match device {
             AutoDevice::Cpu => {}
-            AutoDevice::CpuPaths { samples, seed, max_depth, budget } => {
-                let camera_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera, tracing);
-                let pixels = f64::from(scene.camera.width) * f64::from(scene.camera.height);
-                // One timing's cost (3 × TIMED_PATHS paths), priced by the camera estimate, which
-                // overstates it.
-                let timing_seconds = camera_seconds / samples / pixels * 3.0 * f64::from(TIMED_PATHS);
-                if worth_timing(pixels * samples, timing_seconds, lbvh_seconds, budget) {
-                    let start = Instant::now();
-                    let lbvh_scene = assemble(bvh);
-                    let per_sample = lbvh_scene.0.fastest_seconds_per_sample(seed, max_depth);
-                    b.probe_cost = start.elapsed().as_secs_f64();
-                    // Under a time budget, the samples the LBVH renders in it: a faster tree is
-                    // worth the time it saves on those.
-                    let samples = budget.map_or(samples, |b| samples.min(b / per_sample.max(1e-12)));
-                    b.judge = Judge::Paths { samples, seed, max_depth };
-                    b.render_seconds = Some(per_sample * samples);
-                    b.measured = format!(", paths timed at {:.1} ms per sample", per_sample * 1e3);
-                    b.timed = Some(lbvh_scene);
-                } else {
-                    let capped = budget.map_or(camera_seconds, |b| camera_seconds.min(b));
-                    b.judge = Judge::Camera { speedup: camera_seconds / capped.max(1e-12) };
-                    b.render_seconds = Some(capped);
-                }
-            }
             AutoDevice::Unmeasured => return None,
             AutoDevice::Measured { samples, budget, measure } => {
                 let cpu_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera, tracing);
@@ -329,7 +240,7 @@ impl RenderScene {
                     b.timed = Some(lbvh_scene);
                 }
                 let device_seconds = budget.map_or(device_seconds, |b| device_seconds.min(b));
-                b.judge = Judge::Camera { speedup: cpu_seconds / device_seconds.max(1e-12) };
+                b.judge = Judge { speedup: cpu_seconds / device_seconds.max(1e-12) };
                 b.render_seconds = Some(device_seconds);
             }
         }
@@ -410,53 +321,5 @@ impl RenderScene {
         let per_path = max_depth.min(RR_DEPTH) as f64 * if scene.has_emitters() { 2.0 } else { 1.0 };
         let pixels = scene.camera.width as f64 * scene.camera.height as f64;
         pixels * spp as f64 * per_path * frames as f64
-    }
-
-    /// The CPU's time to trace one sample of every pixel, in seconds, estimated by tracing paths
-    /// of at most `max_depth` segments from [`TIMED_PATHS`] pixels, one in each cell of a 64 ×
-    /// 64 grid over the image, on all worker threads. They are real paths (bounces, shadow
-    /// rays, escapes and Russian roulette as the render has them), not a count of rays at a
-    /// camera ray's price. Their random numbers come from sample indices no render uses.
-    pub fn cpu_seconds_per_sample(&self, seed: u64, max_depth: u32) -> f64 {
-        let (w, h) = (self.width as f32 / 64.0, self.height as f32 / 64.0);
-        let start = Instant::now();
-        let rays: u64 = (0..TIMED_PATHS)
-            .into_par_iter()
-            .map(|i| {
-                let mut rng = Rng::for_sample(seed, u64::from(i), TIMING_SAMPLE);
-                let cell = Vec2::new((i % 64) as f32, (i / 64) as f32);
-                let ray = self.camera.ray((cell + rng.next_vec2()) * Vec2::new(w, h), rng.next_vec2());
-                u64::from(self.radiance(ray, &mut rng, max_depth).1)
-            })
-            .sum();
-        std::hint::black_box(rays);
-        let pixels = f64::from(self.width) * f64::from(self.height);
-        start.elapsed().as_secs_f64() * pixels / f64::from(TIMED_PATHS)
-    }
-
-    /// The fastest of three [`RenderScene::cpu_seconds_per_sample`]: the first runs on cold
-    /// caches.
-    fn fastest_seconds_per_sample(&self, seed: u64, max_depth: u32) -> f64 {
-        (0..3).map(|_| self.cpu_seconds_per_sample(seed, max_depth)).fold(f64::INFINITY, f64::min)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The timing rule: enough samples for a timing to be a sixteenth of the render, a timing
-    /// no dearer than a sweep (8 LBVH builds), and, under a budget, a sixteenth of the budget.
-    /// The Cornell box's case (a timing of 8 ms against LBVH builds of 0.3 ms) is not timed.
-    #[test]
-    fn paths_are_timed_only_where_it_pays() {
-        let least = 16.0 * 3.0 * f64::from(TIMED_PATHS);
-        assert!(worth_timing(least, 0.01, 0.02, None));
-        assert!(!worth_timing(least - 1.0, 0.01, 0.02, None));
-        assert!(worth_timing(1e9, 0.16, 0.02, None));
-        assert!(!worth_timing(1e9, 0.17, 0.02, None));
-        assert!(!worth_timing(1e9, 0.008, 0.0003, None));
-        assert!(worth_timing(1e9, 0.01, 0.02, Some(0.16)));
-        assert!(!worth_timing(1e9, 0.01, 0.02, Some(0.15)));
     }
 }

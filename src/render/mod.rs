@@ -14,6 +14,7 @@ pub mod geometry;
 pub mod integrator;
 pub mod lights;
 pub mod material;
+pub mod refine;
 pub mod rng;
 pub mod sampling;
 pub mod tiles;

@@ -210,6 +210,9 @@ fn run() -> Result<()> {
         bar.finish_and_clear();
         finish_frame(&renderer, args.quiet, output, update_ms, &frame)?;
     }
+    if let Some(r) = renderer.refine_report().filter(|_| !args.quiet) {
+        outln!("{r}");
+    }
     Ok(())
 }
 
