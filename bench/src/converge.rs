@@ -120,6 +120,31 @@ pub struct AutoComparison {
     pub compared_to_s: f64,
     /// The relative MSE model the ratios come from.
     pub rel_mse_model: ErrorModel,
+    /// At each sample count, `auto`'s time (build and render) over the fastest fixed
+    /// builder's at that count: the end-to-end ratio a user sees.
+    pub wall_ratios: Vec<WallRatio>,
+}
+
+/// `auto`'s end-to-end time against the fastest fixed builder's at one sample count.
+#[derive(Clone, Debug, Serialize)]
+pub struct WallRatio {
+    pub spp: u32,
+    pub ratio: f64,
+    pub best_fixed: String,
+}
+
+/// At each sample count of `auto`'s curve, its time over the fastest fixed builder's there.
+fn wall_ratios(auto: &ConvergeCurve, fixed: &[&ConvergeCurve]) -> Vec<WallRatio> {
+    auto.points
+        .iter()
+        .filter_map(|p| {
+            let (best, name) = fixed
+                .iter()
+                .filter_map(|c| Some((c.points.iter().find(|q| q.spp == p.spp)?.time_s, &c.builder)))
+                .min_by(|a, b| a.0.total_cmp(&b.0))?;
+            Some(WallRatio { spp: p.spp, ratio: p.time_s / best.max(1e-12), best_fixed: name.clone() })
+        })
+        .collect()
 }
 
 /// Relative MSE and mean absolute error of `image` against `reference` (see the module docs).
@@ -381,11 +406,12 @@ fn compare_auto_on(curves: Vec<&ConvergeCurve>) -> Result<AutoComparison, &'stat
                 compared_from_s: from,
                 compared_to_s: to,
                 rel_mse_model: mse,
+                wall_ratios: Vec::new(),
             });
         }
     }
     result
-        .map(|r| AutoComparison { worst_ratio_mae: worst_mae, ..r })
+        .map(|r| AutoComparison { worst_ratio_mae: worst_mae, wall_ratios: wall_ratios(auto, &fixed), ..r })
         .ok_or("no time at which every curve has an image")
 }
 
@@ -447,6 +473,9 @@ mod tests {
         assert!((c.worst_ratio_mae - 2f64.sqrt()).abs() < 1e-2, "{c:?}");
         assert_eq!(c.best_fixed_there, "lbvh");
         assert_eq!((c.compared_from_s, c.compared_to_s), (2.0, 8.0));
+        // End to end, at every sample count: twice the fastest fixed builder's time.
+        assert_eq!(c.wall_ratios.iter().map(|w| w.spp).collect::<Vec<_>>(), steps);
+        assert!(c.wall_ratios.iter().all(|w| (w.ratio - 2.0).abs() < 1e-12 && w.best_fixed == "lbvh"), "{c:?}");
     }
 
     #[test]

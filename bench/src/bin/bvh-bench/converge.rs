@@ -131,6 +131,9 @@ pub(crate) fn run_converge(args: &Args) -> Result<()> {
             a.best_fixed_there,
             a.worst_ratio_mae
         );
+        let walls: Vec<String> =
+            a.wall_ratios.iter().map(|w| format!("{} spp {:.2}x ({})", w.spp, w.ratio, w.best_fixed)).collect();
+        outln!("{}: auto's build + render time over the fastest fixed builder's: {}", a.device, walls.join(", "));
     }
     let not_compared = converge::auto_not_compared(&curves);
     for (device, why) in &not_compared {
