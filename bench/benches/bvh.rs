@@ -9,7 +9,7 @@
 //!   tree, each after leaf collapse and with one triangle per leaf; `*-ordered` reads the
 //!   collapsed trees' triangles stored in leaf order ([`MeshBvh`], binary tree), and
 //!   `lbvh-wide4-PATH` / `lbvh-wide8-PATH` the wide forms `render` traces, on every SIMD path the
-//!   CPU has (`scalar`, `sse4`, `avx2`).
+//!   CPU has (`scalar`, `sse4`, `avx2`, `neon`).
 //! - `kernels/PATH/{boxes-8,boxes-4,triangle-packet}`: the SIMD kernels alone on each path: one
 //!   wide node's box test and one packet of four triangles, per ray; `wide_collapse/dragon`: the
 //!   collapse into the wide forms (`wide4`, `wide8`) beside the LBVH build it comes from.

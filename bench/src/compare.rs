@@ -202,7 +202,7 @@ pub struct Report {
     pub threads: usize,
     /// The tree form Arbor's `*_mrays` are measured on: `binary`, `wide4` or `wide8`.
     pub trace: &'static str,
-    /// The SIMD path that traces it: `scalar`, `sse4` or `avx2` (`ARBOR_SIMD` forces one).
+    /// The SIMD path that traces it: `scalar`, `sse4`, `avx2` or `neon` (`ARBOR_SIMD` forces one).
     pub simd: &'static str,
     pub rays: RayCounts,
     pub builders: Vec<BuilderReport>,

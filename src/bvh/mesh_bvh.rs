@@ -6,7 +6,7 @@
 //!
 //! The binary tree stays what builders, PRBVH and refits work on. Unless told otherwise
 //! ([`Tracing::current`]) a mesh is traced through a wide tree collapsed from it, with its
-//! triangles in packets ([`WideMesh`]): 8 wide on AVX2, 4 wide on SSE4.1; the portable path
+//! triangles in packets ([`WideMesh`]): 8 wide on AVX2, 4 wide on SSE4.1 and NEON; the portable path
 //! traces the binary tree. Every form returns the same hits, bit for bit.
 
 use rayon::prelude::*;

@@ -4,15 +4,18 @@
 //!
 //! Dispatch is at run time, so the release build stays for plain x86-64 as users get it: the
 //! SSE4.1 and AVX2 kernels are compiled with those features enabled for their functions only,
-//! and taken only where the CPU reports them. `ARBOR_SIMD=scalar|sse4|avx2` forces a path (for
-//! tests and benchmarks); a path the CPU lacks is refused, not emulated.
+//! and taken only where the CPU reports them. On aarch64 the NEON kernel (four lanes, like
+//! SSE4.1) is the baseline's, still checked at run time the same way.
+//! `ARBOR_SIMD=scalar|sse4|avx2|neon` forces a path (for tests and benchmarks); a path the CPU
+//! lacks is refused, not emulated.
 //!
 //! Every kernel computes what the scalar code computes, operation for operation (no fused
 //! multiply-adds, the same order of operations, IEEE division), so each path gives the same
 //! floats:
 //! - the box test is the slab test of [`crate::geometry::slab_interval`] lane by lane. `maxps`
 //!   and `minps` return their second operand when the first is NaN, which is the scalar code's
-//!   NaN-ignoring `max`/`min` with the accumulator second;
+//!   NaN-ignoring `max`/`min` with the accumulator second. NEON's `fmax`/`fmin` propagate NaN
+//!   instead, so the NEON kernel spells the same choice as a compare and a select;
 //! - the triangle kernel runs the watertight test's f32 part (the shear, the edge functions, `T`,
 //!   `det` and `t`) on four triangles and sorts the lanes three ways. *Rejected*: where
 //!   [`crate::geometry::Triangle::intersect`] would return no hit on the same floats (edge
@@ -40,20 +43,22 @@ pub enum SimdPath {
     Sse4,
     /// AVX2: eight boxes per instruction, triangles four at a time (x86-64).
     Avx2,
+    /// NEON (Advanced SIMD): four boxes or four triangles per instruction (aarch64).
+    Neon,
 }
 
 /// `ARBOR_SIMD` names no path, or one this CPU lacks.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum SimdError {
-    #[error("ARBOR_SIMD={0:?} is not a SIMD path: expected scalar, sse4 or avx2")]
+    #[error("ARBOR_SIMD={0:?} is not a SIMD path: expected scalar, sse4, avx2 or neon")]
     Unknown(String),
     #[error("ARBOR_SIMD={0}: this CPU does not support it (available: {1})")]
     Unavailable(&'static str, String),
 }
 
 impl SimdPath {
-    /// Every path, slowest first.
-    pub const ALL: [SimdPath; 3] = [SimdPath::Scalar, SimdPath::Sse4, SimdPath::Avx2];
+    /// Every path, slowest first among those of one architecture.
+    pub const ALL: [SimdPath; 4] = [SimdPath::Scalar, SimdPath::Sse4, SimdPath::Avx2, SimdPath::Neon];
 
     /// The name `ARBOR_SIMD` and reports use.
     pub fn name(self) -> &'static str {
@@ -61,6 +66,7 @@ impl SimdPath {
             SimdPath::Scalar => "scalar",
             SimdPath::Sse4 => "sse4",
             SimdPath::Avx2 => "avx2",
+            SimdPath::Neon => "neon",
         }
     }
 
@@ -76,7 +82,11 @@ impl SimdPath {
             SimdPath::Sse4 => std::arch::is_x86_feature_detected!("sse4.1"),
             #[cfg(target_arch = "x86_64")]
             SimdPath::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
-            #[cfg(not(target_arch = "x86_64"))]
+            // Part of the aarch64 baseline, so always there in practice; asked all the same, as
+            // the x86 paths are.
+            #[cfg(target_arch = "aarch64")]
+            SimdPath::Neon => std::arch::is_aarch64_feature_detected!("neon"),
+            // Every architecture leaves some path out: the other one's.
             _ => false,
         }
     }
@@ -94,16 +104,19 @@ impl SimdPath {
     /// The path `ARBOR_SIMD` asks for, or the best one when it is unset or empty.
     pub fn from_env() -> Result<Self, SimdError> {
         match std::env::var("ARBOR_SIMD") {
-            Ok(name) if !name.trim().is_empty() => {
-                let path = Self::parse(name.trim()).ok_or_else(|| SimdError::Unknown(name.clone()))?;
-                if !path.is_available() {
-                    let names: Vec<_> = Self::available().iter().map(|p| p.name()).collect();
-                    return Err(SimdError::Unavailable(path.name(), names.join(", ")));
-                }
-                Ok(path)
-            }
+            Ok(name) if !name.trim().is_empty() => Self::from_name(&name),
             _ => Ok(Self::best()),
         }
+    }
+
+    /// The path `name` (an `ARBOR_SIMD` value) names, if this CPU runs it.
+    pub fn from_name(name: &str) -> Result<Self, SimdError> {
+        let path = Self::parse(name.trim()).ok_or_else(|| SimdError::Unknown(name.to_string()))?;
+        if !path.is_available() {
+            let names: Vec<_> = Self::available().iter().map(|p| p.name()).collect();
+            return Err(SimdError::Unavailable(path.name(), names.join(", ")));
+        }
+        Ok(path)
     }
 }
 
@@ -133,13 +146,13 @@ impl TraceLayout {
     }
 
     /// The form that traces fastest on a path: 8-wide where one instruction tests eight boxes,
-    /// 4-wide on SSE4.1, and the binary tree for portable code, where a wide node's lanes are
+    /// 4-wide on SSE4.1 and NEON, and the binary tree for portable code, where a wide node's lanes are
     /// tested one at a time and the wide tree measured no faster (docs/benchmarks.md, "Wide
     /// trees and SIMD traversal").
     pub fn default_for(path: SimdPath) -> Self {
         match path {
             SimdPath::Avx2 => TraceLayout::Wide8,
-            SimdPath::Sse4 => TraceLayout::Wide4,
+            SimdPath::Sse4 | SimdPath::Neon => TraceLayout::Wide4,
             SimdPath::Scalar => TraceLayout::Binary,
         }
     }
@@ -317,6 +330,18 @@ pub fn test_boxes<const N: usize>(
             _ => {}
         }
     }
+    #[cfg(target_arch = "aarch64")]
+    {
+        #[target_feature(enable = "neon")]
+        unsafe fn neon<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+            // SAFETY: compiled for NEON and called only where the CPU has it.
+            unsafe { Neon::boxes(node, ray, limit, dist) }
+        }
+        if path == SimdPath::Neon && path.is_available() {
+            // SAFETY: taken only where the CPU has NEON.
+            return unsafe { neon(node, ray, limit, dist) };
+        }
+    }
     let _ = path;
     // SAFETY: portable code.
     unsafe { Scalar::boxes(node, ray, limit, dist) }
@@ -343,6 +368,18 @@ pub fn test_triangles(path: SimdPath, packet: &TrianglePacket, ray: &PacketRay, 
             // SAFETY: as above.
             SimdPath::Sse4 if path.is_available() => return unsafe { sse4(packet, ray, t_max) },
             _ => {}
+        }
+    }
+    #[cfg(target_arch = "aarch64")]
+    {
+        #[target_feature(enable = "neon")]
+        unsafe fn neon(packet: &TrianglePacket, ray: &PacketRay, t_max: f32) -> PacketHits {
+            // SAFETY: compiled for NEON and called only where the CPU has it.
+            unsafe { Neon::triangles(packet, ray, t_max, 0xf) }
+        }
+        if path == SimdPath::Neon && path.is_available() {
+            // SAFETY: taken only where the CPU has NEON.
+            return unsafe { neon(packet, ray, t_max) };
         }
     }
     let _ = path;
@@ -449,6 +486,17 @@ fn scalar_candidate(p: &TrianglePacket, i: usize, r: &PacketRay, t_max: f32) -> 
     keep
 }
 
+/// The six plane rows of a node: `min_x min_y min_z max_x max_y max_z`, `N` lanes each.
+#[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
+#[inline(always)]
+fn planes<const N: usize>(node: &WideNode<N>) -> &[[f32; N]; 6] {
+    // SAFETY: `WideNode` is `repr(C)` and starts with six `[f32; N]` fields, which have no
+    // padding between them, so its first `6 N` floats are those rows in that order.
+    unsafe { &*(node as *const WideNode<N>).cast::<[[f32; N]; 6]>() }
+}
+
+#[cfg(target_arch = "aarch64")]
+pub(crate) use arm::Neon;
 #[cfg(target_arch = "x86_64")]
 pub(crate) use x86::{Avx2, Sse4};
 
@@ -458,7 +506,7 @@ mod x86 {
 
     use super::{
         BOUND_FLOOR, BOUND_MARGIN, BoxRay, Kernel, MAXIMUM_FLOOR, PacketHits, PacketRay, ROBUST_SLAB_SCALE,
-        TrianglePacket,
+        TrianglePacket, planes,
     };
     use crate::bvh::INVALID_INDEX;
     use crate::bvh::wide::WideNode;
@@ -498,14 +546,6 @@ mod x86 {
             // SAFETY: as for `boxes`.
             unsafe { triangles_sse(p, ray, t_max, valid) }
         }
-    }
-
-    /// The six plane rows of a node: `min_x min_y min_z max_x max_y max_z`, `N` lanes each.
-    #[inline(always)]
-    fn planes<const N: usize>(node: &WideNode<N>) -> &[[f32; N]; 6] {
-        // SAFETY: `WideNode` is `repr(C)` and starts with six `[f32; N]` fields, which have no
-        // padding between them, so its first `6 N` floats are those rows in that order.
-        unsafe { &*(node as *const WideNode<N>).cast::<[[f32; N]; 6]>() }
     }
 
     /// Four lanes from `offset` of a node's box test: the hit mask (bits 0..4) and the entry
@@ -684,6 +724,234 @@ mod x86 {
     }
 }
 
+/// The NEON kernels: the SSE4.1 kernels' operations, in the same order, on the same four lanes.
+///
+/// Where the instruction sets differ:
+/// - `maxps(x, acc)` is `x > acc ? x : acc`, and the scalar code relies on it (a NaN `x` keeps
+///   the accumulator). NEON's `vmaxq_f32` returns NaN where either operand is, and `vmaxnmq_f32`
+///   returns the other operand, so it would also drop a NaN accumulator (a NaN `limit` or
+///   `t_max`) that the scalar and SSE4.1 code keep; and it orders `-0.0` below `+0.0`. So each
+///   `maxps`/`minps` becomes the compare and select it is defined as ([`max_ps`], [`min_ps`]).
+/// - `movemask` has no single instruction: the comparison masks are all ones or all zeros per
+///   lane, so lane `i` ANDed with `1 << i` and the lanes summed across (`vaddvq_u32`) give the
+///   same bits ([`movemask`]).
+/// - Subnormals: AArch64's Advanced SIMD honours FPCR as scalar code does (no flush to zero
+///   unless the process asks, as on x86 with MXCSR); AArch32 NEON, which always flushes, is not
+///   a target here.
+/// - No fused multiply-adds: each `_mm_mul_ps` and `_mm_add_ps`/`_mm_sub_ps` pair is a
+///   `vmulq_f32` and a `vaddq_f32`/`vsubq_f32` (never `vfmaq_f32` or `vmlaq_f32`), and rustc does
+///   not contract them.
+#[cfg(target_arch = "aarch64")]
+mod arm {
+    use std::arch::aarch64::*;
+
+    use super::{
+        BOUND_FLOOR, BOUND_MARGIN, BoxRay, Kernel, MAXIMUM_FLOOR, PacketHits, PacketRay, ROBUST_SLAB_SCALE,
+        TrianglePacket, planes,
+    };
+    use crate::bvh::INVALID_INDEX;
+    use crate::bvh::wide::WideNode;
+    use crate::geometry::gamma;
+
+    /// NEON kernels. An 8-wide node is tested as two 4-wide halves, as `Sse4` does;
+    /// the default form on this path is the 4-wide tree ([`super::TraceLayout::default_for`]).
+    pub(crate) struct Neon;
+
+    // SAFETY: the methods run NEON (Advanced SIMD, in the aarch64 baseline) and require it.
+    unsafe impl Kernel for Neon {
+        #[inline(always)]
+        unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
+            let mut mask = 0;
+            let mut offset = 0;
+            while offset + 4 <= N {
+                // SAFETY: `offset + 4 <= N`, so the store writes four floats inside `dist`; the
+                // caller's contract (the CPU has NEON).
+                unsafe {
+                    let (m, enter) = boxes_chunk(node, ray, limit, offset);
+                    vst1q_f32(dist.as_mut_ptr().add(offset), enter);
+                    mask |= m << offset;
+                }
+                offset += 4;
+            }
+            mask
+        }
+
+        #[inline(always)]
+        unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
+            // SAFETY: as for `boxes`.
+            unsafe { triangles_neon(p, ray, t_max, valid) }
+        }
+    }
+
+    /// x86's `maxps(a, b)`: `a > b ? a : b`, so `b` where either is NaN (module docs).
+    ///
+    /// # Safety
+    /// The CPU has NEON.
+    #[inline(always)]
+    unsafe fn max_ps(a: float32x4_t, b: float32x4_t) -> float32x4_t {
+        // SAFETY: the caller's contract.
+        unsafe { vbslq_f32(vcgtq_f32(a, b), a, b) }
+    }
+
+    /// x86's `minps(a, b)`: `a < b ? a : b`, so `b` where either is NaN.
+    ///
+    /// # Safety
+    /// The CPU has NEON.
+    #[inline(always)]
+    unsafe fn min_ps(a: float32x4_t, b: float32x4_t) -> float32x4_t {
+        // SAFETY: the caller's contract.
+        unsafe { vbslq_f32(vcltq_f32(a, b), a, b) }
+    }
+
+    /// x86's `movemask` of a comparison mask (every lane all ones or all zeros): lane `i` as
+    /// bit `i`.
+    ///
+    /// # Safety
+    /// The CPU has NEON.
+    #[inline(always)]
+    unsafe fn movemask(m: uint32x4_t) -> u32 {
+        const LANE_BITS: [u32; 4] = [1, 2, 4, 8];
+        // SAFETY: the load reads the four `u32` of `LANE_BITS`; the caller's contract.
+        unsafe { vaddvq_u32(vandq_u32(m, vld1q_u32(LANE_BITS.as_ptr()))) }
+    }
+
+    /// Four lanes from `offset` of a node's box test: the hit mask (bits 0..4) and the entry
+    /// distances.
+    ///
+    /// # Safety
+    /// The CPU has NEON; `offset + 4 <= N`.
+    #[inline(always)]
+    unsafe fn boxes_chunk<const N: usize>(
+        node: &WideNode<N>,
+        ray: &BoxRay,
+        limit: f32,
+        offset: usize,
+    ) -> (u32, float32x4_t) {
+        let rows = planes(node);
+        // SAFETY: `offset + 4 <= N` (callers step by 4 below N, and N is 4 or 8), so every load
+        // reads four floats inside one row (or four child links inside `child`).
+        unsafe {
+            let row = |k: usize| vld1q_f32(rows[k].as_ptr().add(offset));
+            let slab = |axis: usize, k: usize| {
+                vmulq_f32(vsubq_f32(row(k), vdupq_n_f32(ray.inv.origin[axis])), vdupq_n_f32(ray.inv.inv_dir[axis]))
+            };
+            // `max_ps(x, acc)` is `x > acc ? x : acc`: NaN planes keep the accumulator.
+            let mut enter = vdupq_n_f32(0.0);
+            let mut exit = vdupq_n_f32(limit);
+            for axis in 0..3 {
+                enter = max_ps(slab(axis, ray.near[axis]), enter);
+                exit = min_ps(slab(axis, ray.far[axis]), exit);
+            }
+            let hit = vcleq_f32(enter, vmulq_f32(exit, vdupq_n_f32(ROBUST_SLAB_SCALE)));
+            let child = vld1q_u32(node.child.as_ptr().add(offset));
+            let empty = vceqq_u32(child, vdupq_n_u32(INVALID_INDEX));
+            (movemask(vbicq_u32(hit, empty)), enter)
+        }
+    }
+
+    /// The triangle kernel on four lanes: `Sse4`'s, operation for operation (the module docs of
+    /// [`super`]; [`super::scalar_candidate`] and the scalar test's error bound lane by lane).
+    ///
+    /// # Safety
+    /// The CPU has NEON.
+    #[inline(always)]
+    unsafe fn triangles_neon(p: &TrianglePacket, r: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
+        let [kx, ky, kz] = r.k;
+        // SAFETY: every load reads one row of four floats of `p`; the stores write whole arrays
+        // of four; the caller's contract (the CPU has NEON).
+        unsafe {
+            let rel =
+                |vertex: usize, axis: usize, o: f32| vsubq_f32(vld1q_f32(p.v[vertex][axis].as_ptr()), vdupq_n_f32(o));
+            let (sx, sy, sz) = (vdupq_n_f32(r.sx), vdupq_n_f32(r.sy), vdupq_n_f32(r.sz));
+            let (az, bz, cz) = (rel(0, kz, r.o[2]), rel(1, kz, r.o[2]), rel(2, kz, r.o[2]));
+            let ax = vsubq_f32(rel(0, kx, r.o[0]), vmulq_f32(sx, az));
+            let ay = vsubq_f32(rel(0, ky, r.o[1]), vmulq_f32(sy, az));
+            let bx = vsubq_f32(rel(1, kx, r.o[0]), vmulq_f32(sx, bz));
+            let by = vsubq_f32(rel(1, ky, r.o[1]), vmulq_f32(sy, bz));
+            let cx = vsubq_f32(rel(2, kx, r.o[0]), vmulq_f32(sx, cz));
+            let cy = vsubq_f32(rel(2, ky, r.o[1]), vmulq_f32(sy, cz));
+            let u = vsubq_f32(vmulq_f32(cx, by), vmulq_f32(cy, bx));
+            let v = vsubq_f32(vmulq_f32(ax, cy), vmulq_f32(ay, cx));
+            let w = vsubq_f32(vmulq_f32(bx, ay), vmulq_f32(by, ax));
+            let zero = vdupq_n_f32(0.0);
+            // Clears the sign bit, as SSE4.1's AND with 0x7fff_ffff does (NaN included).
+            let abs = |x: float32x4_t| vabsq_f32(x);
+            let (min_normal, inf) = (vdupq_n_f32(f32::MIN_POSITIVE), vdupq_n_f32(f32::INFINITY));
+            // Normal: MIN_POSITIVE <= |x| < inf (NaN fails both).
+            let normal = |x: float32x4_t| {
+                let a = abs(x);
+                vandq_u32(vcgeq_f32(a, min_normal), vcltq_f32(a, inf))
+            };
+            let all_normal = vandq_u32(vandq_u32(normal(u), normal(v)), normal(w));
+            let any_neg = vorrq_u32(vorrq_u32(vcltq_f32(u, zero), vcltq_f32(v, zero)), vcltq_f32(w, zero));
+            let any_pos = vorrq_u32(vorrq_u32(vcgtq_f32(u, zero), vcgtq_f32(v, zero)), vcgtq_f32(w, zero));
+            let mixed = vandq_u32(any_neg, any_pos);
+            let valid = valid & 0xf;
+            // Most packets a ray reaches miss it on every lane: then the division and the error
+            // bound are not needed.
+            if movemask(vandq_u32(all_normal, mixed)) & valid == valid {
+                return PacketHits::default();
+            }
+            let det = vaddq_f32(vaddq_f32(u, v), w);
+            let (zs_a, zs_b, zs_c) = (vmulq_f32(sz, az), vmulq_f32(sz, bz), vmulq_f32(sz, cz));
+            let t_scaled = vaddq_f32(vaddq_f32(vmulq_f32(u, zs_a), vmulq_f32(v, zs_b)), vmulq_f32(w, zs_c));
+            let rcp = vdivq_f32(vdupq_n_f32(1.0), det);
+            let t_ok = vandq_u32(normal(t_scaled), normal(rcp));
+            let t = vmulq_f32(t_scaled, rcp);
+            let beyond = vcgtq_f32(t, vdupq_n_f32(t_max));
+            // The scalar test's bound on `t`'s error (`t_error_bound`), in f32, enlarged.
+            let max3 = |a: float32x4_t, b: float32x4_t, c: float32x4_t| max_ps(max_ps(abs(a), abs(b)), abs(c));
+            let (max_x, max_y) = (max3(ax, bx, cx), max3(ay, by, cy));
+            let (max_z, shear_z) = (max3(zs_a, zs_b, zs_c), max3(az, bz, cz));
+            let max_e = max3(u, v, w);
+            let g = |n: u32| vdupq_n_f32(gamma(n));
+            let delta_z = vmulq_f32(g(3), max_z);
+            let delta_x = vmulq_f32(g(5), vaddq_f32(max_x, vmulq_f32(vdupq_n_f32(r.sx.abs()), shear_z)));
+            let delta_y = vmulq_f32(g(5), vaddq_f32(max_y, vmulq_f32(vdupq_n_f32(r.sy.abs()), shear_z)));
+            let delta_e = vmulq_f32(
+                vdupq_n_f32(2.0),
+                vaddq_f32(
+                    vaddq_f32(vmulq_f32(vmulq_f32(g(2), max_x), max_y), vmulq_f32(delta_y, max_x)),
+                    vmulq_f32(delta_x, max_y),
+                ),
+            );
+            let inner = vmulq_f32(
+                vdupq_n_f32(3.0),
+                vaddq_f32(
+                    vaddq_f32(vmulq_f32(vmulq_f32(g(3), max_e), max_z), vmulq_f32(delta_e, max_z)),
+                    vmulq_f32(delta_z, max_e),
+                ),
+            );
+            let bound = vmulq_f32(vmulq_f32(inner, abs(rcp)), vdupq_n_f32(BOUND_MARGIN));
+            let floor = vdupq_n_f32(BOUND_FLOOR);
+            let max_floor = vdupq_n_f32(MAXIMUM_FLOOR);
+            let maxima_ok = vandq_u32(
+                vandq_u32(vcgeq_f32(max_x, max_floor), vcgeq_f32(max_y, max_floor)),
+                vandq_u32(vcgeq_f32(max_z, max_floor), vcgeq_f32(max_e, max_floor)),
+            );
+            let bound_ok = vandq_u32(
+                vandq_u32(maxima_ok, vcgeq_f32(bound, floor)),
+                vandq_u32(vcgeq_f32(inner, floor), vcltq_f32(bound, inf)),
+            );
+            // `vbicq_u32(a, b)` is `a & !b`: SSE's `andnot(b, a)`.
+            let known = vandq_u32(vandq_u32(all_normal, vbicq_u32(t_ok, mixed)), bound_ok);
+            let in_range = vbicq_u32(known, beyond);
+            let accept = vandq_u32(in_range, vcgtq_f32(t, bound));
+            let behind = vandq_u32(in_range, vcltq_f32(t, vsubq_f32(zero, bound)));
+            // Rejected as the scalar test rejects: every edge function normal with mixed signs,
+            // a normal distance past `t_max`, or one known to be behind the origin.
+            let reject = vorrq_u32(vandq_u32(all_normal, vorrq_u32(mixed, vandq_u32(t_ok, beyond))), behind);
+            let accept = movemask(accept) & valid;
+            let check = !movemask(reject) & valid & !accept;
+            let mut hits = PacketHits { accept, check, ..Default::default() };
+            vst1q_f32(hits.t.as_mut_ptr(), t);
+            vst1q_f32(hits.u.as_mut_ptr(), vmulq_f32(v, rcp));
+            vst1q_f32(hits.v.as_mut_ptr(), vmulq_f32(w, rcp));
+            hits
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -712,6 +980,93 @@ mod tests {
             }
         }
         p
+    }
+
+    /// Each architecture's paths, and only those, are available; another's is refused by name.
+    #[test]
+    fn paths_follow_the_architecture() {
+        for path in SimdPath::ALL {
+            assert_eq!(SimdPath::parse(path.name()), Some(path));
+        }
+        let foreign: &[SimdPath] = if cfg!(target_arch = "aarch64") {
+            assert!(SimdPath::Neon.is_available(), "NEON is in the aarch64 baseline");
+            assert_eq!(SimdPath::best(), SimdPath::Neon);
+            assert_eq!(TraceLayout::default_for(SimdPath::best()), TraceLayout::Wide4);
+            &[SimdPath::Sse4, SimdPath::Avx2]
+        } else {
+            &[SimdPath::Neon]
+        };
+        for &path in foreign {
+            assert!(!path.is_available(), "{}", path.name());
+            let err = SimdPath::from_name(path.name()).unwrap_err();
+            assert!(matches!(err, SimdError::Unavailable(..)), "{err}");
+            assert!(err.to_string().contains("does not support"), "{err}");
+        }
+        assert!(matches!(SimdPath::from_name("altivec"), Err(SimdError::Unknown(_))));
+        assert_eq!(SimdPath::from_name(" scalar "), Ok(SimdPath::Scalar));
+    }
+
+    /// One random `N`-wide node: boxes of every kind, some planes NaN or infinite, and now and
+    /// then its last lanes empty (with boxes left in them that the kernels must not report).
+    fn random_node<const N: usize>(r: &mut Lcg) -> WideNode<N> {
+        let mut rows = [[0.0f32; N]; 6];
+        let mut child = [0u32; N];
+        let used = if r.f32() < 0.3 { 1 + (r.f32() * N as f32) as usize % N } else { N };
+        for i in 0..N {
+            let (a, b) = (r.vec3(), r.vec3());
+            let (lo, hi) = (a.min(b), a.max(b));
+            (rows[0][i], rows[1][i], rows[2][i]) = (lo.x, lo.y, lo.z);
+            (rows[3][i], rows[4][i], rows[5][i]) = (hi.x, hi.y, hi.z);
+            // A NaN, an infinite or a zero-thickness plane now and then.
+            let k = (r.f32() * 6.0) as usize % 6;
+            match (r.f32() * 8.0) as u32 {
+                0 => rows[k][i] = f32::NAN,
+                1 => rows[k][i] = if k < 3 { f32::NEG_INFINITY } else { f32::INFINITY },
+                2 => rows[k][i] = rows[(k + 3) % 6][i],
+                _ => {}
+            }
+            child[i] = if i < used { i as u32 } else { crate::bvh::INVALID_INDEX };
+        }
+        let [min_x, min_y, min_z, max_x, max_y, max_z] = rows;
+        WideNode { min_x, min_y, min_z, max_x, max_y, max_z, child, count: [0; N] }
+    }
+
+    /// Every box kernel this CPU runs gives the scalar slab test's mask and entry distances to
+    /// the bit, NaN planes included: rays with zero direction components (infinite reciprocals,
+    /// NaN slabs where the origin lies on a plane), infinite and NaN limits.
+    #[test]
+    fn box_kernels_match_the_scalar_slab_test() {
+        fn check<const N: usize>(r: &mut Lcg, case: usize) {
+            let node = random_node::<N>(r);
+            let mut dir = r.vec3();
+            if case % 3 == 0 {
+                dir[(case / 3) % 3] = if case % 2 == 0 { 0.0 } else { -0.0 };
+            }
+            let mut origin = r.vec3() * 2.0;
+            if case % 5 == 0 {
+                // On a plane of the first lane, where a zero direction makes `0 × inf` NaN.
+                origin.x = node.min_x[0];
+                dir.x = 0.0;
+            }
+            let limit = [f32::INFINITY, 1.5, f32::NAN, 0.0][case % 4];
+            let ray = BoxRay::new(Ray::new(origin, dir).inv());
+            let mut expected = [0.0f32; N];
+            // SAFETY: portable code.
+            let mask = unsafe { Scalar::boxes(&node, &ray, limit, &mut expected) };
+            for path in SimdPath::available() {
+                let mut dist = [0.0f32; N];
+                let m = test_boxes(path, &node, &ray, limit, &mut dist);
+                assert_eq!(m, mask, "{}, case {case}, N = {N}", path.name());
+                for i in (0..N).filter(|i| mask & (1 << i) != 0) {
+                    assert_eq!(dist[i].to_bits(), expected[i].to_bits(), "{}, case {case}, lane {i}", path.name());
+                }
+            }
+        }
+        let mut r = Lcg(11);
+        for case in 0..20_000 {
+            check::<4>(&mut r, case);
+            check::<8>(&mut r, case);
+        }
     }
 
     /// Every kernel this CPU runs sorts every lane as the scalar watertight test decides it:
@@ -768,6 +1123,9 @@ mod tests {
                 }
             }
         }
+        // On aarch64 the NEON kernel was among those compared.
+        #[cfg(target_arch = "aarch64")]
+        assert!(SimdPath::available().contains(&SimdPath::Neon));
         // Both kinds of lane occur, so the comparison above tested something.
         assert!(accepted > 1000 && checked > 1000, "accepted {accepted}, checked {checked}");
         // Coordinates of very different scales on one triangle: the f32 bound's terms underflow

@@ -193,6 +193,9 @@ impl<const N: usize> WideMesh<N> {
             // SAFETY: as above.
             #[cfg(target_arch = "x86_64")]
             SimdPath::Sse4 => unsafe { self.closest_sse4(ray, t_max, skip) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "aarch64")]
+            SimdPath::Neon => unsafe { self.closest_neon(ray, t_max, skip) },
             // SAFETY: portable code.
             _ => unsafe { self.closest::<Scalar>(ray, t_max, skip) },
         }
@@ -208,6 +211,9 @@ impl<const N: usize> WideMesh<N> {
             // SAFETY: as above.
             #[cfg(target_arch = "x86_64")]
             SimdPath::Sse4 => unsafe { self.any_sse4(ray, t_max, skip) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "aarch64")]
+            SimdPath::Neon => unsafe { self.any_neon(ray, t_max, skip) },
             // SAFETY: portable code.
             _ => unsafe { self.any::<Scalar>(ray, t_max, skip) },
         }
@@ -243,6 +249,22 @@ impl<const N: usize> WideMesh<N> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
         unsafe { self.any::<super::simd::Sse4>(ray, t_max, skip) }
+    }
+
+    #[cfg(target_arch = "aarch64")]
+    #[target_feature(enable = "neon")]
+    unsafe fn closest_neon(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        // SAFETY: this function is compiled for the kernel's features and called only where
+        // the CPU has them.
+        unsafe { self.closest::<super::simd::Neon>(ray, t_max, skip) }
+    }
+
+    #[cfg(target_arch = "aarch64")]
+    #[target_feature(enable = "neon")]
+    unsafe fn any_neon(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        // SAFETY: this function is compiled for the kernel's features and called only where
+        // the CPU has them.
+        unsafe { self.any::<super::simd::Neon>(ray, t_max, skip) }
     }
 
     /// # Safety

@@ -65,8 +65,8 @@ struct Args {
     #[arg(long)]
     threads: Option<usize>,
     /// The tree the CPU traces: binary, wide4 or wide8 (default: wide8 where the CPU has AVX2,
-    /// wide4 where it has SSE4.1, else binary). Every form gives the same image;
-    /// `ARBOR_SIMD=scalar|sse4|avx2` forces the instruction set.
+    /// wide4 where it has SSE4.1 or NEON, else binary). Every form gives the same image;
+    /// `ARBOR_SIMD=scalar|sse4|avx2|neon` forces the instruction set.
     #[arg(long, value_name = "FORM", value_parser = parse_trace)]
     trace: Option<TraceLayout>,
     /// Clamp fireflies: scale down any sample whose largest channel exceeds this radiance.
