@@ -112,17 +112,23 @@ impl std::str::FromStr for BuilderChoice {
 }
 
 impl BuilderChoice {
-    /// The builder where none is named: `lbvh+prbvh`, but `lbvh` for a scene the GPU rebuilds
-    /// flat every frame (animated or instanced), where PRBVH over every world-space triangle
-    /// would cost each frame far more than it saves, and `auto` has no model for per-frame
-    /// builds.
+    /// The builder where none is named. On the CPU, `auto`: it renders at once on the LBVH and
+    /// optimises while the render repays it ([`crate::render::refine`]), which came within 10%
+    /// of the fastest fixed builder end to end on every scene and sample count measured
+    /// (docs/benchmarks.md, "Builder auto"). On the GPU, `lbvh+prbvh` (built there), and `lbvh`
+    /// for a scene the GPU rebuilds flat every frame (animated or instanced), where PRBVH over
+    /// every world-space triangle would cost each frame far more than it saves; the GPU's
+    /// `auto`, decided before the render, missed that mark (it stayed on the LBVH where the
+    /// GPU's own reinsertion would have paid).
     pub fn default_for(device: Device, scene: &Scene) -> BuilderChoice {
         let name = match device {
             #[cfg(feature = "gpu")]
             Device::Gpu(_) if wants_instancing(scene) => "lbvh",
-            _ => {
+            #[cfg(feature = "gpu")]
+            Device::Gpu(_) => "lbvh+prbvh",
+            Device::Cpu => {
                 let _ = scene;
-                "lbvh+prbvh"
+                return BuilderChoice::Auto;
             }
         };
         BuilderChoice::Fixed(name.parse().expect("a builder name"))
@@ -485,33 +491,79 @@ impl Renderer {
         let start = Instant::now();
         // Passes of a few samples each, so that a time budget can stop between passes and
         // progress is heard of even when one pixel's samples take long (a row reports when it
-        // has done the pass); of one sample while `auto` still decides between them. The image
-        // depends only on the samples taken, not on where passes fall or on the tree.
+        // has done the pass). While `auto` still decides, a pass is a slice of one sample: every
+        // SLICES-th row, spread over the image so that it costs a share of what the whole
+        // sample does, so the decision comes after a fraction of a sample, even in a 1-spp
+        // render. The image depends only on the samples taken, not on where passes fall or on
+        // the tree, as long as each pixel gets its samples in order: a sample begun in slices
+        // is finished before the next.
+        const SLICES: u32 = 16;
         let pass = if s.time.is_some() { 4 } else { 16 }.min(s.spp.max(1));
+        // Slices of sample `done` rendered so far: the rows `y % SLICES < slice`.
+        let mut slice = 0;
         while done < s.spp {
-            let deciding = self.refiner.as_ref().is_some_and(Refiner::is_active);
-            let n = if deciding { 1 } else { pass.min(s.spp - done) };
+            let deciding = slice < SLICES && self.refiner.as_ref().is_some_and(Refiner::is_active);
             let pass_start = Instant::now();
-            self.render_scene.render(&mut film, s.seed, s.max_depth, done..done + n, &|r| {
-                let rays = rays.fetch_add(r, Ordering::Relaxed) + r;
-                let done = units.fetch_add(u64::from(n), Ordering::Relaxed) + u64::from(n);
-                progress(Progress { done, total, rays });
-            });
-            done += n;
+            let (rays, units) = (&rays, &units);
+            let report = |n: u32| {
+                move |r: u64| {
+                    let rays = rays.fetch_add(r, Ordering::Relaxed) + r;
+                    let done = units.fetch_add(u64::from(n), Ordering::Relaxed) + u64::from(n);
+                    progress(Progress { done, total, rays });
+                }
+            };
+            // The share of a sample this pass renders.
+            let share = if deciding {
+                let k = slice;
+                self.render_scene.render_rows(
+                    &mut film,
+                    s.seed,
+                    s.max_depth,
+                    done..done + 1,
+                    &|y| y % SLICES == k,
+                    &report(1),
+                );
+                slice += 1;
+                1.0 / f64::from(SLICES)
+            } else if slice > 0 {
+                let k = slice;
+                self.render_scene.render_rows(
+                    &mut film,
+                    s.seed,
+                    s.max_depth,
+                    done..done + 1,
+                    &|y| y % SLICES >= k,
+                    &report(1),
+                );
+                let share = f64::from(SLICES - k) / f64::from(SLICES);
+                slice = SLICES;
+                share
+            } else {
+                let n = pass.min(s.spp - done);
+                self.render_scene.render(&mut film, s.seed, s.max_depth, done..done + n, &report(n));
+                done += n;
+                f64::from(n)
+            };
+            if slice == SLICES {
+                (slice, done) = (0, done + 1);
+            }
             let elapsed = seconds_before + start.elapsed().as_secs_f64();
-            if s.time.is_some_and(|t| elapsed >= t) {
+            if slice == 0 && s.time.is_some_and(|t| elapsed >= t) {
                 break;
             }
-            let samples_left = f64::from(s.spp - done) + self.frames_after as f64 * f64::from(s.spp);
-            if deciding && samples_left > 0.0 {
-                let per_sample = pass_start.elapsed().as_secs_f64() / f64::from(n);
-                let mut rest = per_sample * samples_left;
-                if let Some(t) = s.time {
-                    // A time budget is per frame.
-                    rest = rest.min(t - elapsed + self.frames_after as f64 * t);
+            if deciding {
+                let taken = f64::from(done) + f64::from(slice) / f64::from(SLICES);
+                let samples_left = f64::from(s.spp) - taken + self.frames_after as f64 * f64::from(s.spp);
+                if samples_left > 0.0 {
+                    let per_sample = pass_start.elapsed().as_secs_f64() / share;
+                    let mut rest = per_sample * samples_left;
+                    if let Some(t) = s.time {
+                        // A time budget is per frame.
+                        rest = rest.min(t - elapsed + self.frames_after as f64 * t);
+                    }
+                    let refiner = self.refiner.as_mut().expect("deciding");
+                    refiner.after_pass(&mut self.render_scene, per_sample, taken, rest);
                 }
-                let refiner = self.refiner.as_mut().expect("deciding");
-                refiner.after_pass(&mut self.render_scene, per_sample, done, rest);
             }
         }
         let seconds = seconds_before + start.elapsed().as_secs_f64();

@@ -7,7 +7,8 @@
 //! changed between passes: the image depends only on the samples taken, since every tree gives
 //! the closest hit that brute force gives, bit for bit. So:
 //!
-//! 1. The LBVH is built, the cheapest tree, and the render starts with passes of one sample.
+//! 1. The LBVH is built, the cheapest tree, and the render starts with passes that are slices
+//!    of its first sample: every 16th row, spread over the image (`Renderer`'s render loop).
 //! 2. After the first pass, the rest of the render is its time per sample times the samples
 //!    left (in every frame still to come), or the time budget left if that is shorter. If 20%
 //!    of that (what a first reinsertion sweep gains on an LBVH, [`FIRST_SWEEP_GAIN`]) repays a
@@ -19,8 +20,7 @@
 //!    reinsertion goes on while each μ iterations (one search of every node) save more of the
 //!    rest of the render than they take, and the scene is reassembled a last time.
 //!
-//! Then passes grow to the usual size. A render of one sample per pixel never optimises: it is
-//! over after its first pass. Animated and heavily instanced scenes are not flattened, so this
+//! Then the sample is finished and passes grow to the usual size. Animated and heavily instanced scenes are not flattened, so this
 //! does not apply to them (their meshes' trees are built once with `lbvh+prbvh`).
 
 use std::time::Instant;
@@ -66,21 +66,22 @@ pub struct RefineReport {
     pub iterations: usize,
     /// Seconds spent optimising and reassembling.
     pub seconds: f64,
-    /// Samples per pixel rendered on the LBVH before the first sweep.
-    pub after_samples: u32,
+    /// Samples per pixel rendered on the LBVH before the first decision (a fraction: the first
+    /// passes are slices of a sample).
+    pub after_samples: f64,
     /// The measured gain of the first sweep, as a share of a sample's time.
     pub first_gain: Option<f64>,
 }
 
 impl std::fmt::Display for RefineReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let Some(estimate) = self.estimate else { return f.write_str("auto: lbvh, a render of one pass") };
+        let Some(estimate) = self.estimate else { return f.write_str("auto: lbvh, nothing left to decide for") };
         if self.iterations == 0 {
             return write!(f, "auto: lbvh, not optimised for a render estimated at {estimate:.2} s");
         }
         write!(
             f,
-            "auto: lbvh+prbvh, {} iterations ({:.2} s) from sample {}, for a render estimated at {estimate:.2} s",
+            "auto: lbvh+prbvh, {} iterations ({:.2} s) after {:.3} spp, for a render estimated at {estimate:.2} s",
             self.iterations, self.seconds, self.after_samples
         )?;
         match self.first_gain {
@@ -139,9 +140,10 @@ impl Refiner {
 
     /// After a pass of the render of `rs` (the scene [`Refiner::start`] made): `per_sample` is
     /// the pass's seconds per sample of every pixel, `samples_done` the samples per pixel taken
-    /// so far in this frame, and `rest` the render's remaining seconds at that speed (module
-    /// docs). Gives `rs` a better tree where that pays; returns whether it did.
-    pub fn after_pass(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: u32, rest: f64) -> bool {
+    /// so far in this frame (a fraction where passes are slices of a sample), and `rest` the
+    /// render's remaining seconds at that speed (module docs). Gives `rs` a better tree where
+    /// that pays; returns whether it did.
+    pub fn after_pass(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: f64, rest: f64) -> bool {
         let changed = self.decide(rs, per_sample, samples_done, rest);
         if !self.is_active() {
             self.bvh = Bvh::default();
@@ -149,11 +151,11 @@ impl Refiner {
         changed
     }
 
-    fn decide(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: u32, rest: f64) -> bool {
+    fn decide(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: f64, rest: f64) -> bool {
         let config = PrbvhConfig { collapse: None, ..Default::default() };
         match self.state {
             State::Start => {
-                self.report.estimate = Some(rest + per_sample * f64::from(samples_done));
+                self.report.estimate = Some(rest + per_sample * samples_done);
                 self.report.after_samples = samples_done;
                 let cost = SWEEP_IN_LBVH_BUILDS * self.lbvh_seconds + self.retree_seconds;
                 if FIRST_SWEEP_GAIN * rest <= cost {

@@ -19,8 +19,24 @@ impl RenderScene {
         samples: std::ops::Range<u32>,
         progress: &(dyn Fn(u64) + Sync),
     ) -> u64 {
+        self.render_rows(film, seed, max_depth, samples, &|_| true, progress)
+    }
+
+    /// [`RenderScene::render`] for the rows `y` where `rows(y)` holds. A pixel's samples may be
+    /// added by several calls, rows in any order, and the film is the same as long as each
+    /// pixel gets its samples in increasing order.
+    pub fn render_rows(
+        &self,
+        film: &mut Film,
+        seed: u64,
+        max_depth: u32,
+        samples: std::ops::Range<u32>,
+        rows: &(dyn Fn(u32) -> bool + Sync),
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> u64 {
         let width = self.width as u64;
         film.rows_mut()
+            .filter(|(y, _)| rows(*y))
             .map(|(y, row)| {
                 let mut rays = 0u64;
                 for (x, px) in row.iter_mut().enumerate() {

@@ -56,9 +56,10 @@ struct Args {
     #[arg(long, value_enum, default_value_t = Device::Auto)]
     device: Device,
     /// BVH builder: auto, or a builder's name (lbvh, lbvh+prbvh, binned-sah, ploc, ...). `auto`
-    /// optimises the LBVH only while that pays for itself in this render's estimated time.
-    /// Default lbvh+prbvh; but on the GPU an animated or instanced scene is rebuilt flat every
-    /// frame, with lbvh unless a builder other than auto is given.
+    /// optimises the LBVH only while that pays for itself in this render: on the CPU it starts
+    /// rendering at once and optimises between passes. Default: auto on the CPU; lbvh+prbvh on
+    /// the GPU, where an animated or instanced scene is rebuilt flat every frame, with lbvh
+    /// unless a builder other than auto is given.
     #[arg(long)]
     builder: Option<String>,
     /// Worker threads (default: all cores).
