@@ -492,17 +492,19 @@ impl Renderer {
         // Passes of a few samples each, so that a time budget can stop between passes and
         // progress is heard of even when one pixel's samples take long (a row reports when it
         // has done the pass). While `auto` still decides, a pass is a slice of one sample: every
-        // SLICES-th row, spread over the image so that it costs a share of what the whole
-        // sample does, so the decision comes after a fraction of a sample, even in a 1-spp
-        // render. The image depends only on the samples taken, not on where passes fall or on
-        // the tree, as long as each pixel gets its samples in order: a sample begun in slices
-        // is finished before the next.
-        const SLICES: u32 = 16;
+        // `slices`-th row, spread over the image so that it costs a share of what the whole
+        // sample does, so the decisions come within the first sample, even in a 1-spp render.
+        // Up to 16 slices, each of at least 4 rows per thread (fewer left threads idle and
+        // made a slice's time a poor share of the sample's). The image depends only on the
+        // samples taken, not on where passes fall or on the tree, as long as each pixel gets
+        // its samples in order: a sample begun in slices is finished before the next.
+        let threads = rayon::current_num_threads() as u32;
+        let slices = (self.render_scene.height / (4 * threads).max(1)).clamp(1, 16);
         let pass = if s.time.is_some() { 4 } else { 16 }.min(s.spp.max(1));
-        // Slices of sample `done` rendered so far: the rows `y % SLICES < slice`.
+        // Slices of sample `done` rendered so far: the rows `y % slices < slice`.
         let mut slice = 0;
         while done < s.spp {
-            let deciding = slice < SLICES && self.refiner.as_ref().is_some_and(Refiner::is_active);
+            let deciding = slice < slices && self.refiner.as_ref().is_some_and(Refiner::is_active);
             let pass_start = Instant::now();
             let (rays, units) = (&rays, &units);
             let report = |n: u32| {
@@ -520,11 +522,11 @@ impl Renderer {
                     s.seed,
                     s.max_depth,
                     done..done + 1,
-                    &|y| y % SLICES == k,
+                    &|y| y % slices == k,
                     &report(1),
                 );
                 slice += 1;
-                1.0 / f64::from(SLICES)
+                1.0 / f64::from(slices)
             } else if slice > 0 {
                 let k = slice;
                 self.render_scene.render_rows(
@@ -532,11 +534,11 @@ impl Renderer {
                     s.seed,
                     s.max_depth,
                     done..done + 1,
-                    &|y| y % SLICES >= k,
+                    &|y| y % slices >= k,
                     &report(1),
                 );
-                let share = f64::from(SLICES - k) / f64::from(SLICES);
-                slice = SLICES;
+                let share = f64::from(slices - k) / f64::from(slices);
+                slice = slices;
                 share
             } else {
                 let n = pass.min(s.spp - done);
@@ -544,7 +546,7 @@ impl Renderer {
                 done += n;
                 f64::from(n)
             };
-            if slice == SLICES {
+            if slice == slices {
                 (slice, done) = (0, done + 1);
             }
             let elapsed = seconds_before + start.elapsed().as_secs_f64();
@@ -552,7 +554,7 @@ impl Renderer {
                 break;
             }
             if deciding {
-                let taken = f64::from(done) + f64::from(slice) / f64::from(SLICES);
+                let taken = f64::from(done) + f64::from(slice) / f64::from(slices);
                 let samples_left = f64::from(s.spp) - taken + self.frames_after as f64 * f64::from(s.spp);
                 if samples_left > 0.0 {
                     let per_sample = pass_start.elapsed().as_secs_f64() / share;

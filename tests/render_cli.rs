@@ -247,8 +247,8 @@ fn auto_builder_judges_another_device_by_its_own_time() {
 
 /// The CPU's `auto` starts on the LBVH and optimises between passes where the rest of the
 /// render repays it, and the image is the one the LBVH alone renders, bit for bit: a render of
-/// 1024 spp optimises after a sixteenth of its first sample (the first pass is a slice of rows),
-/// as a 1-spp render may, and one under a time limit of 1 ms has nothing left to repay a sweep.
+/// 1024 spp optimises within its first sample (the first passes are slices of rows), as a 1-spp
+/// render may, and one under a time limit of 1 ms has nothing left to repay a sweep.
 #[test]
 fn cpu_auto_optimises_while_it_renders() {
     use arbor::device::{BuilderChoice, Device, Renderer};
@@ -266,7 +266,8 @@ fn cpu_auto_optimises_while_it_renders() {
     let (auto_image, _, report) = run("auto", &long);
     let report = report.expect("auto on the CPU reports what it did");
     assert!(report.iterations >= 9, "{report}");
-    assert_eq!(report.after_samples, 1.0 / 16.0, "{report}");
+    // Decided within the first sample (its first passes are slices of rows).
+    assert!(report.after_samples > 0.0 && report.after_samples < 1.0, "{report}");
     assert!(report.estimate.is_some_and(|e| e > 0.0), "{report}");
     let (lbvh_image, _, none) = run("lbvh", &long);
     assert!(none.is_none());

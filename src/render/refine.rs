@@ -8,12 +8,14 @@
 //! the closest hit that brute force gives, bit for bit. So:
 //!
 //! 1. The LBVH is built, the cheapest tree, and the render starts with passes that are slices
-//!    of its first sample: every 16th row, spread over the image (`Renderer`'s render loop).
-//! 2. After the first pass, the rest of the render is its time per sample times the samples
-//!    left (in every frame still to come), or the time budget left if that is shorter. If 20%
-//!    of that (what a first reinsertion sweep gains on an LBVH, [`FIRST_SWEEP_GAIN`]) repays a
-//!    sweep (μ iterations, estimated at [`SWEEP_IN_LBVH_BUILDS`] LBVH builds, plus
-//!    reassembling the scene), one sweep runs and the scene is reassembled with it.
+//!    of its first sample: every k-th row, spread over the image (`Renderer`'s render loop).
+//! 2. After the second pass (the first runs on cold caches and is not timed: timing it made
+//!    the estimate up to 1.7 times the render), the rest of the render is its time per sample
+//!    times the samples left (in every frame still to come), or the time budget left if that is
+//!    shorter. If 20% of that (what a first reinsertion sweep gains on an LBVH,
+//!    [`FIRST_SWEEP_GAIN`]) repays a sweep (μ iterations, estimated at [`SWEEP_IN_LBVH_BUILDS`]
+//!    LBVH builds, plus making the tree ready to trace), one sweep runs and the renderer takes
+//!    the new tree.
 //! 3. The next pass measures what the sweep bought. Where that gain, on the rest of the render,
 //!    would not repay another sweep of the same cost, the optimisation ends (later sweeps gain
 //!    less than the first). Otherwise, the gain per unit of SAH decrease calibrates the rest:
@@ -45,7 +47,10 @@ pub const SWEEP_IN_LBVH_BUILDS: f64 = 8.0;
 /// Where the optimisation stands.
 #[derive(Clone, Copy, Debug)]
 enum State {
-    /// Waiting for the first pass's time.
+    /// Waiting for the first pass to end: it runs on cold caches (the first touch of the tree
+    /// and the film), so it is not timed.
+    Warmup,
+    /// Waiting for the time of a pass on warm caches.
     Start,
     /// One sweep done; waiting for the pass that measures it.
     Swept {
@@ -122,7 +127,7 @@ impl Refiner {
             tracing,
             lbvh_seconds,
             retree_seconds,
-            state: State::Start,
+            state: State::Warmup,
             report: RefineReport::default(),
         };
         (rs, report, refiner)
@@ -154,6 +159,10 @@ impl Refiner {
     fn decide(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: f64, rest: f64) -> bool {
         let config = PrbvhConfig { collapse: None, ..Default::default() };
         match self.state {
+            State::Warmup => {
+                self.state = State::Start;
+                false
+            }
             State::Start => {
                 self.report.estimate = Some(rest + per_sample * samples_done);
                 self.report.after_samples = samples_done;
