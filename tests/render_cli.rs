@@ -247,8 +247,8 @@ fn auto_builder_judges_another_device_by_its_own_time() {
 
 /// The CPU's `auto` starts on the LBVH and optimises between passes where the rest of the
 /// render repays it, and the image is the one the LBVH alone renders, bit for bit: a render of
-/// 1024 spp optimises within its first sample (the first passes are slices of rows), as a 1-spp
-/// render may, and one under a time limit of 1 ms has nothing left to repay a sweep.
+/// 1024 spp optimises after its first passes (slices of rows where the image has enough of them),
+/// and one under a time limit of 1 ms has nothing left to repay a sweep.
 #[test]
 fn cpu_auto_optimises_while_it_renders() {
     use arbor::device::{BuilderChoice, Device, Renderer};
@@ -266,15 +266,15 @@ fn cpu_auto_optimises_while_it_renders() {
     let (auto_image, _, report) = run("auto", &long);
     let report = report.expect("auto on the CPU reports what it did");
     assert!(report.iterations >= 9, "{report}");
-    // Decided within the first sample (its first passes are slices of rows).
-    assert!(report.after_samples > 0.0 && report.after_samples < 1.0, "{report}");
+    // Decided after a slice of rows (or, on an image this small with many threads, after whole
+    // samples): the first slice or sample runs on cold caches and is not timed.
+    assert!(report.after_samples > 0.0 && report.after_samples <= 2.0, "{report}");
     assert!(report.estimate.is_some_and(|e| e > 0.0), "{report}");
     let (lbvh_image, _, none) = run("lbvh", &long);
     assert!(none.is_none());
     assert!(auto_image.pixels == lbvh_image.pixels, "auto's image differs from the LBVH's");
 
-    let (one_image, _, one) = run("auto", &settings(1, None));
-    assert!(one.unwrap().estimate.is_some());
+    let (one_image, _, _) = run("auto", &settings(1, None));
     assert!(one_image.pixels == run("lbvh", &settings(1, None)).0.pixels, "a 1-spp render differs");
 
     let (_, samples, limited) = run("auto", &settings(1 << 20, Some(1e-3)));
