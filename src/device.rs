@@ -558,14 +558,14 @@ impl Renderer {
                 let taken = f64::from(done) + f64::from(slice) / f64::from(slices);
                 let samples_left = f64::from(s.spp) - taken + self.frames_after as f64 * f64::from(s.spp);
                 if samples_left > 0.0 {
-                    let per_sample = pass_start.elapsed().as_secs_f64() / share;
-                    let mut rest = per_sample * samples_left;
-                    if let Some(t) = s.time {
-                        // A time budget is per frame.
-                        rest = rest.min(t - elapsed + self.frames_after as f64 * t);
-                    }
+                    // A time budget is per frame.
+                    let budget_left = s.time.map(|t| t - elapsed + self.frames_after as f64 * t);
+                    let rest = |per_sample: f64| {
+                        budget_left.map_or(per_sample * samples_left, |b| b.min(per_sample * samples_left))
+                    };
+                    let pass_seconds = pass_start.elapsed().as_secs_f64();
                     let refiner = self.refiner.as_mut().expect("deciding");
-                    refiner.after_pass(&mut self.render_scene, per_sample, taken, rest);
+                    refiner.after_pass(&mut self.render_scene, (pass_seconds, share), taken, &rest);
                 }
             }
         }

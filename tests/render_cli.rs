@@ -198,10 +198,11 @@ fn auto_builder_scales_optimisation_with_the_ray_budget() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    // The CPU starts on the LBVH, and the summary says what it decided after the first slice.
+    // The CPU starts on the LBVH, and the summary says what it decided (on a render this short,
+    // to keep the LBVH).
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("BVH (auto: lbvh, optimised while it renders"), "{stdout}");
-    assert!(stdout.contains("estimated at"), "{stdout}");
+    assert!(stdout.contains("\nauto: lbvh"), "{stdout}");
 }
 
 /// `auto` for another device judges the render by the device's own time per sample, not the
@@ -266,9 +267,9 @@ fn cpu_auto_optimises_while_it_renders() {
     let (auto_image, _, report) = run("auto", &long);
     let report = report.expect("auto on the CPU reports what it did");
     assert!(report.iterations >= 9, "{report}");
-    // Decided after a slice of rows (or, on an image this small with many threads, after whole
-    // samples): the first slice or sample runs on cold caches and is not timed.
-    assert!(report.after_samples > 0.0 && report.after_samples <= 2.0, "{report}");
+    // Decided early: after the untimed first slice (or sample, on an image this small) and
+    // 20 ms of timed ones.
+    assert!(report.after_samples > 0.0 && report.after_samples < 64.0, "{report}");
     assert!(report.estimate.is_some_and(|e| e > 0.0), "{report}");
     let (lbvh_image, _, none) = run("lbvh", &long);
     assert!(none.is_none());

@@ -9,21 +9,22 @@
 //!
 //! 1. The LBVH is built, the cheapest tree, and the render starts with passes that are slices
 //!    of its first sample: every k-th row, spread over the image (`Renderer`'s render loop).
-//! 2. After the second pass (the first runs on cold caches and is not timed: timing it made
-//!    the estimate up to 1.7 times the render), the rest of the render is its time per sample
-//!    times the samples left (in every frame still to come), or the time budget left if that is
-//!    shorter. If 20% of that (what a first reinsertion sweep gains on an LBVH,
+//! 2. After the passes that follow the first add up to [`MIN_TIMED_SECONDS`] (the first runs
+//!    on cold caches and is not timed: timing it made the estimate up to 1.7 times the render),
+//!    the rest of the render is their time per sample times the samples left (in every frame
+//!    still to come), or the time budget left if that is shorter. If 20% of that (what a first reinsertion sweep gains on an LBVH,
 //!    [`FIRST_SWEEP_GAIN`]) repays a sweep (μ iterations, estimated at [`SWEEP_IN_LBVH_BUILDS`]
 //!    LBVH builds, plus making the tree ready to trace), one sweep runs and the renderer takes
 //!    the new tree.
-//! 3. The next pass measures what the sweep bought. Where that gain, on the rest of the render,
-//!    would not repay another sweep of the same cost, the optimisation ends (later sweeps gain
-//!    less than the first). Otherwise, the gain per unit of SAH decrease calibrates the rest:
+//! 3. The next passes (as many again) measure what the sweep bought. Where that gain, on the
+//!    rest of the render, would not repay another sweep of the same cost, the optimisation ends
+//!    (later sweeps gain less than the first). Otherwise, the gain per unit of SAH decrease calibrates the rest:
 //!    reinsertion goes on while each μ iterations (one search of every node) save more of the
 //!    rest of the render than they take, and the scene is reassembled a last time.
 //!
-//! Then the sample is finished and passes grow to the usual size. Animated and heavily instanced scenes are not flattened, so this
-//! does not apply to them (their meshes' trees are built once with `lbvh+prbvh`).
+//! Then the sample is finished and passes grow to the usual size. Animated and heavily
+//! instanced scenes are not flattened, so this does not apply to them (their meshes' trees are
+//! built once with `lbvh+prbvh`).
 
 use std::time::Instant;
 
@@ -43,6 +44,11 @@ pub const FIRST_SWEEP_GAIN: f64 = 0.2;
 /// A sweep's cost in LBVH builds, to expect before it is measured (μ = 9 iterations on the
 /// dragon scene).
 pub const SWEEP_IN_LBVH_BUILDS: f64 = 8.0;
+
+/// The least render time a speed is measured over, in seconds: passes are added up until they
+/// reach it. A single slice of a small image takes a few milliseconds, and on a shared machine
+/// one such timing came out twice the render's pace.
+pub const MIN_TIMED_SECONDS: f64 = 0.02;
 
 /// Where the optimisation stands.
 #[derive(Clone, Copy, Debug)]
@@ -106,6 +112,8 @@ pub struct Refiner {
     /// Seconds to make a tree ready to trace, bounded by what the first scene's assembly took.
     retree_seconds: f64,
     state: State,
+    /// The passes timed towards the current measurement: (seconds, samples per pixel).
+    timed: (f64, f64),
     report: RefineReport,
 }
 
@@ -128,6 +136,7 @@ impl Refiner {
             lbvh_seconds,
             retree_seconds,
             state: State::Warmup,
+            timed: (0.0, 0.0),
             report: RefineReport::default(),
         };
         (rs, report, refiner)
@@ -143,13 +152,30 @@ impl Refiner {
         &self.report
     }
 
-    /// After a pass of the render of `rs` (the scene [`Refiner::start`] made): `per_sample` is
-    /// the pass's seconds per sample of every pixel, `samples_done` the samples per pixel taken
-    /// so far in this frame (a fraction where passes are slices of a sample), and `rest` the
-    /// render's remaining seconds at that speed (module docs). Gives `rs` a better tree where
-    /// that pays; returns whether it did.
-    pub fn after_pass(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: f64, rest: f64) -> bool {
-        let changed = self.decide(rs, per_sample, samples_done, rest);
+    /// After a pass of the render of `rs` (the scene [`Refiner::start`] made) that took
+    /// `pass.0` seconds for `pass.1` samples per pixel (a fraction where passes are slices of a
+    /// sample): `samples_done` is the samples per pixel taken so far in this frame, and
+    /// `rest(per_sample)` the render's remaining seconds at `per_sample` seconds per sample
+    /// (module docs). Passes are added up until they make [`MIN_TIMED_SECONDS`]; then it
+    /// decides, and gives `rs` a better tree where that pays. Returns whether it did.
+    pub fn after_pass(
+        &mut self,
+        rs: &mut RenderScene,
+        pass: (f64, f64),
+        samples_done: f64,
+        rest: &dyn Fn(f64) -> f64,
+    ) -> bool {
+        if matches!(self.state, State::Warmup) {
+            self.state = State::Start;
+            return false;
+        }
+        self.timed = (self.timed.0 + pass.0, self.timed.1 + pass.1);
+        if self.timed.0 < MIN_TIMED_SECONDS {
+            return false;
+        }
+        let per_sample = self.timed.0 / self.timed.1;
+        self.timed = (0.0, 0.0);
+        let changed = self.decide(rs, per_sample, samples_done, rest(per_sample));
         if !self.is_active() {
             self.bvh = Bvh::default();
         }
@@ -159,10 +185,7 @@ impl Refiner {
     fn decide(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: f64, rest: f64) -> bool {
         let config = PrbvhConfig { collapse: None, ..Default::default() };
         match self.state {
-            State::Warmup => {
-                self.state = State::Start;
-                false
-            }
+            State::Warmup => false,
             State::Start => {
                 self.report.estimate = Some(rest + per_sample * samples_done);
                 self.report.after_samples = samples_done;
