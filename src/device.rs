@@ -496,9 +496,9 @@ impl Renderer {
         // sample does, so the decisions come within the first sample, even in a 1-spp render.
         // Up to 16 slices, each of at least 16 rows per thread: with 4 rows per thread, 16
         // threads finished a slice at the pace of its slowest rows, and the estimate came out
-        // 1.4 to 1.7 times the render. The image depends only on the
-        // samples taken, not on where passes fall or on the tree, as long as each pixel gets
-        // its samples in order: a sample begun in slices is finished before the next.
+        // 1.4 to 1.7 times the render. The image depends only on the samples taken, not on
+        // where passes fall or on the tree, as long as each pixel gets its samples in order: a
+        // sample begun in slices is finished before the next.
         let threads = rayon::current_num_threads() as u32;
         let slices = (self.render_scene.height / (16 * threads).max(1)).clamp(1, 16);
         let pass = if s.time.is_some() { 4 } else { 16 }.min(s.spp.max(1));
@@ -516,31 +516,13 @@ impl Renderer {
                 }
             };
             // The share of a sample this pass renders.
-            let share = if deciding {
+            let share = if deciding || slice > 0 {
+                // While deciding, the next slice of sample `done`; after, the rest of it.
                 let k = slice;
-                self.render_scene.render_rows(
-                    &mut film,
-                    s.seed,
-                    s.max_depth,
-                    done..done + 1,
-                    &|y| y % slices == k,
-                    &report(1),
-                );
-                slice += 1;
-                1.0 / f64::from(slices)
-            } else if slice > 0 {
-                let k = slice;
-                self.render_scene.render_rows(
-                    &mut film,
-                    s.seed,
-                    s.max_depth,
-                    done..done + 1,
-                    &|y| y % slices >= k,
-                    &report(1),
-                );
-                let share = f64::from(slices - k) / f64::from(slices);
-                slice = slices;
-                share
+                let rows = move |y: u32| if deciding { y % slices == k } else { y % slices >= k };
+                self.render_scene.render_rows(&mut film, s.seed, s.max_depth, done..done + 1, &rows, &report(1));
+                slice = if deciding { k + 1 } else { slices };
+                f64::from(slice - k) / f64::from(slices)
             } else {
                 let n = pass.min(s.spp - done);
                 self.render_scene.render(&mut film, s.seed, s.max_depth, done..done + n, &report(n));

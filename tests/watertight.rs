@@ -134,18 +134,21 @@ fn leak_test_detects_a_hole() {
     assert!(leaks > 0, "a mesh with a hole must leak");
 }
 
+/// The 32 × 64 UV sphere placed by `m`: its triangles, their tree, that tree in every traced
+/// form on every SIMD path, and the sphere's centre.
+fn placed_sphere(m: Mat4) -> (Vec<Triangle>, Bvh, Vec<MeshBvh>, Vec3) {
+    let tris = TriangleMesh::uv_sphere(Vec3::ZERO, 1.0, 32, 64).transformed(m).triangles();
+    let bvh = tree(&tris);
+    let traced = tracings().into_iter().map(|t| MeshBvh::with_tracing(bvh.clone(), &tris, t)).collect();
+    (tris, bvh, traced, m.transform_point3(Vec3::ZERO))
+}
+
 /// Rays spawned off a convex sphere: outward ones never hit it again, inward ones never hit the
 /// triangle they start on, in every traced form on every SIMD path.
 #[test]
 fn spawned_rays_do_not_self_intersect() {
-    let sphere = TriangleMesh::uv_sphere(Vec3::ZERO, 1.0, 32, 64);
     for (placement, m) in placements() {
-        let mesh = sphere.transformed(m);
-        let tris = mesh.triangles();
-        let bvh = tree(&tris);
-        let traced: Vec<MeshBvh> =
-            tracings().into_iter().map(|t| MeshBvh::with_tracing(bvh.clone(), &tris, t)).collect();
-        let center = m.transform_point3(Vec3::ZERO);
+        let (tris, bvh, traced, center) = placed_sphere(m);
         let radius = m.transform_vector3(Vec3::X).length();
         let mut r = rng(2);
         let (mut outward_hits, mut self_hits, mut spawned) = (0, 0, 0);
@@ -185,15 +188,9 @@ fn spawned_rays_do_not_self_intersect() {
 /// so the test can fail).
 #[test]
 fn spawns_off_a_convex_mesh_leave_or_hit_it_from_inside() {
-    let sphere = TriangleMesh::uv_sphere(Vec3::ZERO, 1.0, 32, 64);
     let mut unoffset = 0;
     for (placement, m) in placements() {
-        let mesh = sphere.transformed(m);
-        let tris = mesh.triangles();
-        let bvh = tree(&tris);
-        let traced: Vec<MeshBvh> =
-            tracings().into_iter().map(|t| MeshBvh::with_tracing(bvh.clone(), &tris, t)).collect();
-        let center = m.transform_point3(Vec3::ZERO);
+        let (tris, _, traced, center) = placed_sphere(m);
         let outward = |k: u32| {
             let t = &tris[k as usize];
             let n = t.unit_normal();

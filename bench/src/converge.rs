@@ -10,9 +10,10 @@
 //! - A fixed builder builds once; its curve renders sample ranges `[0, 1), [1, 2), [2, 4), ...`
 //!   into one film and times each, so the point at `n` spp costs the build plus the render
 //!   time of samples `0..n`, as a separate render of `n` spp would.
-//! - `auto` decides how long to optimise from the render's length, timed on its device
-//!   ([`RenderScene::build_auto_cpu`], `gpu::trace::build_auto`), so each of its points is a
-//!   separate build and render with that point's sample count.
+//! - `auto` decides how long to optimise from the render's length, measured on its device
+//!   (on the CPU while rendering, `arbor::render::refine`; on the GPU before,
+//!   `gpu::trace::build_auto`), so each of its points is a separate build and render with that
+//!   point's sample count, its optimisation counted in the render's time.
 //! - On the GPU every point is a separate render of `0..n` samples (its film is read back once
 //!   per render); the tree is built (as `render --device gpu` builds it) and uploaded once per
 //!   curve for a fixed builder, per point for `auto`, and that time counts as build time.

@@ -112,8 +112,8 @@ impl RenderScene {
     /// `--builder auto`: the tree that makes build plus render shortest for a render of about
     /// `rays` rays, among LBVH and binned SAH, each optimised by parallel reinsertion for as long
     /// as that pays for itself. Here each tree's render is estimated from its trace speed on a
-    /// probe of 4096 camera rays; [`RenderScene::build_auto_cpu`], what `render` uses, times
-    /// real paths instead wherever the render is long enough to afford it.
+    /// probe of 4096 camera rays. (`render` on the CPU does not use this: it optimises while
+    /// rendering, [`super::refine`].)
     ///
     /// 1. LBVH, and the render's length with it.
     /// 2. If 16% of that render (what binned SAH saved on the dragon scene) would repay a
