@@ -142,7 +142,7 @@ impl Refiner {
         (rs, report, refiner)
     }
 
-    /// Whether it still decides between passes (and wants them of one sample).
+    /// Whether it still decides between passes (and wants them to be slices of a sample).
     pub fn is_active(&self) -> bool {
         !matches!(self.state, State::Done)
     }
@@ -225,7 +225,7 @@ impl Refiner {
                     }
                     // Judged over μ iterations (one search of every node): a single iteration
                     // searches a μ-th of the nodes and may find nothing where the next finds
-                    // much. The last reassembly is counted in the first window.
+                    // much.
                     let (saved, spent) = window.iter().fold((0.0, 0.0), |a, w| (a.0 + w.0, a.1 + w.1));
                     window.len() < config.mu as usize || saved > spent
                 });
