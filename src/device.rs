@@ -121,17 +121,17 @@ impl BuilderChoice {
     /// `auto`, decided before the render, missed that mark (it stayed on the LBVH where the
     /// GPU's own reinsertion would have paid).
     pub fn default_for(device: Device, scene: &Scene) -> BuilderChoice {
-        let name = match device {
-            #[cfg(feature = "gpu")]
-            Device::Gpu(_) if wants_instancing(scene) => "lbvh",
-            #[cfg(feature = "gpu")]
-            Device::Gpu(_) => "lbvh+prbvh",
+        match device {
             Device::Cpu => {
                 let _ = scene;
-                return BuilderChoice::Auto;
+                BuilderChoice::Auto
             }
-        };
-        BuilderChoice::Fixed(name.parse().expect("a builder name"))
+            #[cfg(feature = "gpu")]
+            Device::Gpu(_) => {
+                let name = if wants_instancing(scene) { "lbvh" } else { "lbvh+prbvh" };
+                BuilderChoice::Fixed(name.parse().expect("a builder name"))
+            }
+        }
     }
 }
 
