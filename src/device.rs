@@ -113,9 +113,11 @@ impl std::str::FromStr for BuilderChoice {
 
 impl BuilderChoice {
     /// The builder where none is named. On the CPU, `auto`: it renders at once on the LBVH and
-    /// optimises while the render repays it ([`crate::render::refine`]), which came within 10%
-    /// of the fastest fixed builder end to end on every scene and sample count measured
-    /// (docs/benchmarks.md, "Builder auto"). On the GPU, `lbvh+prbvh` (built there), and `lbvh`
+    /// optimises while the render repays it ([`crate::render::refine`]); end to end it came
+    /// within 10% of the fastest fixed builder on every scene and sample count measured but a
+    /// 1M-triangle city, where binned SAH wins, and within 10% of the former default
+    /// `lbvh+prbvh` nearly everywhere, many times faster at 1 spp (docs/benchmarks.md,
+    /// "Builder auto"). On the GPU, `lbvh+prbvh` (built there), and `lbvh`
     /// for a scene the GPU rebuilds flat every frame (animated or instanced), where PRBVH over
     /// every world-space triangle would cost each frame far more than it saves; the GPU's
     /// `auto`, decided before the render, missed that mark (it stayed on the LBVH where the
@@ -172,6 +174,8 @@ pub struct Progress {
 /// times the frame's render time, exceeds what it took (a generous bound on its gain: the
 /// top level is only part of every ray's path). A frame that finds it does not pay skips it
 /// for the next [`FramePrbvh::RETRY`] frames, then tries again: motion changes what it gains.
+/// Frames where nothing moved are not judged, and a rebuild by the quality monitor while it is
+/// skipped brings it back.
 #[derive(Clone, Debug, Default)]
 struct FramePrbvh {
     /// The last update's local PRBVH: (seconds, share of the SAH removed).
@@ -188,10 +192,13 @@ impl FramePrbvh {
     }
 
     fn updated(&mut self, stats: &crate::bvh::dynamic::UpdateStats) {
+        self.last = None;
         if self.skip > 0 {
-            self.skip -= 1;
-            self.last = None;
-        } else if !stats.rebuilt {
+            // Without it the quality monitor rebuilt the tree, which costs more than the local
+            // PRBVH it stood in for: run it again.
+            self.skip = if stats.rebuilt { 0 } else { self.skip - 1 };
+        } else if !stats.rebuilt && stats.moved > 0 {
+            // A frame where nothing moved (the first, or a hold) says nothing of its worth.
             self.last = Some((stats.prbvh_seconds, stats.prbvh_sah_drop));
         }
     }
@@ -555,6 +562,10 @@ impl Renderer {
         if let Some(f) = self.frame_prbvh.as_mut() {
             f.rendered(seconds);
         }
+        // The last frame is over: what `auto` kept to decide with can go.
+        if let Some(r) = self.refiner.as_mut().filter(|r| r.is_active() && self.frames_after == 0) {
+            r.finish();
+        }
         RenderedFrame { film, rays: rays.into_inner(), seconds, samples: done, timed_seconds }
     }
 
@@ -594,7 +605,7 @@ mod tests {
     use crate::bvh::dynamic::UpdateStats;
 
     fn update(prbvh_seconds: f64, prbvh_sah_drop: f64) -> UpdateStats {
-        UpdateStats { prbvh_seconds, prbvh_sah_drop, ..Default::default() }
+        UpdateStats { moved: 3, prbvh_seconds, prbvh_sah_drop, ..Default::default() }
     }
 
     /// The local PRBVH of an animation's frames runs while the SAH share it removes, times the
@@ -617,9 +628,18 @@ mod tests {
             f.rendered(0.05);
         }
         assert!(f.runs());
-        // A frame the monitor rebuilt says nothing about the local PRBVH.
+        // A frame the monitor rebuilt, or where nothing moved, says nothing about it.
         f.updated(&UpdateStats { rebuilt: true, ..update(1.0, 0.0) });
         f.rendered(0.05);
+        assert!(f.runs());
+        f.updated(&UpdateStats { moved: 0, ..update(1e-6, 0.0) });
+        f.rendered(0.05);
+        assert!(f.runs());
+        // Skipped, until the monitor has to rebuild the tree: then it runs again.
+        f.updated(&update(1e-3, 0.01));
+        f.rendered(0.05);
+        assert!(!f.runs());
+        f.updated(&UpdateStats { rebuilt: true, ..update(0.0, 0.0) });
         assert!(f.runs());
     }
 }

@@ -248,8 +248,8 @@ fn auto_builder_judges_another_device_by_its_own_time() {
 
 /// The CPU's `auto` starts on the LBVH and optimises between passes where the rest of the
 /// render repays it, and the image is the one the LBVH alone renders, bit for bit: a render of
-/// 1024 spp optimises after its first passes (slices of rows where the image has enough of them),
-/// and one under a time limit of 1 ms has nothing left to repay a sweep.
+/// 1024 spp optimises after its first passes, a render sliced into rows changes its tree in the
+/// middle of a sample, and one stopped by a time limit of 1 ms never optimises.
 #[test]
 fn cpu_auto_optimises_while_it_renders() {
     use arbor::device::{BuilderChoice, Device, Renderer};
@@ -277,6 +277,22 @@ fn cpu_auto_optimises_while_it_renders() {
 
     let (one_image, _, _) = run("auto", &settings(1, None));
     assert!(one_image.pixels == run("lbvh", &settings(1, None)).0.pixels, "a 1-spp render differs");
+
+    // On one thread a 64-row image is rendered in slices of 16 rows while `auto` decides, and
+    // its tree changes between slices: the image is still the LBVH's.
+    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let mut wide = showcase.clone();
+    (wide.camera.width, wide.camera.height) = (256, 64);
+    let sliced = one_thread.install(|| {
+        let s = settings(64, None);
+        let mut r = Renderer::new(Device::Cpu, &wide, &BuilderChoice::Auto, &s, 1, 0.0).unwrap();
+        let image = r.render(&s, &|_| {}).unwrap().film.mean();
+        let lbvh: BuilderChoice = "lbvh".parse().unwrap();
+        let mut fixed = Renderer::new(Device::Cpu, &wide, &lbvh, &s, 1, 0.0).unwrap();
+        (image, fixed.render(&s, &|_| {}).unwrap().film.mean(), r.refine_report().cloned().unwrap())
+    });
+    assert!(sliced.2.iterations > 0, "{}", sliced.2);
+    assert!(sliced.0.pixels == sliced.1.pixels, "the image changed with the tree mid-sample");
 
     let (_, samples, limited) = run("auto", &settings(1 << 20, Some(1e-3)));
     let limited = limited.unwrap();

@@ -189,7 +189,8 @@ pub fn render_reference(scene: &Scene, spp: u32, max_depth: u32, seed: u64) -> R
 /// once per curve and each point carries on from the last ([`Renderer::render_more`]: the CPU
 /// adds the samples between them, the GPU renders `0..spp` again); `auto` builds for each
 /// point's sample count. GPU kernel compilation, paid once per process and variant, is left
-/// out of the build's time, and samples `auto` timed while building count once, in the build.
+/// out of the build's time. On the GPU, samples `auto` timed while building count once, in the
+/// build; on the CPU, `auto` optimises while rendering, and that time counts in the render's.
 pub fn measure_curve(
     scene: &Scene,
     choice: &BuilderChoice,
@@ -228,6 +229,10 @@ pub fn measure_curve(
                 let (mut renderer, build_s) = build(spp)?;
                 detail.clone_from(&renderer.build_report().builder);
                 let frame = renderer.render(&config.at(spp), &|_| {})?;
+                // On the CPU, what `auto` decided while it rendered.
+                if let Some(r) = renderer.refine_report() {
+                    detail = r.to_string();
+                }
                 let render_s = frame.seconds - frame.timed_seconds;
                 points.push(point(&frame.film, reference, spp, build_s, build_s + render_s));
                 frame

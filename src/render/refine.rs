@@ -16,7 +16,8 @@
 //!    [`FIRST_SWEEP_GAIN`]) repays a sweep (μ iterations, estimated at [`SWEEP_IN_LBVH_BUILDS`]
 //!    LBVH builds, plus making the tree ready to trace), one sweep runs and the renderer takes
 //!    the new tree.
-//! 3. The next passes (as many again) measure what the sweep bought. Where that gain, on the
+//! 3. The next passes (after an untimed one: the new tree's caches are cold; then as many
+//!    again) measure what the sweep bought. Where that gain, on the
 //!    rest of the render, would not repay another sweep of the same cost, the optimisation ends
 //!    (later sweeps gain less than the first). Otherwise, the gain per unit of SAH decrease calibrates the rest:
 //!    reinsertion goes on while each μ iterations (one search of every node) save more of the
@@ -53,10 +54,7 @@ pub const MIN_TIMED_SECONDS: f64 = 0.02;
 /// Where the optimisation stands.
 #[derive(Clone, Copy, Debug)]
 enum State {
-    /// Waiting for the first pass to end: it runs on cold caches (the first touch of the tree
-    /// and the film), so it is not timed.
-    Warmup,
-    /// Waiting for the time of a pass on warm caches.
+    /// Waiting for the LBVH's time per sample.
     Start,
     /// One sweep done; waiting for the pass that measures it.
     Swept {
@@ -70,8 +68,8 @@ enum State {
 /// What `auto` did while rendering, for the summary.
 #[derive(Clone, Debug, Default)]
 pub struct RefineReport {
-    /// The render's estimated length on the LBVH, from the first pass (all frames, or the
-    /// budget), in seconds.
+    /// The render's estimated length on the LBVH, from the timed passes after the first (all
+    /// frames, or the budget), in seconds.
     pub estimate: Option<f64>,
     /// Reinsertion iterations run.
     pub iterations: usize,
@@ -114,6 +112,9 @@ pub struct Refiner {
     state: State,
     /// The passes timed towards the current measurement: (seconds, samples per pixel).
     timed: (f64, f64),
+    /// Whether the next pass runs on cold caches (the first, and the first on a new tree) and
+    /// so is not timed.
+    cold: bool,
     report: RefineReport,
 }
 
@@ -135,8 +136,9 @@ impl Refiner {
             tracing,
             lbvh_seconds,
             retree_seconds,
-            state: State::Warmup,
+            state: State::Start,
             timed: (0.0, 0.0),
+            cold: true,
             report: RefineReport::default(),
         };
         (rs, report, refiner)
@@ -165,8 +167,7 @@ impl Refiner {
         samples_done: f64,
         rest: &dyn Fn(f64) -> f64,
     ) -> bool {
-        if matches!(self.state, State::Warmup) {
-            self.state = State::Start;
+        if std::mem::take(&mut self.cold) {
             return false;
         }
         self.timed = (self.timed.0 + pass.0, self.timed.1 + pass.1);
@@ -185,7 +186,6 @@ impl Refiner {
     fn decide(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: f64, rest: f64) -> bool {
         let config = PrbvhConfig { collapse: None, ..Default::default() };
         match self.state {
-            State::Warmup => false,
             State::Start => {
                 self.report.estimate = Some(rest + per_sample * samples_done);
                 self.report.after_samples = samples_done;
@@ -196,6 +196,9 @@ impl Refiner {
                 }
                 let t = Instant::now();
                 let first = PrbvhConfig { max_iterations: config.mu, ..config };
+                // Rendering waits meanwhile: the traced tree goes first, so that it and the
+                // optimisation's own memory are never held at once.
+                Self::drop_tree(rs);
                 let s = prbvh::optimize_while(&mut self.bvh, &first, |_| true);
                 self.report.iterations += s.iterations.len();
                 let sah_fraction = (s.initial_sah - s.sah_before_collapse) / s.initial_sah;
@@ -203,6 +206,8 @@ impl Refiner {
                 let cost = t.elapsed().as_secs_f64();
                 self.report.seconds += cost;
                 self.state = State::Swept { before: per_sample, sah_fraction, cost };
+                // The new tree's first pass runs on cold caches.
+                self.cold = true;
                 true
             }
             State::Swept { before, sah_fraction, cost } => {
@@ -216,6 +221,7 @@ impl Refiner {
                 }
                 let efficiency = (gain / sah_fraction).clamp(0.05, 1.0);
                 let t = Instant::now();
+                Self::drop_tree(rs);
                 let mut window: std::collections::VecDeque<(f64, f64)> = std::collections::VecDeque::new();
                 let s = prbvh::optimize_while(&mut self.bvh, &config, |p| {
                     let saved = (p.previous_sah - p.sah) / p.initial_sah * rest * efficiency;
@@ -225,13 +231,11 @@ impl Refiner {
                     }
                     // Judged over μ iterations (one search of every node): a single iteration
                     // searches a μ-th of the nodes and may find nothing where the next finds
-                    // much.
+                    // much. (Where the μ/ε rule lowers μ, the window spans more than one
+                    // search, which only makes it slower to stop.)
                     let (saved, spent) = window.iter().fold((0.0, 0.0), |a, w| (a.0 + w.0, a.1 + w.1));
                     window.len() < config.mu as usize || saved > spent
                 });
-                if s.iterations.is_empty() {
-                    return false;
-                }
                 self.report.iterations += s.iterations.len();
                 self.retree(rs);
                 self.report.seconds += t.elapsed().as_secs_f64();
@@ -241,12 +245,23 @@ impl Refiner {
         }
     }
 
-    /// Gives `rs` the tree as it now stands. Only the tree changes: the triangles, their ids
-    /// and the lights stay, so the image does too. The old tree goes first, so that two are
-    /// never held at once.
+    /// Ends the decisions (the render is over) and lets the optimisation's tree go.
+    pub fn finish(&mut self) {
+        self.state = State::Done;
+        self.bvh = Bvh::default();
+    }
+
+    /// Drops the tree `rs` traces, before an optimisation (see [`Refiner::retree`]).
+    fn drop_tree(rs: &mut RenderScene) {
+        if let Geometry::Flat(flat) = &mut rs.geometry {
+            drop(std::mem::take(&mut flat.mesh));
+        }
+    }
+
+    /// Gives `rs` (whose tree [`Refiner::drop_tree`] dropped) the tree as it now stands. Only
+    /// the tree changes: the triangles, their ids and the lights stay, so the image does too.
     fn retree(&self, rs: &mut RenderScene) {
         let Geometry::Flat(flat) = &mut rs.geometry else { return };
-        drop(std::mem::take(&mut flat.mesh));
         let leaves = collapse_leaves(&self.bvh, &CollapseConfig::default());
         flat.mesh = MeshBvh::with_tracing(leaves, &flat.triangles, self.tracing);
     }
