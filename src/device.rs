@@ -283,9 +283,8 @@ impl Renderer {
         let (mut render_scene, build) = match device {
             Device::Cpu => match builder {
                 BuilderChoice::Fixed(b) => RenderScene::build(scene, b),
-                // Meshes of a two-level scene are built once, with `lbvh+prbvh`.
                 BuilderChoice::Auto if wants_instancing(scene) => {
-                    RenderScene::build(scene, &"lbvh+prbvh".parse().expect("a builder name"))
+                    RenderScene::build(scene, &crate::render::auto::instanced_builder())
                 }
                 BuilderChoice::Auto => {
                     let (rs, report, r) = Refiner::start(scene, crate::bvh::Tracing::current());

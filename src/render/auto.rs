@@ -108,6 +108,67 @@ struct Judge {
     speedup: f64,
 }
 
+/// The share of the render a first reinsertion sweep saves on an LBVH, to expect before it is
+/// measured (about what it saved on the dragon scene, which gained 20% from a whole PRBVH run).
+pub const FIRST_SWEEP_GAIN: f64 = 0.2;
+
+/// A sweep's cost in LBVH builds, to expect before it is measured (μ = 9 iterations on the
+/// dragon scene).
+pub const SWEEP_IN_LBVH_BUILDS: f64 = 8.0;
+
+/// The builder `auto` gives the meshes of a two-level scene: they are built once and serve
+/// every frame, so they are optimised in full.
+pub(crate) fn instanced_builder() -> crate::bvh::builders::Builder {
+    "lbvh+prbvh".parse().expect("a builder name")
+}
+
+/// The reinsertion configuration `auto` runs: on one primitive per leaf, collapsed afterwards.
+fn sweep_config() -> PrbvhConfig {
+    PrbvhConfig { collapse: None, ..Default::default() }
+}
+
+/// `auto`'s first sweep on `bvh` (μ iterations, one search of every node), and the share of the
+/// SAH it removed.
+pub(crate) fn first_sweep(bvh: &mut crate::bvh::Bvh) -> (prbvh::PrbvhStats, f64) {
+    let config = sweep_config();
+    let s = prbvh::optimize_while(bvh, &PrbvhConfig { max_iterations: config.mu, ..config }, |_| true);
+    let sah_fraction = (s.initial_sah - s.sah_before_collapse) / s.initial_sah;
+    (s, sah_fraction)
+}
+
+/// The sweeps after the first: reinsertion on `bvh` while each μ iterations save more of a
+/// render of `render_seconds` than they take, the SAH removed converted to time by
+/// `efficiency` (the first sweep's measured gain over its SAH share, [`sweep_efficiency`]).
+///
+/// Judged over a whole sweep (μ iterations) only: one iteration searches a μ-th of the nodes,
+/// and the Cornell box's first one after a paying sweep found nothing, which stopped it at SAH
+/// 30.89 where a full run reaches 30.57. (Where the μ/ε rule lowers μ, the window spans more
+/// than one search, which only makes it slower to stop.)
+pub(crate) fn sweeps_while_they_pay(
+    bvh: &mut crate::bvh::Bvh,
+    render_seconds: f64,
+    efficiency: f64,
+) -> prbvh::PrbvhStats {
+    let config = sweep_config();
+    let mu = config.mu as usize;
+    let mut window: std::collections::VecDeque<(f64, f64)> = std::collections::VecDeque::new();
+    prbvh::optimize_while(bvh, &config, |p| {
+        let saved = (p.previous_sah - p.sah) / p.initial_sah * render_seconds * efficiency;
+        window.push_back((saved, p.iteration_time.as_secs_f64()));
+        if window.len() > mu {
+            window.pop_front();
+        }
+        let (saved, spent) = window.iter().fold((0.0, 0.0), |a, w| (a.0 + w.0, a.1 + w.1));
+        window.len() < mu || saved > spent
+    })
+}
+
+/// Render time saved per unit of SAH share removed, from a sweep that saved `gain` of the
+/// render and `sah_fraction` of the SAH; kept within 0.05 and 1 (SAH overstates trace gains).
+pub(crate) fn sweep_efficiency(gain: f64, sah_fraction: f64) -> f64 {
+    (gain / sah_fraction).clamp(0.05, 1.0)
+}
+
 impl RenderScene {
     /// `--builder auto`: the tree that makes build plus render shortest for a render of about
     /// `rays` rays, among LBVH and binned SAH, each optimised by parallel reinsertion for as long
@@ -153,7 +214,7 @@ impl RenderScene {
     /// does not double a large scene's peak memory.
     pub fn build_auto_for(scene: &Scene, rays: f64, device: AutoDevice<'_>) -> (Self, BuildReport) {
         if wants_instancing(scene) {
-            return Self::build_instanced(scene, &"lbvh+prbvh".parse().expect("a builder name"));
+            return Self::build_instanced(scene, &instanced_builder());
         }
         let mut t = Instant::now();
         let (triangles, material_of) = scene.world_triangles();
@@ -259,47 +320,31 @@ impl RenderScene {
         lbvh_seconds: f64,
         probe_cost: f64,
     ) -> usize {
-        let config = PrbvhConfig { collapse: None, ..Default::default() };
         // The first sweep is measured, not predicted: SAH overstates trace gains on some scenes
         // (the dragon's room), so its real gain, from a second probe, decides whether to go on
-        // and calibrates the SAH-to-time factor for the sweeps after it. A sweep costs about 8
-        // LBVH builds, plus its probe; none is tried when the gain to expect could not repay
-        // that: 20% from the LBVH, 5% from binned SAH (the most a first sweep on binned SAH
-        // gained on the dragon scene).
+        // and calibrates the SAH-to-time factor for the sweeps after it. A sweep costs about
+        // SWEEP_IN_LBVH_BUILDS LBVH builds, plus its probe; none is tried when the gain to
+        // expect could not repay that: FIRST_SWEEP_GAIN from the LBVH, 5% from binned SAH (the
+        // most a first sweep on binned SAH gained on the dragon scene).
         let mut iterations = 0;
-        let expected_gain = if base == "lbvh" { 0.2 } else { 0.05 };
-        if expected_gain * *render_seconds > 8.0 * lbvh_seconds + probe_cost {
-            let first = PrbvhConfig { max_iterations: config.mu, ..config };
+        let expected_gain = if base == "lbvh" { FIRST_SWEEP_GAIN } else { 0.05 };
+        if expected_gain * *render_seconds > SWEEP_IN_LBVH_BUILDS * lbvh_seconds + probe_cost {
             // The probe below assembles its own scene: one at a time.
             drop(timed.take());
             let sweep_start = Instant::now();
-            let s1 = prbvh::optimize_while(bvh, &first, |_| true);
+            let (s1, sah_fraction) = first_sweep(bvh);
             let spent = sweep_start.elapsed().as_secs_f64();
             iterations += s1.iterations.len();
             let (after, swept_scene) = probe(bvh);
             *timed = swept_scene;
             let gained = *render_seconds - after;
-            let sah_fraction = (s1.initial_sah - s1.sah_before_collapse) / s1.initial_sah;
             // A sweep that did not pay is kept all the same: its cost is spent, its SAH is lower,
             // and a timing cannot tell a gain of a few percent from its noise (on the dragon
             // scene a sweep that timed slower still rendered faster).
             if gained > spent && sah_fraction > 0.0 {
-                let efficiency = (gained / *render_seconds / sah_fraction).clamp(0.05, 1.0);
+                let efficiency = sweep_efficiency(gained / *render_seconds, sah_fraction);
                 *render_seconds = after;
-                let estimate = *render_seconds;
-                let mut sweep: std::collections::VecDeque<(f64, f64)> = std::collections::VecDeque::new();
-                let rest = prbvh::optimize_while(bvh, &config, |p| {
-                    let saved = (p.previous_sah - p.sah) / p.initial_sah * estimate * efficiency;
-                    sweep.push_back((saved, p.iteration_time.as_secs_f64()));
-                    if sweep.len() > config.mu as usize {
-                        sweep.pop_front();
-                    }
-                    // Judged over a whole sweep (μ iterations) only: one iteration searches a
-                    // μ-th of the nodes, and the Cornell box's first one after a paying sweep
-                    // found nothing, which stopped it at SAH 30.89 where a full run reaches 30.57.
-                    let (saved, spent): (f64, f64) = sweep.iter().fold((0.0, 0.0), |a, s| (a.0 + s.0, a.1 + s.1));
-                    sweep.len() < config.mu as usize || saved > spent
-                });
+                let rest = sweeps_while_they_pay(bvh, *render_seconds, efficiency);
                 iterations += rest.iterations.len();
                 if !rest.iterations.is_empty() {
                     *timed = None;

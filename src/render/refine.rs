@@ -12,16 +12,17 @@
 //! 2. After the passes that follow the first add up to [`MIN_TIMED_SECONDS`] (the first runs
 //!    on cold caches and is not timed: timing it made the estimate up to 1.7 times the render),
 //!    the rest of the render is their time per sample times the samples left (in every frame
-//!    still to come), or the time budget left if that is shorter. If 20% of that (what a first reinsertion sweep gains on an LBVH,
-//!    [`FIRST_SWEEP_GAIN`]) repays a sweep (μ iterations, estimated at [`SWEEP_IN_LBVH_BUILDS`]
-//!    LBVH builds, plus making the tree ready to trace), one sweep runs and the renderer takes
-//!    the new tree.
+//!    still to come), or the time budget left if that is shorter. If 20% of that (what a first
+//!    reinsertion sweep gains on an LBVH, [`super::auto::FIRST_SWEEP_GAIN`]) repays a sweep (μ
+//!    iterations, estimated at [`super::auto::SWEEP_IN_LBVH_BUILDS`] LBVH builds, plus making
+//!    the tree ready to trace), one sweep runs and the renderer takes the new tree.
 //! 3. The next passes (after an untimed one: the new tree's caches are cold; then as many
-//!    again) measure what the sweep bought. Where that gain, on the
-//!    rest of the render, would not repay another sweep of the same cost, the optimisation ends
-//!    (later sweeps gain less than the first). Otherwise, the gain per unit of SAH decrease calibrates the rest:
-//!    reinsertion goes on while each μ iterations (one search of every node) save more of the
-//!    rest of the render than they take, and the scene is reassembled a last time.
+//!    again) measure what the sweep bought. Where that gain, on the rest of the render, would
+//!    not repay another sweep of the same cost, the optimisation ends (later sweeps gain less
+//!    than the first). Otherwise, the gain per unit of SAH decrease calibrates the rest
+//!    ([`super::auto::sweeps_while_they_pay`], the rule the GPU's `auto` uses too): reinsertion
+//!    goes on while each μ iterations save more of the rest of the render than they take, and
+//!    the renderer takes the tree a last time.
 //!
 //! Then the sample is finished and passes grow to the usual size. Animated and heavily
 //! instanced scenes are not flattened, so this does not apply to them (their meshes' trees are
@@ -31,20 +32,12 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use super::auto::{FIRST_SWEEP_GAIN, SWEEP_IN_LBVH_BUILDS, first_sweep, sweep_efficiency, sweeps_while_they_pay};
 use super::geometry::Geometry;
 use super::{BuildReport, RenderScene};
-use crate::bvh::prbvh::{self, PrbvhConfig};
 use crate::bvh::{Bvh, CollapseConfig, MeshBvh, Tracing, collapse_leaves, lbvh};
 use crate::geometry::Triangle;
 use crate::scene::Scene;
-
-/// The share of the render a first reinsertion sweep saves on an LBVH, to expect before it is
-/// measured (about what it saved on the dragon scene, which gained 20% from a whole PRBVH run).
-pub const FIRST_SWEEP_GAIN: f64 = 0.2;
-
-/// A sweep's cost in LBVH builds, to expect before it is measured (μ = 9 iterations on the
-/// dragon scene).
-pub const SWEEP_IN_LBVH_BUILDS: f64 = 8.0;
 
 /// The least render time a speed is measured over, in seconds: passes are added up until they
 /// reach it. A single slice of a small image takes a few milliseconds, and on a shared machine
@@ -178,13 +171,12 @@ impl Refiner {
         self.timed = (0.0, 0.0);
         let changed = self.decide(rs, per_sample, samples_done, rest(per_sample));
         if !self.is_active() {
-            self.bvh = Bvh::default();
+            self.finish();
         }
         changed
     }
 
     fn decide(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: f64, rest: f64) -> bool {
-        let config = PrbvhConfig { collapse: None, ..Default::default() };
         match self.state {
             State::Start => {
                 self.report.estimate = Some(rest + per_sample * samples_done);
@@ -195,13 +187,11 @@ impl Refiner {
                     return false;
                 }
                 let t = Instant::now();
-                let first = PrbvhConfig { max_iterations: config.mu, ..config };
                 // Rendering waits meanwhile: the traced tree goes first, so that it and the
                 // optimisation's own memory are never held at once.
                 Self::drop_tree(rs);
-                let s = prbvh::optimize_while(&mut self.bvh, &first, |_| true);
+                let (s, sah_fraction) = first_sweep(&mut self.bvh);
                 self.report.iterations += s.iterations.len();
-                let sah_fraction = (s.initial_sah - s.sah_before_collapse) / s.initial_sah;
                 self.retree(rs);
                 let cost = t.elapsed().as_secs_f64();
                 self.report.seconds += cost;
@@ -219,23 +209,9 @@ impl Refiner {
                 if !(gain > 0.0 && sah_fraction > 0.0 && gain * rest > cost) {
                     return false;
                 }
-                let efficiency = (gain / sah_fraction).clamp(0.05, 1.0);
                 let t = Instant::now();
                 Self::drop_tree(rs);
-                let mut window: std::collections::VecDeque<(f64, f64)> = std::collections::VecDeque::new();
-                let s = prbvh::optimize_while(&mut self.bvh, &config, |p| {
-                    let saved = (p.previous_sah - p.sah) / p.initial_sah * rest * efficiency;
-                    window.push_back((saved, p.iteration_time.as_secs_f64()));
-                    if window.len() > config.mu as usize {
-                        window.pop_front();
-                    }
-                    // Judged over μ iterations (one search of every node): a single iteration
-                    // searches a μ-th of the nodes and may find nothing where the next finds
-                    // much. (Where the μ/ε rule lowers μ, the window spans more than one
-                    // search, which only makes it slower to stop.)
-                    let (saved, spent) = window.iter().fold((0.0, 0.0), |a, w| (a.0 + w.0, a.1 + w.1));
-                    window.len() < config.mu as usize || saved > spent
-                });
+                let s = sweeps_while_they_pay(&mut self.bvh, rest, sweep_efficiency(gain, sah_fraction));
                 self.report.iterations += s.iterations.len();
                 self.retree(rs);
                 self.report.seconds += t.elapsed().as_secs_f64();
