@@ -612,23 +612,85 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
     return PathResult(l, rays);
 }
 
+// Adds `v` to the 128-bit two's-complement fixed-point integer `limbs` (four 32-bit limbs,
+// least significant first, in units of 2^-50): the film's exact sums (src/render/film.rs), which
+// make the image of any split of the samples the same. `v` is rounded to the nearest unit, ties
+// to even, as the CPU's `to_fixed` rounds; the caller has checked that |v| < 2^44, so `v` times
+// 2^50 needs at most 94 bits.
+fn add_fixed(limbs: ptr<function, array<u32, 12>>, base: u32, v: f32) {
+    let bits = bitcast<u32>(v);
+    let e = (bits >> 23u) & 0xffu;
+    var m = bits & 0x7fffffu;
+    if e != 0u {
+        m = m | 0x800000u;
+    }
+    // |v| = m × 2^(max(e, 1) − 150), so |v| × 2^50 = m × 2^(max(e, 1) − 100).
+    let s = i32(max(e, 1u)) - 100;
+    var q = array<u32, 4>(0u, 0u, 0u, 0u);
+    if s < 0 {
+        let r = u32(-s);
+        // m < 2^24: a shift by 25 or more leaves less than half a unit.
+        if r <= 24u {
+            var w = m >> r;
+            let rest = m & ((1u << r) - 1u);
+            let half = 1u << (r - 1u);
+            if rest > half || (rest == half && (w & 1u) == 1u) {
+                w = w + 1u;
+            }
+            q[0] = w;
+        }
+    } else {
+        let t = u32(s);
+        let limb = t / 32u;
+        let shift = t % 32u;
+        q[limb] = m << shift;
+        if shift != 0u && limb < 3u {
+            q[limb + 1u] = m >> (32u - shift);
+        }
+    }
+    if (bits >> 31u) == 1u {
+        // Two's complement: invert and add one.
+        var carry = 1u;
+        for (var i = 0u; i < 4u; i++) {
+            let inverted = ~q[i];
+            q[i] = inverted + carry;
+            carry = select(0u, 1u, q[i] < inverted);
+        }
+    }
+    var carry = 0u;
+    for (var i = 0u; i < 4u; i++) {
+        let a = (*limbs)[base + i];
+        let s1 = a + q[i];
+        let s2 = s1 + carry;
+        carry = select(0u, 1u, s1 < a) + select(0u, 1u, s2 < s1);
+        (*limbs)[base + i] = s2;
+    }
+}
+
 @compute @workgroup_size(TRACE_WORKGROUP, TRACE_WORKGROUP)
 fn trace(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x >= params.width || gid.y >= params.height {
+    if gid.x >= params.rect_width || gid.y >= params.rect_height {
         return;
     }
-    let pixel = gid.y * params.width + gid.x;
-    var acc = film[pixel];
+    // The image's pixel, which the random streams and the camera take; the film holds the
+    // rectangle only.
+    let px = params.origin_x + gid.x;
+    let py = params.origin_y + gid.y;
+    let pixel = py * params.width + px;
+    let slot = gid.y * params.rect_width + gid.x;
+    var acc = film[slot];
+    var exact = acc.exact;
     let end = params.sample_start + params.sample_count;
     for (var s = params.sample_start; s < end; s++) {
         var rng = rng_for_sample(pixel, s);
-        let film_pos = vec2<f32>(f32(gid.x), f32(gid.y)) + rng_vec2(&rng);
+        let film_pos = vec2<f32>(f32(px), f32(py)) + rng_vec2(&rng);
         let lens = rng_vec2(&rng);
         let path = radiance(camera_ray(film_pos, lens), &rng);
         acc.rays += path.rays;
         var l = path.l;
         // Film::add_sample: non-finite samples are counted and dropped; then the clamp (which
-        // on the CPU turns an infinite sample into NaN, dropped all the same).
+        // on the CPU turns an infinite sample into NaN, dropped all the same); then samples too
+        // large for the exact sums (2^44) are dropped as the CPU drops them.
         if !all_finite(l) {
             acc.non_finite += 1u;
             continue;
@@ -639,6 +701,10 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>) {
                 l *= params.clamp / m;
             }
         }
+        if max3(abs(l)) >= 17592186044416.0 {
+            acc.non_finite += 1u;
+            continue;
+        }
         if acc.count == 0u {
             acc.shift = l;
         }
@@ -646,6 +712,10 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>) {
         acc.sum += d;
         acc.sum_sq += d * d;
         acc.count += 1u;
+        add_fixed(&exact, 0u, l.x);
+        add_fixed(&exact, 4u, l.y);
+        add_fixed(&exact, 8u, l.z);
     }
-    film[pixel] = acc;
+    acc.exact = exact;
+    film[slot] = acc;
 }

@@ -26,6 +26,7 @@ use crate::gpu::{GpuContext, GpuError, trace};
 use crate::render::film::Film;
 use crate::render::geometry::wants_instancing;
 use crate::render::refine::{RefineReport, Refiner};
+use crate::render::region::{Rect, Region};
 use crate::render::{BuildReport, RenderScene, first_frame_time};
 use crate::scene::{RenderSettings, Scene};
 
@@ -459,26 +460,63 @@ impl Renderer {
         settings: &RenderSettings,
         progress: &(dyn Fn(Progress) + Sync),
     ) -> Result<RenderedFrame, DeviceError> {
-        let film = Film::new(self.render_scene.width, self.render_scene.height);
-        let start = RenderedFrame { film, rays: 0, seconds: 0.0, samples: 0, timed_seconds: 0.0 };
+        let region = self.whole(settings.spp);
         self.frames_after = self.frames_after.saturating_sub(1);
-        self.render_more(start, settings, progress)
+        self.render_region(&region, None, settings, progress, &|_| false)
     }
 
     /// [`Renderer::render`], carrying on from `frame`, a render of this scene with the same
-    /// seed and depth, up to `settings.spp` samples. On the CPU the film gains samples
-    /// `frame.samples..settings.spp`, the image an uninterrupted render gives; the GPU keeps no
-    /// film between renders and renders samples `0..settings.spp` again.
+    /// seed and depth, up to `settings.spp` samples: the film gains samples
+    /// `frame.samples..settings.spp`, and its image is the one an uninterrupted render gives.
     pub fn render_more(
         &mut self,
         frame: RenderedFrame,
         settings: &RenderSettings,
         progress: &(dyn Fn(Progress) + Sync),
     ) -> Result<RenderedFrame, DeviceError> {
+        let region = self.whole(settings.spp);
+        self.render_region(&region, Some(frame), settings, progress, &|_| false)
+    }
+
+    /// The whole image, samples `0..spp`.
+    fn whole(&self, spp: u32) -> Region {
+        Region { rect: Rect::full(self.render_scene.width, self.render_scene.height), samples: 0..spp }
+    }
+
+    /// Renders `region`: the samples `region.samples` of each pixel of `region.rect`, into a film
+    /// of the rectangle's size (its pixel (0, 0) is the image's `(rect.x0, rect.y0)`), with
+    /// `settings.seed`, `settings.max_depth` and `settings.time` (`settings.spp` is not read).
+    /// `carried`, where given, holds the region's first `carried.samples` samples (a
+    /// checkpoint, or an earlier call), and the render carries on from there. `pause(samples)`
+    /// is asked after each pass with the samples per pixel taken so far (of the region's); when
+    /// it says yes, the render returns there, to be carried on later. The image never depends on
+    /// where passes, pauses or devices' passes fall: the film's sums are exact
+    /// ([`crate::render::film`]).
+    pub fn render_region(
+        &mut self,
+        region: &Region,
+        carried: Option<RenderedFrame>,
+        settings: &RenderSettings,
+        progress: &(dyn Fn(Progress) + Sync),
+        pause: &(dyn Fn(u32) -> bool + Sync),
+    ) -> Result<RenderedFrame, DeviceError> {
+        let (w, h) = (self.render_scene.width, self.render_scene.height);
+        assert!(
+            region.rect.fits(w, h) && region.samples.start <= region.samples.end,
+            "region {:?} outside a {w}x{h} image",
+            region
+        );
+        let frame = carried.unwrap_or_else(|| RenderedFrame {
+            film: Film::new(region.rect.width(), region.rect.height()),
+            rays: 0,
+            seconds: 0.0,
+            samples: 0,
+            timed_seconds: 0.0,
+        });
         match self.device {
-            Device::Cpu => Ok(self.render_cpu(frame, settings, progress)),
+            Device::Cpu => Ok(self.render_cpu(frame, settings, region, progress, pause)),
             #[cfg(feature = "gpu")]
-            Device::Gpu(ctx) => self.render_gpu(ctx, settings, progress),
+            Device::Gpu(ctx) => self.render_gpu(ctx, frame, settings, region, progress, pause),
         }
     }
 
@@ -486,13 +524,18 @@ impl Renderer {
         &mut self,
         frame: RenderedFrame,
         s: &RenderSettings,
+        region: &Region,
         progress: &(dyn Fn(Progress) + Sync),
+        pause: &(dyn Fn(u32) -> bool + Sync),
     ) -> RenderedFrame {
-        let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: mut done, timed_seconds } =
+        let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: taken, timed_seconds } =
             frame;
-        let height = u64::from(self.render_scene.height);
-        let total = u64::from(s.spp) * height;
-        let units = AtomicU64::new(u64::from(done) * height);
+        let (first, end) = (region.samples.start, region.samples.end);
+        let origin = (region.rect.x0, region.rect.y0);
+        let mut done = first + taken;
+        let height = u64::from(region.rect.height());
+        let total = u64::from(end - first) * height;
+        let units = AtomicU64::new(u64::from(taken) * height);
         let rays = AtomicU64::new(rays_before);
         let start = Instant::now();
         // Passes of a few samples each, so that a time budget can stop between passes and
@@ -506,11 +549,11 @@ impl Renderer {
         // where passes fall or on the tree, as long as each pixel gets its samples in order: a
         // sample begun in slices is finished before the next.
         let threads = rayon::current_num_threads() as u32;
-        let slices = (self.render_scene.height / (16 * threads).max(1)).clamp(1, 16);
-        let pass = if s.time.is_some() { 4 } else { 16 }.min(s.spp.max(1));
+        let slices = (region.rect.height() / (16 * threads).max(1)).clamp(1, 16);
+        let pass = if s.time.is_some() { 4 } else { 16 }.min((end - first).max(1));
         // Slices of sample `done` rendered so far: the rows `y % slices < slice`.
         let mut slice = 0;
-        while done < s.spp {
+        while done < end {
             let deciding = slice < slices && self.refiner.as_ref().is_some_and(Refiner::is_active);
             let pass_start = Instant::now();
             let (rays, units) = (&rays, &units);
@@ -526,12 +569,15 @@ impl Renderer {
                 // While deciding, the next slice of sample `done`; after, the rest of it.
                 let k = slice;
                 let rows = move |y: u32| if deciding { y % slices == k } else { y % slices >= k };
-                self.render_scene.render_rows(&mut film, s.seed, s.max_depth, done..done + 1, &rows, &report(1));
+                let samples = done..done + 1;
+                self.render_scene.render_rows(&mut film, origin, s.seed, s.max_depth, samples, &rows, &report(1));
                 slice = if deciding { k + 1 } else { slices };
                 f64::from(slice - k) / f64::from(slices)
             } else {
-                let n = pass.min(s.spp - done);
-                self.render_scene.render(&mut film, s.seed, s.max_depth, done..done + n, &report(n));
+                let n = pass.min(end - done);
+                let all = |_: u32| true;
+                let samples = done..done + n;
+                self.render_scene.render_rows(&mut film, origin, s.seed, s.max_depth, samples, &all, &report(n));
                 done += n;
                 f64::from(n)
             };
@@ -539,12 +585,13 @@ impl Renderer {
                 (slice, done) = (0, done + 1);
             }
             let elapsed = seconds_before + start.elapsed().as_secs_f64();
-            if slice == 0 && s.time.is_some_and(|t| elapsed >= t) {
+            if slice == 0 && (s.time.is_some_and(|t| elapsed >= t) || (done < end && pause(done - first))) {
                 break;
             }
             if deciding {
-                let taken = f64::from(done) + f64::from(slice) / f64::from(slices);
-                let samples_left = f64::from(s.spp) - taken + self.frames_after as f64 * f64::from(s.spp);
+                let taken = f64::from(done - first) + f64::from(slice) / f64::from(slices);
+                let per_frame = f64::from(end - first);
+                let samples_left = per_frame - taken + self.frames_after as f64 * per_frame;
                 if samples_left > 0.0 {
                     // A time budget is per frame.
                     let budget_left = s.time.map(|t| t - elapsed + self.frames_after as f64 * t);
@@ -558,42 +605,58 @@ impl Renderer {
             }
         }
         let seconds = seconds_before + start.elapsed().as_secs_f64();
-        if let Some(f) = self.frame_prbvh.as_mut() {
-            f.rendered(seconds);
+        if done == end {
+            if let Some(f) = self.frame_prbvh.as_mut() {
+                f.rendered(seconds);
+            }
+            // The last frame is over: what `auto` kept to decide with can go.
+            if let Some(r) = self.refiner.as_mut().filter(|r| r.is_active() && self.frames_after == 0) {
+                r.finish();
+            }
         }
-        // The last frame is over: what `auto` kept to decide with can go.
-        if let Some(r) = self.refiner.as_mut().filter(|r| r.is_active() && self.frames_after == 0) {
-            r.finish();
-        }
-        RenderedFrame { film, rays: rays.into_inner(), seconds, samples: done, timed_seconds }
+        RenderedFrame { film, rays: rays.into_inner(), seconds, samples: done - first, timed_seconds }
     }
 
     #[cfg(feature = "gpu")]
     fn render_gpu(
         &mut self,
         ctx: &GpuContext,
+        frame: RenderedFrame,
         s: &RenderSettings,
+        region: &Region,
         progress: &(dyn Fn(Progress) + Sync),
+        pause: &(dyn Fn(u32) -> bool + Sync),
     ) -> Result<RenderedFrame, DeviceError> {
         let gpu = self.gpu.as_mut().expect("a GPU renderer holds its uploaded scene");
-        let timed = gpu.timed.take();
-        let height = u64::from(self.render_scene.height);
-        let total = u64::from(s.spp) * height;
+        let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: taken, timed_seconds } =
+            frame;
+        let first = region.samples.start;
+        // The passes `auto` timed are the whole image's first samples: they start a render of
+        // just that, and are dropped by any other.
+        let full = region.rect == Rect::full(self.render_scene.width, self.render_scene.height);
+        let timed = gpu.timed.take().filter(|_| full && first + taken == 0);
+        let height = u64::from(region.rect.height());
+        let total = u64::from(region.samples.len() as u32) * height;
         let start = Instant::now();
         let budget = s.time.map(Duration::from_secs_f64);
-        let before = timed.as_ref().map_or(Duration::ZERO, |t| Duration::from_secs_f64(t.seconds()));
-        let out = trace::render_from(ctx, &gpu.scene, s.seed, s.max_depth, s.spp, timed, &mut |done| {
-            progress(Progress { done: u64::from(done) * height, total, rays: 0 });
-            budget.is_none_or(|b| before + start.elapsed() < b)
+        let before = Duration::from_secs_f64(seconds_before)
+            + timed.as_ref().map_or(Duration::ZERO, |t| Duration::from_secs_f64(t.seconds()));
+        let samples = first + taken..region.samples.end;
+        let out = trace::render_from(ctx, &gpu.scene, s.seed, s.max_depth, region.rect, samples, timed, &mut |done| {
+            progress(Progress { done: u64::from(done - first) * height, total, rays: 0 });
+            budget.is_none_or(|b| before + start.elapsed() < b) && (done == region.samples.end || !pause(done - first))
         })
         .map_err(DeviceError::Render)?;
-        let seconds = out.carried.1 + start.elapsed().as_secs_f64();
+        // The device's sums are exact, as the host's: adding them to the samples carried gives
+        // the film of an uninterrupted render.
+        film.merge(&out.film);
+        let seconds = seconds_before + out.carried.1 + start.elapsed().as_secs_f64();
         Ok(RenderedFrame {
-            film: out.film,
-            rays: out.rays,
+            film,
+            rays: rays_before + out.rays,
             seconds,
-            samples: out.samples,
-            timed_seconds: out.carried.1,
+            samples: out.end - first,
+            timed_seconds: timed_seconds + out.carried.1,
         })
     }
 }

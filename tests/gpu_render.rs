@@ -215,7 +215,8 @@ fn auto_hands_its_timed_samples_to_the_render() {
     let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
     gpu.set_clamp(Some(4.0));
     let mut reported = Vec::new();
-    let carried = trace::render_from(ctx, &gpu, seed, max_depth, spp, Some(timed), &mut |done| {
+    let full = arbor::render::region::Rect::full(24, 16);
+    let carried = trace::render_from(ctx, &gpu, seed, max_depth, full, 0..spp, Some(timed), &mut |done| {
         reported.push(done);
         true
     })
@@ -231,7 +232,7 @@ fn auto_hands_its_timed_samples_to_the_render() {
     for (other_seed, clamp, other_depth) in [(6, Some(4.0), max_depth), (seed, None, max_depth), (seed, Some(4.0), 5)] {
         let other_job = arbor::scene::RenderSettings { seed: other_seed, max_depth: other_depth, clamp, ..job };
         let (_, _, other) = trace::build_auto(ctx, &scene, &other_job, 1);
-        let out = trace::render_from(ctx, &gpu, seed, max_depth, spp, other, &mut |_| true).unwrap();
+        let out = trace::render_from(ctx, &gpu, seed, max_depth, full, 0..spp, other, &mut |_| true).unwrap();
         assert_eq!(out.carried.0, 0, "seed {other_seed}, clamp {clamp:?}, depth {other_depth}");
         assert_eq!(out.film.mean().pixels, fresh.film.mean().pixels);
     }

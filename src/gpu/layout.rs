@@ -37,6 +37,10 @@ impl WgslType for f32 {
     const WGSL: &'static str = "f32";
 }
 
+impl WgslType for [u32; 12] {
+    const WGSL: &'static str = "array<u32, 12>";
+}
+
 impl WgslType for Vec3 {
     const WGSL: &'static str = "vec3<f32>";
 }
@@ -217,11 +221,14 @@ pub struct GpuLight {
     pub pad1: u32,
 }
 
-/// One pixel's running sums on the device. Sums are of `sample - shift`, where `shift` is the
-/// pixel's first finite sample: in f32, a pixel whose samples are all equal keeps exactly zero
-/// sums and so an exactly zero variance (as the f64 film on the CPU gets), and the
-/// cancellation in `Σx² − (Σx)²/n` is kept small. `rays` counts the rays the pixel's paths
-/// traced.
+/// One pixel's running sums on the device. `exact` is the film's exact sum
+/// ([`crate::render::film::PixelAccum::sum`]): per channel a 128-bit two's-complement
+/// fixed-point integer in four 32-bit limbs, least significant first, which makes the image of
+/// any split of the samples the same. The f32 sums, which only the variance reads, are of
+/// `sample - shift`, where `shift` is the pixel's first finite sample: a pixel whose samples are
+/// all equal keeps exactly zero sums and so an exactly zero variance (as the CPU's film gets),
+/// and the cancellation in `Σx² − (Σx)²/n` is kept small. `rays` counts the rays the pixel's
+/// paths traced.
 pub struct GpuPixel {
     pub shift: Vec3,
     pub count: u32,
@@ -229,6 +236,7 @@ pub struct GpuPixel {
     pub non_finite: u32,
     pub sum_sq: Vec3,
     pub rays: u32,
+    pub exact: [u32; 12],
 }
 
 /// The path tracer's parameters (read from a storage buffer: see `trace::render`): the camera ([`crate::render::camera::CameraModel`]),
@@ -252,6 +260,11 @@ pub struct TraceParams {
     pub sample_count: u32,
     pub max_depth: u32,
     pub light_count: u32,
+    /// The rectangle rendered: its top left in the image, and its size (the film's).
+    pub origin_x: u32,
+    pub origin_y: u32,
+    pub rect_width: u32,
+    pub rect_height: u32,
 }
 }
 
@@ -261,8 +274,8 @@ const _: () = assert!(size_of::<PrbvhParams>() == 32);
 const _: () = assert!(size_of::<GpuTriangle>() == 48);
 const _: () = assert!(size_of::<GpuMaterial>() == 64);
 const _: () = assert!(size_of::<GpuLight>() == 80);
-const _: () = assert!(size_of::<GpuPixel>() == 48);
-const _: () = assert!(size_of::<TraceParams>() == 112);
+const _: () = assert!(size_of::<GpuPixel>() == 96);
+const _: () = assert!(size_of::<TraceParams>() == 128);
 
 impl From<Aabb> for GpuAabb {
     fn from(b: Aabb) -> Self {

@@ -59,6 +59,7 @@
 //! rule, Russian roulette from `RR_DEPTH`, the firefly clamp, and non-finite samples counted and
 //! dropped.
 
+use std::ops::Range;
 use std::time::Instant;
 
 use glam::Vec3;
@@ -77,6 +78,7 @@ use crate::geometry::{Aabb, Triangle};
 use crate::render::bsdf::{Bsdf, ConductorFresnel};
 use crate::render::film::{Film, PixelAccum};
 use crate::render::geometry::Geometry;
+use crate::render::region::Rect;
 use crate::render::{BuildReport, RenderMaterial, RenderScene};
 use crate::scene::Scene;
 
@@ -391,27 +393,30 @@ pub fn compile(ctx: &GpuContext, scene: &GpuScene) -> Result<(), GpuError> {
 
 /// What [`render`] returns.
 pub struct GpuRender {
-    /// Every sample taken, with per-pixel standard errors, as the CPU's film.
+    /// Every sample taken, with per-pixel standard errors, as the CPU's film: of the rectangle
+    /// rendered, its pixel (0, 0) the rectangle's top left.
     pub film: Film,
     /// Rays traced (camera, bounce and shadow rays), those of a carried-on [`PartialFilm`]
     /// included.
     pub rays: u64,
     /// Samples per pixel taken, those of a carried-on [`PartialFilm`] included.
     pub samples: u32,
+    /// The sample index the render reached: it holds samples `samples.start..end`.
+    pub end: u32,
     /// Samples per pixel that came from the [`PartialFilm`] carried on, and the device's seconds
     /// for them (0 and 0.0 for a render from scratch).
     pub carried: (u32, f64),
 }
 
-/// Samples already taken on the device: the film of a render stopped after its first
-/// `samples` samples per pixel, for [`render_from`] to carry on. `auto` keeps the passes it timed
-/// ([`measure_speed`]), which are the render's own first samples, so that they are not thrown
-/// away.
+/// Samples already taken on the device: the film of a whole-image render stopped after its
+/// first `samples` samples per pixel, for [`render_from`] to carry on. `auto` keeps the passes
+/// it timed ([`measure_speed`]), which are the render's own first samples, so that they are not
+/// thrown away.
 pub struct PartialFilm {
     buffer: wgpu::Buffer,
     samples: u32,
     /// What the samples depend on, checked by [`render_from`].
-    key: (u64, u32, u32, u32, u32),
+    key: FilmKey,
     seconds: f64,
 }
 
@@ -439,79 +444,102 @@ pub fn render(
     spp: u32,
     after_pass: &mut dyn FnMut(u32) -> bool,
 ) -> Result<GpuRender, GpuError> {
-    render_from(ctx, scene, seed, max_depth, spp, None, after_pass)
+    let rect = Rect::full(scene.width, scene.height);
+    render_from(ctx, scene, seed, max_depth, rect, 0..spp, None, after_pass)
 }
 
-/// [`render`], carrying on from `start` where it holds samples of this very render: the same
-/// image size, seed, path depth and clamp, and at most `spp` samples. The film is then the one
-/// an uninterrupted render gives, bit for bit (the passes add to the same device sums in the
-/// same order). The tree may differ: every tree finds the same closest hits, but for exact
-/// ties (a path through an edge shared by two triangles). A `start` of another render is
-/// dropped and the render starts from scratch.
+/// Renders samples `samples` of each pixel of `rect` (in passes of [`PASS_SPP`];
+/// `after_pass(sample index reached)` as for [`render`]), carrying on from `start` where it
+/// holds samples of this very render: the whole image, the same seed, path depth and clamp,
+/// samples `0..k` with `samples.start == 0` and `k <= samples.end`. The film is then the one an
+/// uninterrupted render gives (the film's sums are exact). The tree may differ: every tree
+/// finds the same closest hits, but for exact ties (a path through an edge shared by two
+/// triangles). A `start` of another render is dropped and the render starts from scratch.
+#[allow(clippy::too_many_arguments)]
 pub fn render_from(
     ctx: &GpuContext,
     scene: &GpuScene,
     seed: u64,
     max_depth: u32,
-    spp: u32,
+    rect: Rect,
+    samples: Range<u32>,
     start: Option<PartialFilm>,
     after_pass: &mut dyn FnMut(u32) -> bool,
 ) -> Result<GpuRender, GpuError> {
-    let start = start.filter(|s| s.key == film_key(scene, seed, max_depth) && s.samples <= spp);
+    let key = film_key(scene, seed, max_depth, rect);
+    let start = start.filter(|s| s.key == key && samples.start == 0 && s.samples <= samples.end);
     let carried = start.as_ref().map_or((0, 0.0), |s| (s.samples, s.seconds));
-    let film = passes(ctx, scene, seed, max_depth, spp, start, after_pass)?;
-    let (width, height) = (scene.width, scene.height);
-    let pixels = width as usize * height as usize;
+    let film = passes(ctx, scene, seed, max_depth, rect, samples.clone(), start, after_pass)?;
+    let pixels = rect.pixel_count() as usize;
     let sums: Vec<GpuPixel> = ctx.read_buffer("film", &film.buffer, pixels)?;
-    let mut out = Film::new(width, height);
+    let width = rect.width() as usize;
+    let mut out = Film::new(rect.width(), rect.height());
     out.rows_mut().for_each(|(y, row)| {
         for (x, px) in row.iter_mut().enumerate() {
-            *px = pixel_accum(&sums[y as usize * width as usize + x]);
+            *px = pixel_accum(&sums[y as usize * width + x]);
         }
     });
     let rays = sums.iter().map(|p| u64::from(p.rays)).sum();
-    Ok(GpuRender { film: out, rays, samples: film.samples, carried })
+    Ok(GpuRender { film: out, rays, samples: film.samples - samples.start, end: film.samples, carried })
 }
 
 /// What a film's samples depend on besides the scene: [`PartialFilm::key`].
-fn film_key(scene: &GpuScene, seed: u64, max_depth: u32) -> (u64, u32, u32, u32, u32) {
-    (seed, max_depth, scene.params.clamp.to_bits(), scene.width, scene.height)
+type FilmKey = (u64, u32, u32, Rect);
+
+fn film_key(scene: &GpuScene, seed: u64, max_depth: u32, rect: Rect) -> FilmKey {
+    (seed, max_depth, scene.params.clamp.to_bits(), rect)
 }
 
-/// The passes of [`render_from`], the film left on the device.
+/// The passes of [`render_from`], the film left on the device; its `samples` is the sample
+/// index reached.
+#[allow(clippy::too_many_arguments)]
 fn passes(
     ctx: &GpuContext,
     scene: &GpuScene,
     seed: u64,
     max_depth: u32,
-    spp: u32,
+    rect: Rect,
+    samples: Range<u32>,
     start: Option<PartialFilm>,
     after_pass: &mut dyn FnMut(u32) -> bool,
 ) -> Result<PartialFilm, GpuError> {
-    let (width, height) = (scene.width, scene.height);
-    let pixels = width as usize * height as usize;
-    let groups = (width.div_ceil(TRACE_WORKGROUP), height.div_ceil(TRACE_WORKGROUP));
+    assert!(rect.x1 <= scene.width && rect.y1 <= scene.height, "{rect} outside the image");
+    let pixels = rect.pixel_count() as usize;
+    let groups = (rect.width().div_ceil(TRACE_WORKGROUP), rect.height().div_ceil(TRACE_WORKGROUP));
     let max_groups = ctx.limits.max_compute_workgroups_per_dimension;
     if groups.0 > max_groups || groups.1 > max_groups {
         return Err(GpuError::Other(format!(
-            "a {width}x{height} image needs {groups:?} workgroups, over the adapter's {max_groups} per dimension"
+            "a {}x{} rectangle needs {groups:?} workgroups, over the adapter's {max_groups} per dimension",
+            rect.width(),
+            rect.height()
         )));
     }
-    let key = film_key(scene, seed, max_depth);
+    let key = film_key(scene, seed, max_depth, rect);
     let (film_buffer, mut done, mut seconds) = match start {
         Some(s) => (s.buffer, s.samples, s.seconds),
-        None => (ctx.storage_buffer_zeroed("film", (pixels * size_of::<GpuPixel>()) as u64)?, 0, 0.0),
+        None => {
+            (ctx.storage_buffer_zeroed("film", (pixels.max(1) * size_of::<GpuPixel>()) as u64)?, samples.start, 0.0)
+        }
     };
-    let mut params = TraceParams { seed_lo: seed as u32, seed_hi: (seed >> 32) as u32, max_depth, ..scene.params };
+    let mut params = TraceParams {
+        seed_lo: seed as u32,
+        seed_hi: (seed >> 32) as u32,
+        max_depth,
+        origin_x: rect.x0,
+        origin_y: rect.y0,
+        rect_width: rect.width(),
+        rect_height: rect.height(),
+        ..scene.params
+    };
     // A storage buffer, not a uniform one: lavapipe (Mesa 22) inlines uniform values into the
     // shader at every dispatch, which cost time and leaked memory on every pass of this kernel.
     let params_buffer = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
     let pipeline = pipeline(ctx, scene);
     let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, &film_buffer);
     let started = std::time::Instant::now();
-    while done < spp && pixels > 0 {
+    while done < samples.end && pixels > 0 {
         params.sample_start = done;
-        params.sample_count = PASS_SPP.min(spp - done);
+        params.sample_count = PASS_SPP.min(samples.end - done);
         ctx.queue.write_buffer(&params_buffer, 0, bytemuck::bytes_of(&params));
         let mut encoder = ctx.device.create_command_encoder(&Default::default());
         {
@@ -555,7 +583,8 @@ pub fn measure_speed(
     compile(ctx, &gpu_scene).ok()?;
     let compiled = t.elapsed();
     let mut ends = Vec::with_capacity(2);
-    let film = passes(ctx, &gpu_scene, seed, max_depth, MEASURE_SPP, None, &mut |_| {
+    let rect = Rect::full(gpu_scene.width, gpu_scene.height);
+    let film = passes(ctx, &gpu_scene, seed, max_depth, rect, 0..MEASURE_SPP, None, &mut |_| {
         ends.push(std::time::Instant::now());
         true
     })
@@ -598,9 +627,9 @@ pub fn build_auto(
     (rs, report, kept)
 }
 
-/// The film's f64 sums from the device's shifted f32 sums (see [`GpuPixel`]). `sum_sq` is
-/// written as `sum² / n` plus the centred sum of squares, so that the film's variance formula
-/// gives exactly 0 for a constant pixel.
+/// The film's sums from the device's: the exact sum as it is, and `sum_sq` from the shifted
+/// f32 sums (see [`GpuPixel`]), written as `sum² / n` plus the centred sum of squares, so that
+/// the film's variance formula gives exactly 0 for a constant pixel.
 fn pixel_accum(p: &GpuPixel) -> PixelAccum {
     let mut a = PixelAccum { count: u64::from(p.count), non_finite: u64::from(p.non_finite), ..Default::default() };
     if p.count == 0 {
@@ -608,13 +637,20 @@ fn pixel_accum(p: &GpuPixel) -> PixelAccum {
     }
     let n = f64::from(p.count);
     for c in 0..3 {
-        let (shift, s1, s2) = (f64::from(p.shift[c]), f64::from(p.sum[c]), f64::from(p.sum_sq[c]));
-        let sum = n * shift + s1;
+        let limbs = &p.exact[4 * c..4 * c + 4];
+        a.sum[c] = limbs.iter().rev().fold(0u128, |acc, &l| (acc << 32) | u128::from(l)) as i128;
+        let (s1, s2) = (f64::from(p.sum[c]), f64::from(p.sum_sq[c]));
+        let sum = a.sum_f64(c);
         let centred = (s2 - s1 * s1 / n).max(0.0);
-        a.sum[c] = sum;
         a.sum_sq[c] = sum * sum / n + centred;
     }
     a
+}
+
+/// `sum`'s four limbs, as the device keeps them (tests).
+#[cfg(test)]
+fn limbs(sum: i128) -> [u32; 4] {
+    std::array::from_fn(|i| (sum >> (32 * i)) as u32)
 }
 
 #[cfg(test)]
@@ -623,7 +659,11 @@ mod tests {
 
     #[test]
     fn pixel_sums_of_a_constant_pixel_have_zero_variance() {
-        let p = GpuPixel { shift: Vec3::splat(0.8), count: 64, ..Default::default() };
+        let mut p = GpuPixel { shift: Vec3::splat(0.8), count: 64, ..Default::default() };
+        let sum = 64 * crate::render::film::to_fixed(0.8).unwrap();
+        for c in 0..3 {
+            p.exact[4 * c..4 * c + 4].copy_from_slice(&limbs(sum));
+        }
         let a = pixel_accum(&p);
         assert_eq!(a.mean(), [0.8; 3]);
         assert_eq!(a.stderr(), [0.0; 3]);
@@ -640,7 +680,16 @@ mod tests {
             p.sum += d;
             p.sum_sq += d * d;
         }
+        for c in 0..3 {
+            p.exact[4 * c..4 * c + 4].copy_from_slice(&limbs(film.sum[c]));
+        }
         let a = pixel_accum(&p);
+        assert_eq!(a.sum, film.sum);
+        assert_eq!(
+            pixel_accum(&GpuPixel { exact: [limbs(-5)[0], u32::MAX, u32::MAX, u32::MAX, 0, 0, 0, 0, 0, 0, 0, 0], ..p })
+                .sum[0],
+            -5
+        );
         for c in 0..3 {
             assert!((a.mean()[c] - film.mean()[c]).abs() < 1e-6);
             assert!((a.stderr()[c] - film.stderr()[c]).abs() < 1e-6);

@@ -3,9 +3,18 @@
 //! statistical golden-image test needs: per-pixel standard errors and a count of non-finite
 //! samples.
 //!
-//! Each pixel keeps f64 sums of its samples and of their squares, and a sample count. The
-//! variance then comes from `(Σx² − (Σx)²/n) / (n − 1)`; the cancellation in that form is harmless
-//! in f64 at the sample counts we use (values of order 1, up to ~10⁶ samples per pixel).
+//! **Exact sums.** Each pixel keeps the sum of its samples *exactly*, as a 128-bit fixed-point
+//! integer in units of 2^-[`FRACTION_BITS`] ([`PixelAccum::sum`]), and a sample count; the mean
+//! is that sum rounded once. Integer addition is associative, so any way of splitting a render
+//! (tiles, sample ranges, passes, checkpoints, devices' passes merged on the host) and merging
+//! the pieces in any order gives the same sums, and so the same image, bit for bit: what
+//! `render --merge` promises (docs/distributed.md). Each sample is rounded to the nearest
+//! multiple of 2^-50 (about 8.9 × 10^-16) before it is added, an absolute error far below what
+//! an f32 image stores for any pixel brighter than 10^-8; samples of magnitude 2^44 (about
+//! 1.8 × 10^13) or more are dropped and counted with the non-finite ones, which keeps any sum of
+//! up to 2^32 samples inside the integer. The sums of squares, which only the standard errors
+//! read, stay f64: `(Σx² − (Σx)²/n) / (n − 1)`, whose cancellation is harmless in f64 at the
+//! sample counts we use.
 //!
 //! Determinism: floating-point sums depend on their order, so the film never lets the thread
 //! count decide one. Parallel rendering either owns whole rows ([`Film::rows_mut`], split with
@@ -21,36 +30,61 @@ use rayon::prelude::*;
 
 use crate::image_io::Image;
 
+/// Bits after the binary point of [`PixelAccum::sum`]'s fixed-point sums.
+pub const FRACTION_BITS: i32 = 50;
+
+/// Samples whose magnitude reaches `2^SAMPLE_LIMIT_LOG2` are dropped (counted as non-finite), so
+/// that 2^32 samples, each at most 2^(44+50) units, sum to less than 2^127.
+pub const SAMPLE_LIMIT_LOG2: i32 = 44;
+
+/// A channel of a sample in units of 2^-[`FRACTION_BITS`], rounded to the nearest (ties to
+/// even); `None` where it is not finite or too large to sum ([`SAMPLE_LIMIT_LOG2`]).
+#[inline]
+pub fn to_fixed(v: f32) -> Option<i128> {
+    let v = f64::from(v);
+    // Exact: a power of two times an f32 is an f64 for every finite f32.
+    (v.abs() < 2f64.powi(SAMPLE_LIMIT_LOG2)).then(|| (v * 2f64.powi(FRACTION_BITS)).round_ties_even() as i128)
+}
+
+/// A fixed-point sum as an f64 (rounded once, to the nearest).
+#[inline]
+pub fn fixed_to_f64(sum: i128) -> f64 {
+    sum as f64 * 2f64.powi(-FRACTION_BITS)
+}
+
 /// The running sums of one pixel.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PixelAccum {
-    /// Sum of the finite samples, per channel.
-    pub sum: [f64; 3],
+    /// Exact sum of the finite samples, per channel, in units of 2^-[`FRACTION_BITS`] (see the
+    /// module docs).
+    pub sum: [i128; 3],
     /// Sum of the squares of the finite samples, per channel.
     pub sum_sq: [f64; 3],
     /// Number of finite samples (those in `sum`).
     pub count: u64,
-    /// Number of samples dropped because a channel was NaN or infinite.
+    /// Number of samples dropped because a channel was NaN, infinite or too large to sum.
     pub non_finite: u64,
 }
 
 impl PixelAccum {
-    /// Adds one sample; a sample with any non-finite channel only bumps `non_finite`.
+    /// Adds one sample; a sample with any non-finite (or out-of-range) channel only bumps
+    /// `non_finite`.
     #[inline]
     pub fn add(&mut self, rgb: Vec3) {
-        if !rgb.is_finite() {
+        let (Some(r), Some(g), Some(b)) = (to_fixed(rgb.x), to_fixed(rgb.y), to_fixed(rgb.z)) else {
             self.non_finite += 1;
             return;
-        }
-        for (c, v) in rgb.to_array().into_iter().enumerate() {
-            let v = f64::from(v);
-            self.sum[c] += v;
+        };
+        for (c, q) in [r, g, b].into_iter().enumerate() {
+            let v = f64::from(rgb[c]);
+            self.sum[c] += q;
             self.sum_sq[c] += v * v;
         }
         self.count += 1;
     }
 
-    /// Adds the sums of `other` (of the same pixel, rendered separately).
+    /// Adds the sums of `other` (of the same pixel, rendered separately): exact for the sums,
+    /// and so for the mean, in any order.
     pub fn merge(&mut self, other: &PixelAccum) {
         for c in 0..3 {
             self.sum[c] += other.sum[c];
@@ -60,13 +94,18 @@ impl PixelAccum {
         self.non_finite += other.non_finite;
     }
 
+    /// The sum of channel `c` as an f64.
+    pub fn sum_f64(&self, c: usize) -> f64 {
+        fixed_to_f64(self.sum[c])
+    }
+
     /// Mean of the finite samples; black when there are none.
     pub fn mean(&self) -> [f32; 3] {
         if self.count == 0 {
             return [0.0; 3];
         }
         let n = self.count as f64;
-        self.sum.map(|s| (s / n) as f32)
+        std::array::from_fn(|c| (self.sum_f64(c) / n) as f32)
     }
 
     /// Standard error of the mean, `sqrt(s² / n)` with the unbiased sample variance `s²`.
@@ -78,8 +117,9 @@ impl PixelAccum {
         }
         let n = self.count as f64;
         std::array::from_fn(|c| {
+            let sum = self.sum_f64(c);
             // Rounding can push a zero variance slightly negative.
-            let var = ((self.sum_sq[c] - self.sum[c] * self.sum[c] / n) / (n - 1.0)).max(0.0);
+            let var = ((self.sum_sq[c] - sum * sum / n) / (n - 1.0)).max(0.0);
             (var / n).sqrt() as f32
         })
     }
@@ -115,6 +155,11 @@ impl Film {
     /// All accumulators, row-major from the top row.
     pub fn pixels(&self) -> &[PixelAccum] {
         &self.pixels
+    }
+
+    /// All accumulators, row-major from the top row, to fill (a film read from a file).
+    pub fn pixels_mut(&mut self) -> &mut [PixelAccum] {
+        &mut self.pixels
     }
 
     fn index(&self, x: u32, y: u32) -> usize {
@@ -193,6 +238,28 @@ impl Film {
         assert_eq!((self.width, self.height), (other.width, other.height), "merging films of different sizes");
         for (dst, src) in self.pixels.iter_mut().zip(&other.pixels) {
             dst.merge(src);
+        }
+    }
+
+    /// Merges `other`, a film of a rectangle of this one whose pixel (0, 0) is this one's
+    /// `(x0, y0)`, pixel by pixel.
+    ///
+    /// Panics if it does not fit inside (a broken invariant: callers check pieces first).
+    pub fn merge_at(&mut self, other: &Film, x0: u32, y0: u32) {
+        assert!(
+            x0 + other.width <= self.width && y0 + other.height <= self.height,
+            "a {}x{} film at ({x0}, {y0}) outside a {}x{} film",
+            other.width,
+            other.height,
+            self.width,
+            self.height
+        );
+        let width = (other.width as usize).max(1);
+        for (y, row) in other.pixels.chunks(width).enumerate() {
+            let start = self.index(x0, y0 + y as u32);
+            for (dst, src) in self.pixels[start..start + row.len()].iter_mut().zip(row) {
+                dst.merge(src);
+            }
         }
     }
 
@@ -334,7 +401,13 @@ mod tests {
     fn bits(film: &Film) -> Vec<u64> {
         film.pixels()
             .iter()
-            .flat_map(|p| p.sum.iter().chain(&p.sum_sq).map(|v| v.to_bits()).chain([p.count, p.non_finite]))
+            .flat_map(|p| {
+                p.sum
+                    .iter()
+                    .flat_map(|&v| [v as u64, (v >> 64) as u64])
+                    .chain(p.sum_sq.iter().map(|v| v.to_bits()))
+                    .chain([p.count, p.non_finite])
+            })
             .collect()
     }
 
@@ -412,5 +485,47 @@ mod tests {
         a.merge(&b);
         assert_eq!(a.mean().get(1, 1), Some([2.0; 3]));
         assert_eq!(a.non_finite_count(), 1);
+    }
+
+    /// The fixed-point sums make any split of a pixel's samples merge to the same sums, in any
+    /// order: here samples spread over ten orders of magnitude, where f64 sums would differ.
+    #[test]
+    fn merged_pieces_equal_one_pass_in_any_order() {
+        let samples: Vec<Vec3> = (0..200).map(|s| sample_value(3, s) * 1e3).collect();
+        let mut whole = PixelAccum::default();
+        samples.iter().for_each(|&v| whole.add(v));
+        let pieces: Vec<PixelAccum> = [0..7, 7..8, 8..150, 150..200]
+            .into_iter()
+            .map(|r| {
+                let mut p = PixelAccum::default();
+                samples[r].iter().for_each(|&v| p.add(v));
+                p
+            })
+            .collect();
+        for order in [[0, 1, 2, 3], [3, 1, 0, 2], [2, 3, 1, 0]] {
+            let mut merged = PixelAccum::default();
+            order.iter().for_each(|&i| merged.merge(&pieces[i]));
+            assert_eq!((merged.sum, merged.count), (whole.sum, whole.count), "{order:?}");
+            assert_eq!(merged.mean().map(f32::to_bits), whole.mean().map(f32::to_bits));
+        }
+    }
+
+    #[test]
+    fn fixed_point_rounds_to_nearest_and_refuses_what_it_cannot_hold() {
+        assert_eq!(to_fixed(1.0), Some(1 << FRACTION_BITS));
+        assert_eq!(to_fixed(-0.5), Some(-(1 << (FRACTION_BITS - 1))));
+        // 2^-51 is half a unit: a tie, to even (0); 3 × 2^-52 is 0.75 units: 1.
+        assert_eq!(to_fixed(2f32.powi(-51)), Some(0));
+        assert_eq!(to_fixed(3.0 * 2f32.powi(-52)), Some(1));
+        assert_eq!(to_fixed(3.0 * 2f32.powi(-51)), Some(2));
+        assert_eq!(to_fixed(f32::MIN_POSITIVE), Some(0));
+        let big = 2f32.powi(SAMPLE_LIMIT_LOG2);
+        assert!(to_fixed(f32::from_bits(big.to_bits() - 1)).is_some());
+        assert_eq!(to_fixed(big), None);
+        assert_eq!(to_fixed(f32::NAN), None);
+        let mut p = PixelAccum::default();
+        p.add(Vec3::new(1.0, big, 1.0));
+        assert_eq!((p.count, p.non_finite), (0, 1));
+        assert_eq!(fixed_to_f64(to_fixed(0.1).unwrap()) as f32, 0.1);
     }
 }

@@ -15,6 +15,7 @@ pub mod integrator;
 pub mod lights;
 pub mod material;
 pub mod refine;
+pub mod region;
 pub mod rng;
 pub mod sampling;
 pub mod tiles;

@@ -1,4 +1,5 @@
-//! The CPU's render loop: every pixel's samples, rows in parallel, into a [`Film`].
+//! The CPU's render loop: every pixel's samples, rows in parallel, into a [`Film`] of the whole
+//! image or of a rectangle of it.
 
 use glam::Vec2;
 use rayon::prelude::*;
@@ -19,15 +20,18 @@ impl RenderScene {
         samples: std::ops::Range<u32>,
         progress: &(dyn Fn(u64) + Sync),
     ) -> u64 {
-        self.render_rows(film, seed, max_depth, samples, &|_| true, progress)
+        self.render_rows(film, (0, 0), seed, max_depth, samples, &|_| true, progress)
     }
 
-    /// [`RenderScene::render`] for the rows `y` where `rows(y)` holds. A pixel's samples may be
-    /// added by several calls, rows in any order, and the film is the same as long as each
-    /// pixel gets its samples in increasing order.
+    /// [`RenderScene::render`] for the film's rows `y` where `rows(y)` holds, the film's pixel
+    /// (0, 0) being the image's pixel `origin` (a film of a rectangle of the image). A pixel's
+    /// samples may be added by several calls, rows in any order, and the film is the same as
+    /// long as each pixel gets its samples in increasing order.
+    #[allow(clippy::too_many_arguments)]
     pub fn render_rows(
         &self,
         film: &mut Film,
+        origin: (u32, u32),
         seed: u64,
         max_depth: u32,
         samples: std::ops::Range<u32>,
@@ -39,7 +43,9 @@ impl RenderScene {
             .filter(|(y, _)| rows(*y))
             .map(|(y, row)| {
                 let mut rays = 0u64;
+                let y = y + origin.1;
                 for (x, px) in row.iter_mut().enumerate() {
+                    let x = x as u32 + origin.0;
                     let pixel = y as u64 * width + x as u64;
                     for s in samples.clone() {
                         let mut rng = Rng::for_sample(seed, pixel, s as u64);

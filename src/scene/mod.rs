@@ -208,6 +208,40 @@ impl Scene {
         (tris, mats)
     }
 
+    /// SHA-256 of what the scene renders, as lowercase hex: the camera (but the file line it
+    /// came from), the environment, the materials, every mesh's vertices, triangles and
+    /// materials, the objects with their animations, and the frame clock; not the file's path or
+    /// layout, nor its `[render]` table (a render's seed, depth and samples are recorded beside
+    /// it). Two tasks that load the same scene from different folders agree; any change to what
+    /// is drawn changes it. Numbers are hashed by their exact bits (vectors and matrices through
+    /// their `Debug` forms, which print every float exactly).
+    pub fn content_hash(&self) -> String {
+        use sha2::{Digest, Sha256};
+        let mut h = Sha256::new();
+        let mut text = |label: &str, s: String| {
+            h.update(label.as_bytes());
+            h.update((s.len() as u64).to_le_bytes());
+            h.update(s.as_bytes());
+        };
+        text("camera", format!("{:?}", Camera { resolution_line: 0, ..self.camera.clone() }));
+        text("environment", format!("{:?}", self.environment));
+        text("materials", format!("{:?}", self.materials));
+        text("objects", format!("{:?}", self.objects));
+        text("animation", format!("{:?}", self.animation));
+        for m in &self.meshes {
+            h.update(b"mesh");
+            for bytes in [
+                bytemuck::cast_slice::<_, u8>(&m.mesh.positions),
+                bytemuck::cast_slice(&m.mesh.indices),
+                bytemuck::cast_slice(&m.material_ids),
+            ] {
+                h.update((bytes.len() as u64).to_le_bytes());
+                h.update(bytes);
+            }
+        }
+        h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    }
+
     /// Whether any material emits.
     pub fn has_emitters(&self) -> bool {
         self.materials.iter().any(|m| m.emission.is_some())
