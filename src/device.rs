@@ -47,6 +47,15 @@ impl Device {
             Device::Gpu(_) => "gpu",
         }
     }
+
+    /// The GPU adapter, as the user knows it (`None` on the CPU).
+    pub fn adapter(&self) -> Option<String> {
+        match self {
+            Device::Cpu => None,
+            #[cfg(feature = "gpu")]
+            Device::Gpu(ctx) => Some(ctx.describe()),
+        }
+    }
 }
 
 /// What `--device` asks for.
@@ -461,8 +470,14 @@ impl Renderer {
         progress: &(dyn Fn(Progress) + Sync),
     ) -> Result<RenderedFrame, DeviceError> {
         let region = self.whole(settings.spp);
-        self.frames_after = self.frames_after.saturating_sub(1);
+        self.begin_frame();
         self.render_region(&region, None, settings, progress, &|_| false)
+    }
+
+    /// Says a new frame starts (for `auto`'s estimate of the frames to come); [`Renderer::render`]
+    /// says it itself, callers of [`Renderer::render_region`] once per frame.
+    pub fn begin_frame(&mut self) {
+        self.frames_after = self.frames_after.saturating_sub(1);
     }
 
     /// [`Renderer::render`], carrying on from `frame`, a render of this scene with the same

@@ -380,70 +380,102 @@ pub fn read_piece(path: &Path) -> Result<FilmPiece, PieceError> {
     Ok(FilmPiece { info, film })
 }
 
-/// Merges `pieces` (each with the path it was read from, for errors) into the whole image's
-/// film, after checking that they belong together:
+/// Checks that the pieces described by `pieces` (each with its path, for errors) belong
+/// together:
 /// - the same scene hash, seed, max depth, clamp, resolution, frame and device as the first;
 /// - each complete;
 /// - for each sample index, the pieces holding it cover the image exactly once, and the
 ///   sample indices held form one range `A..B` (no overlap, nothing missing).
 ///
-/// Returns the first piece's description with the merged rectangle (the image) and samples,
-/// and the film. The sums are exact, so the order of `pieces` does not change the image; the
-/// f64 sums of squares are added in a fixed order (by samples, then rectangle) so that the
-/// standard errors do not depend on it either.
-pub fn merge(pieces: &[(PathBuf, FilmPiece)]) -> Result<(PieceInfo, Film), PieceError> {
-    let (first_path, first) = pieces.first().map(|(p, f)| (p, &f.info)).ok_or(PieceError::Empty)?;
-    for (path, piece) in pieces {
-        if let Some((what, ours, theirs)) = first.differs_from(&piece.info) {
+/// Returns what they make together: the first piece's description with the whole image as its
+/// rectangle, samples `A..B`, and the rays and seconds of all.
+pub fn check_pieces(pieces: &[(PathBuf, PieceInfo)]) -> Result<PieceInfo, PieceError> {
+    let (first_path, first) = pieces.first().ok_or(PieceError::Empty)?;
+    for (path, info) in pieces {
+        if let Some((what, ours, theirs)) = first.differs_from(info) {
             return Err(PieceError::Mismatch { path: path.clone(), first: first_path.clone(), what, ours, theirs });
         }
-        if !piece.info.is_complete() {
-            let asked = piece.info.samples.clone();
-            return Err(PieceError::Unfinished { path: path.clone(), held: piece.info.held(), asked });
+        if !info.is_complete() {
+            return Err(PieceError::Unfinished { path: path.clone(), held: info.held(), asked: info.samples.clone() });
         }
     }
     let samples = check_cover(pieces)?;
-    let mut order: Vec<&(PathBuf, FilmPiece)> = pieces.iter().collect();
-    order.sort_by_key(|(_, p)| (p.info.samples.start, p.info.samples.end, p.info.rect));
-    let (width, height) = (first.width, first.height);
-    let what = format!("{}: the merged {width}x{height} image", first_path.display());
-    crate::memory::check_fits(&what, f64::from(width) * f64::from(height) * 2.0 * size_of::<PixelAccum>() as f64)?;
-    let mut film = Film::new(width, height);
-    for (_, p) in order {
-        film.merge_at(&p.film, p.info.rect.x0, p.info.rect.y0);
-    }
-    let info = PieceInfo {
-        rect: Rect::full(width, height),
+    Ok(PieceInfo {
+        rect: Rect::full(first.width, first.height),
         samples: samples.clone(),
         done: samples.end,
-        rays: pieces.iter().map(|(_, p)| p.info.rays).sum(),
-        seconds: pieces.iter().map(|(_, p)| p.info.seconds).sum(),
+        rays: pieces.iter().map(|(_, p)| p.rays).sum(),
+        seconds: pieces.iter().map(|(_, p)| p.seconds).sum(),
         ..first.clone()
-    };
-    Ok((info, film))
+    })
+}
+
+/// The order pieces are added in: by samples, then rectangle. The sums are exact, so the order
+/// does not change the image; the f64 sums of squares are added in this fixed order so that
+/// the standard errors do not depend on the order given either.
+fn merge_order(info: &PieceInfo) -> (u32, u32, Rect) {
+    (info.samples.start, info.samples.end, info.rect)
+}
+
+/// [`check_pieces`], then the whole image's film: the pieces' films added, in any order given.
+pub fn merge(pieces: &[(PathBuf, FilmPiece)]) -> Result<(PieceInfo, Film), PieceError> {
+    let infos: Vec<(PathBuf, PieceInfo)> = pieces.iter().map(|(p, f)| (p.clone(), f.info.clone())).collect();
+    let merged = check_pieces(&infos)?;
+    let mut order: Vec<&FilmPiece> = pieces.iter().map(|(_, f)| f).collect();
+    order.sort_by_key(|p| merge_order(&p.info));
+    let mut film = Film::new(merged.width, merged.height);
+    for p in order {
+        film.merge_at(&p.film, p.info.rect.x0, p.info.rect.y0);
+    }
+    Ok((merged, film))
+}
+
+/// [`merge`] of the piece files `paths`: their headers are checked first, then each piece is
+/// read and added in turn, so that memory holds the image and one piece.
+pub fn merge_files(paths: &[PathBuf]) -> Result<(PieceInfo, Film), PieceError> {
+    let mut infos = Vec::with_capacity(paths.len());
+    for path in paths {
+        let info = read_info(path)?
+            .ok_or_else(|| foreign(path, "it has no arbor.format attribute (an image, not a piece)"))?;
+        infos.push((path.clone(), info));
+    }
+    let merged = check_pieces(&infos)?;
+    let what = format!("{}: the merged {}x{} image", paths[0].display(), merged.width, merged.height);
+    let pixels = f64::from(merged.width) * f64::from(merged.height);
+    crate::memory::check_fits(&what, pixels * 2.0 * size_of::<PixelAccum>() as f64)?;
+    infos.sort_by_key(|(_, info)| merge_order(info));
+    let mut film = Film::new(merged.width, merged.height);
+    for (path, info) in &infos {
+        let piece = read_piece(path)?;
+        if piece.info != *info {
+            return Err(foreign(path, "it changed while the merge read it"));
+        }
+        film.merge_at(&piece.film, info.rect.x0, info.rect.y0);
+    }
+    Ok((merged, film))
 }
 
 /// The sample range the pieces hold for every pixel, or why they do not hold one exactly once.
-fn check_cover(pieces: &[(PathBuf, FilmPiece)]) -> Result<Range<u32>, PieceError> {
-    let info = &pieces[0].1.info;
+fn check_cover(pieces: &[(PathBuf, PieceInfo)]) -> Result<Range<u32>, PieceError> {
+    let info = &pieces[0].1;
     let total = u64::from(info.width) * u64::from(info.height);
     // The sample axis cut at every piece's ends: within each cut, the same pieces hold every
     // sample index.
-    let mut cuts: Vec<u32> = pieces.iter().flat_map(|(_, p)| [p.info.samples.start, p.info.samples.end]).collect();
+    let mut cuts: Vec<u32> = pieces.iter().flat_map(|(_, p)| [p.samples.start, p.samples.end]).collect();
     cuts.sort_unstable();
     cuts.dedup();
     for span in cuts.windows(2) {
         let (a, b) = (span[0], span[1]);
-        let holding: Vec<&(PathBuf, FilmPiece)> =
-            pieces.iter().filter(|(_, p)| p.info.samples.start <= a && b <= p.info.samples.end).collect();
-        let mut by_rect: Vec<&(PathBuf, FilmPiece)> = holding.clone();
-        by_rect.sort_by_key(|(_, p)| (p.info.rect.y0, p.info.rect.x0));
+        let holding: Vec<&(PathBuf, PieceInfo)> =
+            pieces.iter().filter(|(_, p)| p.samples.start <= a && b <= p.samples.end).collect();
+        let mut by_rect: Vec<&(PathBuf, PieceInfo)> = holding.clone();
+        by_rect.sort_by_key(|(_, p)| (p.rect.y0, p.rect.x0));
         // Overlaps: rectangles sorted by their top edge; each checked against those that start
         // above its bottom.
         for (i, (pa, a_piece)) in by_rect.iter().enumerate() {
-            let ra = a_piece.info.rect;
+            let ra = a_piece.rect;
             for (pb, b_piece) in &by_rect[i + 1..] {
-                let rb = b_piece.info.rect;
+                let rb = b_piece.rect;
                 if rb.y0 >= ra.y1 {
                     break;
                 }
@@ -454,7 +486,7 @@ fn check_cover(pieces: &[(PathBuf, FilmPiece)]) -> Result<Range<u32>, PieceError
                 }
             }
         }
-        let covered: u64 = holding.iter().map(|(_, p)| p.info.rect.pixel_count()).sum();
+        let covered: u64 = holding.iter().map(|(_, p)| p.rect.pixel_count()).sum();
         if covered != total {
             let pixel = first_uncovered(&holding, info.width, info.height);
             return Err(PieceError::Missing { samples: a..b, covered, total, pixel });
@@ -464,10 +496,10 @@ fn check_cover(pieces: &[(PathBuf, FilmPiece)]) -> Result<Range<u32>, PieceError
 }
 
 /// A pixel no rectangle of `pieces` holds (the top-left-most), for the error's message.
-fn first_uncovered(pieces: &[&(PathBuf, FilmPiece)], width: u32, height: u32) -> (u32, u32) {
+fn first_uncovered(pieces: &[&(PathBuf, PieceInfo)], width: u32, height: u32) -> (u32, u32) {
     let mut held = vec![false; width as usize * height as usize];
     for (_, p) in pieces {
-        let r = p.info.rect;
+        let r = p.rect;
         for y in r.y0..r.y1 {
             held[(y * width + r.x0) as usize..(y * width + r.x1) as usize].fill(true);
         }

@@ -15,11 +15,61 @@ pub fn rss_bytes() -> Option<u64> {
     status_kib("VmRSS:").map(|k| k * 1024)
 }
 
-/// Memory the system can give this process now without swapping (`MemAvailable` of
-/// `/proc/meminfo`, Linux), bytes; `None` where unknown.
+/// Memory the system can give this process now without swapping, bytes; `None` where unknown:
+/// the machine's `MemAvailable` (`/proc/meminfo`, Linux), or less where the process's control
+/// group has a memory limit ([`cgroup_available_bytes`]). Under Slurm or Kubernetes the job's
+/// cgroup limit, not the machine, is what ends a job that asks too much.
 pub fn available_bytes() -> Option<u64> {
-    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
-    kib_field(&info, "MemAvailable:").map(|k| k * 1024)
+    let machine = std::fs::read_to_string("/proc/meminfo").ok().and_then(|info| kib_field(&info, "MemAvailable:"));
+    let machine = machine.map(|k| k * 1024);
+    let cgroup =
+        std::fs::read_to_string("/proc/self/cgroup").ok().and_then(|c| cgroup_available_bytes(Path::new("/"), &c));
+    match (machine, cgroup) {
+        (Some(m), Some(c)) => Some(m.min(c)),
+        (m, c) => m.or(c),
+    }
+}
+
+/// What the memory limits of the control groups in `cgroups` (the text of `/proc/self/cgroup`)
+/// leave unused, bytes, under the file system root `root`: the least of limit minus usage over
+/// the process's group and every group above it (v2 `memory.max` and `memory.current`; v1
+/// `memory.limit_in_bytes` and `memory.usage_in_bytes`). `None` where no group has a limit.
+///
+/// A container often sees its own group as the root of the mount while `/proc/self/cgroup`
+/// names the host's path: the path is then tried with its leading parts dropped, and at last
+/// the mount's root.
+pub fn cgroup_available_bytes(root: &Path, cgroups: &str) -> Option<u64> {
+    let mut least: Option<u64> = None;
+    for line in cgroups.lines() {
+        let mut parts = line.splitn(3, ':');
+        let (Some(id), Some(controllers), Some(path)) = (parts.next(), parts.next(), parts.next()) else { continue };
+        let (mount, limit_file, usage_file) = if id == "0" && controllers.is_empty() {
+            (root.join("sys/fs/cgroup"), "memory.max", "memory.current")
+        } else if controllers.split(',').any(|c| c == "memory") {
+            (root.join("sys/fs/cgroup/memory"), "memory.limit_in_bytes", "memory.usage_in_bytes")
+        } else {
+            continue;
+        };
+        let parts: Vec<&str> = path.split('/').filter(|p| !p.is_empty()).collect();
+        let Some(found) = (0..=parts.len()).map(|skip| parts[skip..].join("/")).find(|p| mount.join(p).is_dir()) else {
+            continue;
+        };
+        let mut dir = mount.join(found);
+        loop {
+            let read = |name: &str| std::fs::read_to_string(dir.join(name)).ok();
+            // v2 says `max` for no limit; v1 a number near 2^63.
+            let limit = read(limit_file).and_then(|t| t.trim().parse::<u64>().ok()).filter(|&l| l < 1 << 60);
+            if let Some(limit) = limit {
+                let used = read(usage_file).and_then(|t| t.trim().parse::<u64>().ok()).unwrap_or(0);
+                let left = limit.saturating_sub(used);
+                least = Some(least.map_or(left, |l| l.min(left)));
+            }
+            if dir == mount || !dir.pop() {
+                break;
+            }
+        }
+    }
+    least
 }
 
 /// An error where `bytes`, what `what` needs, is more than the memory available
@@ -77,6 +127,8 @@ pub fn text_file_limit() -> u64 {
     available_bytes().map_or(u64::MAX, |a| a / 4)
 }
 
+use std::path::Path;
+
 fn status_kib(field: &str) -> Option<u64> {
     kib_field(&std::fs::read_to_string("/proc/self/status").ok()?, field)
 }
@@ -110,6 +162,34 @@ mod tests {
         assert!(check_fits("a small thing", 1e3).is_ok());
         let err = check_fits("--procedural city:1e15", 1e18).unwrap_err().to_string();
         assert!(err.starts_with("--procedural city:1e15 needs about 1000000000.0 GB"), "{err}");
+    }
+
+    /// A v2 group inside a limited parent, and a v1 group whose path the container does not
+    /// show (its group is the mount's root).
+    #[test]
+    fn cgroup_limits_are_read_up_the_tree() {
+        let root = std::env::temp_dir().join(format!("arbor-memory-cgroup-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let job = root.join("sys/fs/cgroup/slurm/job_7/step_0");
+        std::fs::create_dir_all(&job).unwrap();
+        let write = |dir: &Path, name: &str, text: &str| std::fs::write(dir.join(name), text).unwrap();
+        write(&job, "memory.max", "max\n");
+        write(&job, "memory.current", "100\n");
+        let parent = job.parent().unwrap();
+        write(parent, "memory.max", "4000\n");
+        write(parent, "memory.current", "1000\n");
+        assert_eq!(cgroup_available_bytes(&root, "0::/slurm/job_7/step_0\n"), Some(3000));
+        assert_eq!(cgroup_available_bytes(&root, "0::/\n"), None, "no limit at the root");
+        let v1 = root.join("sys/fs/cgroup/memory");
+        write(&v1, "memory.limit_in_bytes", "2000\n");
+        write(&v1, "memory.usage_in_bytes", "500\n");
+        assert_eq!(cgroup_available_bytes(&root, "4:memory:/kubepods/pod1/abc\n"), Some(1500));
+        // Both: the least.
+        let both = "4:memory:/x\n0::/slurm/job_7/step_0\n";
+        assert_eq!(cgroup_available_bytes(&root, both), Some(1500));
+        write(&v1, "memory.limit_in_bytes", "9223372036854771712\n");
+        assert_eq!(cgroup_available_bytes(&root, "4:memory:/\n"), None, "v1's no limit");
+        std::fs::remove_dir_all(&root).unwrap();
     }
 
     #[test]

@@ -23,7 +23,8 @@ mod golden;
 mod render_accuracy;
 mod stability;
 
-// The `render` command line.
+// The `render` command line, and renders split into jobs and merged.
+mod distributed;
 mod render_cli;
 
 // The GPU backend.

@@ -1,0 +1,163 @@
+//! What a scheduler needs from `render`: exit codes that say whether to retry, a flag raised by
+//! SIGTERM and SIGINT, and the `--report` JSON. Documented for users in docs/distributed.md.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use arbor::device::DeviceError;
+use arbor::film_file::PieceError;
+use arbor::image_io::ImageError;
+use arbor::memory::OutOfMemory;
+use arbor::scene::SceneError;
+use serde::Serialize;
+
+/// Exit codes, stable: a scheduler decides on them.
+pub mod code {
+    /// Rendered, merged, or skipped (`--skip-existing`).
+    pub const OK: i32 = 0;
+    /// Anything not below: a bug, or an error not classified.
+    pub const OTHER: i32 = 1;
+    /// Bad input (arguments, scene, pieces that do not belong together): retrying cannot help.
+    pub const BAD_INPUT: i32 = 2;
+    /// The render does not fit in the memory this machine or job allows: retry only with more.
+    pub const NO_MEMORY: i32 = 3;
+    /// No usable GPU, or the device failed or was lost: retry (elsewhere).
+    pub const DEVICE: i32 = 69;
+    /// Reading or writing a file failed (not a missing input): retry.
+    pub const IO: i32 = 74;
+    /// Stopped by SIGTERM or SIGINT after writing its state: retry with `--resume`.
+    pub const INTERRUPTED: i32 = 75;
+}
+
+/// Bad input found by `render` itself (arguments that do not fit together or the scene).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BadInput(pub String);
+
+/// A render stopped by a signal, its state written to `state`.
+#[derive(Debug, thiserror::Error)]
+#[error("stopped by a signal after {done} of {of} samples per pixel; the state is in {}: run again with --resume to finish", state.display())]
+pub struct Interrupted {
+    pub state: PathBuf,
+    pub done: u32,
+    pub of: u32,
+}
+
+/// The exit code for `error`: the first cause in its chain that says.
+pub fn exit_code(error: &anyhow::Error) -> i32 {
+    use std::io::ErrorKind;
+    let io = |e: &std::io::Error| if e.kind() == ErrorKind::NotFound { code::BAD_INPUT } else { code::IO };
+    for cause in error.chain() {
+        if cause.is::<Interrupted>() {
+            return code::INTERRUPTED;
+        }
+        if cause.is::<BadInput>() || cause.is::<clap::Error>() {
+            return code::BAD_INPUT;
+        }
+        if cause.is::<OutOfMemory>() {
+            return code::NO_MEMORY;
+        }
+        if cause.is::<DeviceError>() {
+            return code::DEVICE;
+        }
+        if let Some(e) = cause.downcast_ref::<SceneError>() {
+            return match e {
+                SceneError::Read { error, .. } => io(error),
+                SceneError::Invalid { .. } => code::BAD_INPUT,
+            };
+        }
+        if let Some(e) = cause.downcast_ref::<PieceError>() {
+            return match e {
+                PieceError::Io { source, .. } => io(source),
+                PieceError::Memory(_) => code::NO_MEMORY,
+                _ => code::BAD_INPUT,
+            };
+        }
+        if let Some(e) = cause.downcast_ref::<ImageError>() {
+            return match e {
+                ImageError::Io { source, .. } => io(source),
+                ImageError::Exr { .. } | ImageError::Png { .. } => code::OTHER,
+                _ => code::BAD_INPUT,
+            };
+        }
+        if let Some(e) = cause.downcast_ref::<std::io::Error>() {
+            return io(e);
+        }
+    }
+    code::OTHER
+}
+
+/// Raised by SIGTERM (what Slurm and Kubernetes send before they kill a job) and SIGINT: the
+/// render finishes its pass, writes its state and exits with [`code::INTERRUPTED`]. A second
+/// SIGINT ends the process at once, as an impatient Ctrl-C expects.
+pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let flag = Arc::new(AtomicBool::new(false));
+    // Registered first, so it sees the flag as it was before this signal raised it.
+    signal_hook::flag::register_conditional_shutdown(SIGINT, 130, Arc::clone(&flag))?;
+    signal_hook::flag::register(SIGINT, Arc::clone(&flag))?;
+    signal_hook::flag::register(SIGTERM, Arc::clone(&flag))?;
+    Ok(flag)
+}
+
+pub fn stopped(flag: &AtomicBool) -> bool {
+    flag.load(Ordering::Relaxed)
+}
+
+/// `--report`: what ran and what it cost. Field names are stable (docs/distributed.md).
+#[derive(Debug, Default, Serialize)]
+pub struct Report {
+    pub arbor_version: &'static str,
+    pub command: Vec<String>,
+    /// `render` or `merge`.
+    pub mode: &'static str,
+    pub scene: Option<PathBuf>,
+    pub scene_hash: Option<String>,
+    pub device: Option<&'static str>,
+    pub adapter: Option<String>,
+    pub threads: usize,
+    pub seed: Option<u64>,
+    pub max_depth: Option<u32>,
+    pub resolution: Option<[u32; 2]>,
+    /// `I/N` where `--tile` was given.
+    pub tile: Option<String>,
+    /// The rectangle rendered, `[x0, y0, x1, y1]` (x1, y1 exclusive).
+    pub rect: Option<[u32; 4]>,
+    /// The sample indices asked for, `[first, end]`.
+    pub samples: Option<[u32; 2]>,
+    pub load_seconds: Option<f64>,
+    pub bvh: Option<BvhReport>,
+    pub frames: Vec<FrameReport>,
+    /// `merge` only: the pieces merged.
+    pub pieces: Vec<PathBuf>,
+    pub wall_seconds: f64,
+    pub peak_memory_bytes: Option<u64>,
+    pub exit_code: i32,
+    pub error: Option<String>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct BvhReport {
+    pub builder: String,
+    pub triangles: usize,
+    pub build_ms: f64,
+    pub sah: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct FrameReport {
+    /// The animation frame, `null` for a still.
+    pub frame: Option<u32>,
+    pub output: PathBuf,
+    /// `rendered`, `resumed` (carried on from a partial film), `skipped` (`--skip-existing`),
+    /// `interrupted` (a signal; its state written) or `merged`.
+    pub status: &'static str,
+    /// The sample indices the output holds, `[first, end]`.
+    pub samples_done: [u32; 2],
+    pub bvh_update_ms: Option<f64>,
+    /// Seconds rendering in this run (not those of a partial film resumed).
+    pub render_seconds: f64,
+    /// Rays traced in this run.
+    pub rays: u64,
+}
