@@ -181,6 +181,7 @@ mod tests {
         assert_eq!(cgroup_available_bytes(&root, "0::/slurm/job_7/step_0\n"), Some(3000));
         assert_eq!(cgroup_available_bytes(&root, "0::/\n"), None, "no limit at the root");
         let v1 = root.join("sys/fs/cgroup/memory");
+        std::fs::create_dir_all(&v1).unwrap();
         write(&v1, "memory.limit_in_bytes", "2000\n");
         write(&v1, "memory.usage_in_bytes", "500\n");
         assert_eq!(cgroup_available_bytes(&root, "4:memory:/kubepods/pod1/abc\n"), Some(1500));
