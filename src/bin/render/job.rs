@@ -47,7 +47,9 @@ pub struct Interrupted {
 /// The exit code for `error`: the first cause in its chain that says.
 pub fn exit_code(error: &anyhow::Error) -> i32 {
     use std::io::ErrorKind;
-    let io = |e: &std::io::Error| if e.kind() == ErrorKind::NotFound { code::BAD_INPUT } else { code::IO };
+    // An input that is not there is bad input; any other failure to read, and any failure to
+    // write (a shared folder briefly gone), may pass.
+    let input = |e: &std::io::Error| if e.kind() == ErrorKind::NotFound { code::BAD_INPUT } else { code::IO };
     for cause in error.chain() {
         if cause.is::<Interrupted>() {
             return code::INTERRUPTED;
@@ -63,42 +65,67 @@ pub fn exit_code(error: &anyhow::Error) -> i32 {
         }
         if let Some(e) = cause.downcast_ref::<SceneError>() {
             return match e {
-                SceneError::Read { error, .. } => io(error),
+                SceneError::Read { error, .. } => input(error),
                 SceneError::Invalid { .. } => code::BAD_INPUT,
             };
         }
         if let Some(e) = cause.downcast_ref::<PieceError>() {
             return match e {
-                PieceError::Io { source, .. } => io(source),
+                PieceError::Io { source, .. } => input(source),
                 PieceError::Memory(_) => code::NO_MEMORY,
                 _ => code::BAD_INPUT,
             };
         }
         if let Some(e) = cause.downcast_ref::<ImageError>() {
             return match e {
-                ImageError::Io { source, .. } => io(source),
+                ImageError::Io { .. } => code::IO,
                 ImageError::Exr { .. } | ImageError::Png { .. } => code::OTHER,
                 _ => code::BAD_INPUT,
             };
         }
-        if let Some(e) = cause.downcast_ref::<std::io::Error>() {
-            return io(e);
+        if cause.is::<std::io::Error>() {
+            return code::IO;
         }
     }
     code::OTHER
 }
 
-/// Raised by SIGTERM (what Slurm and Kubernetes send before they kill a job) and SIGINT: the
-/// render finishes its pass, writes its state and exits with [`code::INTERRUPTED`]. A second
-/// SIGINT ends the process at once, as an impatient Ctrl-C expects.
-pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
-    use signal_hook::consts::{SIGINT, SIGTERM};
-    let flag = Arc::new(AtomicBool::new(false));
-    // Registered first, so it sees the flag as it was before this signal raised it.
-    signal_hook::flag::register_conditional_shutdown(SIGINT, 130, Arc::clone(&flag))?;
-    signal_hook::flag::register(SIGINT, Arc::clone(&flag))?;
-    signal_hook::flag::register(SIGTERM, Arc::clone(&flag))?;
-    Ok(flag)
+/// How `render` answers SIGTERM (what Slurm and Kubernetes send before they kill a job) and
+/// SIGINT. Installed first thing, so that a signal in the first milliseconds is not lost.
+pub struct Signals {
+    /// Raised by either signal: a render finishes its pass, writes its state and exits with
+    /// [`code::INTERRUPTED`]. A second SIGINT ends the process at once, as an impatient Ctrl-C
+    /// expects.
+    pub stop: Arc<AtomicBool>,
+    /// Once raised ([`Signals::die_on_signal`]), either signal ends the process at once (a
+    /// merge, which has no state worth keeping).
+    die: Arc<AtomicBool>,
+}
+
+impl Signals {
+    pub fn install() -> std::io::Result<Signals> {
+        use signal_hook::consts::{SIGINT, SIGTERM};
+        let (stop, die) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicBool::new(false)));
+        for signal in [SIGINT, SIGTERM] {
+            signal_hook::flag::register_conditional_default(signal, Arc::clone(&die))?;
+        }
+        // Registered before the flag it reads is raised, so it sees the flag as it was before
+        // this signal.
+        signal_hook::flag::register_conditional_shutdown(SIGINT, 130, Arc::clone(&stop))?;
+        signal_hook::flag::register(SIGINT, Arc::clone(&stop))?;
+        signal_hook::flag::register(SIGTERM, Arc::clone(&stop))?;
+        Ok(Signals { stop, die })
+    }
+
+    /// From now on a signal ends the process as if no handler were installed; one that came
+    /// already does so now.
+    pub fn die_on_signal(&self) {
+        self.die.store(true, Ordering::SeqCst);
+        if stopped(&self.stop) {
+            eprintln!("render: stopped by a signal");
+            std::process::exit(code::INTERRUPTED);
+        }
+    }
 }
 
 pub fn stopped(flag: &AtomicBool) -> bool {

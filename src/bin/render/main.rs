@@ -138,6 +138,13 @@ fn main() {
         arbor::gpu::quiet_device_select_layer()
     };
     let started = Instant::now();
+    let signals = match job::Signals::install() {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("render: error: cannot handle SIGTERM and SIGINT: {e}");
+            std::process::exit(code::OTHER);
+        }
+    };
     // clap's errors exit with 2 (bad input), its --help and --version with 0.
     let args = Args::parse();
     let mut report = Report {
@@ -146,7 +153,12 @@ fn main() {
         mode: if args.merge.is_empty() { "render" } else { "merge" },
         ..Default::default()
     };
-    let result = if args.merge.is_empty() { run(&args, &mut report) } else { merge(&args, &mut report) };
+    let result = if args.merge.is_empty() {
+        run(&args, &signals.stop, &mut report)
+    } else {
+        signals.die_on_signal();
+        merge(&args, &mut report)
+    };
     let mut exit = match &result {
         Ok(()) => code::OK,
         Err(e) => {
@@ -199,7 +211,7 @@ struct Output {
     carried: Option<FilmPiece>,
 }
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
     let scene_path = args.scene.as_deref().expect("clap requires a scene without --merge");
     report.scene = Some(scene_path.to_path_buf());
     // A bad name fails before any work; the default depends on the device and the scene.
@@ -208,7 +220,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     cli::init_threads(args.threads).map_err(|e| bad(e.to_string()))?;
     // Before any tree is built: meshes take the form current when they are built.
     Tracing::from_env(args.trace).map_err(|e| bad(e.to_string()))?.set_default();
-    let stop = job::stop_flag()?;
     let load = Instant::now();
     let scene = Scene::load(scene_path)?;
     report.load_seconds = Some(load.elapsed().as_secs_f64());
