@@ -167,8 +167,8 @@ fn encode(piece: &FilmPiece) -> Result<Vec<u8>, exr::error::Error> {
         let dropped = u32s(&|p| (p.non_finite >> shift) as u32);
         channels.push(AnyChannel::new(format!("arbor.dropped.{half}").as_str(), dropped));
     }
-    let mut attributes = LayerAttributes::default();
-    attributes.layer_position = Vec2(info.rect.x0 as i32, info.rect.y0 as i32);
+    let mut attributes =
+        LayerAttributes { layer_position: Vec2(info.rect.x0 as i32, info.rect.y0 as i32), ..Default::default() };
     for (key, value) in attributes_of(info) {
         attributes.other.insert(Text::from(key), AttributeValue::Text(Text::from(value.as_str())));
     }
@@ -333,7 +333,7 @@ pub fn read_piece(path: &Path) -> Result<FilmPiece, PieceError> {
     }
     let n = rect.pixel_count() as usize;
     let channel = |name: &str| -> Result<&Vec<u32>, PieceError> {
-        let c = layer.channel_data.list.iter().find(|c| c.name == Text::from(name));
+        let c = layer.channel_data.list.iter().find(|c| c.name == *name);
         match c.map(|c| &c.sample_data) {
             Some(FlatSamples::U32(v)) if v.len() == n => Ok(v),
             Some(_) => Err(foreign(path, format!("channel {name} is not {n} u32 samples"))),
@@ -658,7 +658,7 @@ mod tests {
         unfinished.1.info.done = 2;
         assert!(merge(&[a.clone(), unfinished]).unwrap_err().to_string().starts_with("b.exr: unfinished"));
         // Missing: only a; overlapping: a twice, or b's samples overlapping another range.
-        let e = merge(&[a.clone()]).unwrap_err().to_string();
+        let e = merge(std::slice::from_ref(&a)).unwrap_err().to_string();
         assert!(e.contains("held for 12 of the image's 24 pixels (none holds pixel (3, 0))"), "{e}");
         let e = merge(&[a.clone(), b.clone(), (PathBuf::from("c.exr"), a.1.clone())]).unwrap_err().to_string();
         assert!(e.contains("a.exr and c.exr overlap: both hold samples 0..4 of pixels 0,0,3,4"), "{e}");

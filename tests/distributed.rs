@@ -225,7 +225,7 @@ fn skip_existing_resume_and_report() {
         cmd.arg(&scene).arg("-o").arg(&piece).args(["--spp", "4", "--tile", "1/2", "--device", "cpu"]).args(extra);
         cmd
     };
-    run(&mut job(&["--quiet", "--report"]).arg(&report));
+    run(job(&["--quiet", "--report"]).arg(&report));
     let json: serde_json::Value = serde_json::from_slice(&bytes(&report)).unwrap();
     assert_eq!(json["mode"], "render");
     assert_eq!(json["device"], "cpu");
@@ -238,7 +238,7 @@ fn skip_existing_resume_and_report() {
     assert!(json["frames"][0]["rays"].as_u64().unwrap() > 0);
     assert!(json["bvh"]["build_ms"].as_f64().is_some() && json["scene_hash"].as_str().unwrap().len() == 64);
     let written = std::fs::metadata(&piece).unwrap().modified().unwrap();
-    let o = run(&mut job(&["--skip-existing", "--resume", "--report"]).arg(&report));
+    let o = run(job(&["--skip-existing", "--resume", "--report"]).arg(&report));
     assert!(String::from_utf8_lossy(&o.stdout).contains("complete, skipped"));
     assert_eq!(std::fs::metadata(&piece).unwrap().modified().unwrap(), written, "a skipped output was rewritten");
     let json: serde_json::Value = serde_json::from_slice(&bytes(&report)).unwrap();

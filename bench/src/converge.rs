@@ -186,8 +186,8 @@ pub fn render_reference(scene: &Scene, spp: u32, max_depth: u32, seed: u64) -> R
 /// The curve of `choice` on `device` against `reference`; `progress` hears of each point.
 ///
 /// Every point is rendered through [`Renderer`], as `render` renders. A fixed builder builds
-/// once per curve and each point carries on from the last ([`Renderer::render_more`]: the CPU
-/// adds the samples between them, the GPU renders `0..spp` again); `auto` builds for each
+/// once per curve and each point carries on from the last ([`Renderer::render_more`]: both
+/// devices add the samples between them); `auto` builds for each
 /// point's sample count. GPU kernel compilation, paid once per process and variant, is left
 /// out of the build's time. On the GPU, samples `auto` timed while building count once, in the
 /// build; on the CPU, `auto` optimises while rendering, and that time counts in the render's.

@@ -34,8 +34,11 @@
 //! **Samples.** Each pass dispatches [`PASS_SPP`] samples per pixel (a submission short enough
 //! for a display GPU's watchdog), accumulating into per-pixel sums on the device; the film is
 //! read back once, at the end, into a [`Film`] with the same per-pixel statistics as the CPU's.
-//! Sums are in f32, of `sample - first sample` ([`GpuPixel`]), which keeps a constant pixel's
-//! variance exactly 0.
+//! The sum is the film's exact fixed-point sum, kept in four 32-bit limbs a channel, so that any
+//! split of a render's samples or pixels merges to the same image (docs/distributed.md); the
+//! variance comes from f32 sums of `sample - first sample` ([`GpuPixel`]), which keep a constant
+//! pixel's variance exactly 0. A render may cover a rectangle of the image only: the random
+//! streams and the camera take the image's pixel, the film the rectangle's.
 //!
 //! **Departures from the CPU integrator** (none changes the expected image):
 //! - random numbers: a 32-bit PCG (RXS-M-XS) stream per (seed, pixel, sample), seeded by a hash

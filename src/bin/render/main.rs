@@ -423,7 +423,7 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
             &settings,
             &progress,
             args.checkpoint,
-            &stop,
+            stop,
             &info,
             &output.state,
         );
