@@ -161,3 +161,66 @@ fn images_do_not_depend_on_thread_count() {
     assert_eq!(one, run(2));
     assert_eq!(one, run(3));
 }
+
+/// A mirroring placement (a negative-determinant `matrix`, a negative `scale`, a negative
+/// keyframe scale) keeps every front where the file put it: a one-sided lamp facing down onto a
+/// floor, mirrored in its own x, still faces down, so the camera below sees it and the floor is
+/// lit as without the mirror. Flat on the CPU, instanced (the animated scene's two-level BVH) on
+/// the CPU, and flat on the GPU where one exists. Without the winding flip the mirrored lamp
+/// faces up: the image is black but for the floor's zero.
+#[test]
+fn mirrored_lamps_and_floors_face_where_the_file_put_them() {
+    use arbor::device::{BuilderChoice, Device, Renderer};
+    use arbor::render::first_frame_time;
+    let scene = |lamp: &str, animated: bool| {
+        let clock = if animated { "[animation]\nfps = 24\nframes = [0, 2]\n" } else { "" };
+        let text = format!(
+            "[camera]\nposition = [0, 0, 4]\nlook_at = [0, 0, 0]\nfov = 60\nresolution = [24, 24]\n\
+             [render]\nseed = 3\n\
+             [materials.floor]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+             [materials.lamp]\ntype = \"emissive\"\nradiance = [40, 40, 40]\n\
+             {clock}\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"floor\"\n\
+             matrix = [[1, 0, 0, 0], [0, 0, 1, -1], [0, -1, 0, 0], [0, 0, 0, 1]]\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\n{lamp}"
+        );
+        scene_from(&text, &format!("mirror-{}-{animated}", lamp.len()))
+    };
+    // The lamp: the quad (facing +z) scaled by 0.3, turned to face -y, at y = 1.
+    let plain = "matrix = [[0.3, 0, 0, 0], [0, 0, -0.3, 1], [0, 0.3, 0, 0], [0, 0, 0, 1]]\n";
+    let mirrored = [
+        "matrix = [[-0.3, 0, 0, 0], [0, 0, -0.3, 1], [0, 0.3, 0, 0], [0, 0, 0, 1]]\n",
+        "scale = [-0.3, 0.3, 0.3]\nrotate = [90, 0, 0]\ntranslate = [0, 1, 0]\n",
+    ];
+    let keyframed = "[[objects.keyframes]]\ntime = 0\nscale = [-0.3, 0.3, 0.3]\nrotate = [90, 0, 0]\ntranslate = [0, 1, 0]\n\
+                     [[objects.keyframes]]\ntime = 1\nscale = [-0.3, 0.3, 0.3]\nrotate = [90, 0, 0]\ntranslate = [0, 1, 0]\n";
+    let mean_and_error = |scene: &Scene, device: Device| {
+        let settings = arbor::scene::RenderSettings { spp: 16, max_depth: 2, seed: 3, time: None, clamp: None };
+        let choice = BuilderChoice::Fixed("lbvh".parse().unwrap());
+        let mut r = Renderer::new(device, scene, &choice, &settings, 1, first_frame_time(scene)).unwrap();
+        let film = r.render(&settings, &|_| {}).unwrap().film;
+        assert_eq!(film.non_finite_count(), 0);
+        let (mean, stderr) = (film.mean(), film.stderr());
+        let n = mean.pixels.len() as f64;
+        let m = mean.pixels.iter().map(|p| f64::from(p[0])).sum::<f64>() / n;
+        let e = stderr.pixels.iter().map(|p| f64::from(p[0]).powi(2)).sum::<f64>().sqrt() / n;
+        (m, e)
+    };
+    let mut devices = vec![Device::Cpu];
+    #[cfg(feature = "gpu")]
+    if let Some(ctx) = common::gpu_or_skip("mirrored_lamps_and_floors_face_where_the_file_put_them") {
+        devices.push(Device::Gpu(ctx));
+    }
+    for device in devices {
+        let (reference, ref_error) = mean_and_error(&scene(plain, false), device);
+        assert!(reference > 0.1, "the unmirrored lamp lights the scene: {reference}");
+        let cases = mirrored.iter().map(|m| (m.to_string(), false)).chain([(keyframed.to_string(), true)]);
+        for (lamp, animated) in cases {
+            let s = scene(&lamp, animated);
+            assert_eq!(arbor::render::geometry::wants_instancing(&s), animated);
+            let (m, e) = mean_and_error(&s, device);
+            let z = (m - reference) / (e * e + ref_error * ref_error).sqrt();
+            assert!(z.abs() < 5.0, "{} {lamp:?}: mean {m} against {reference} (z = {z:.1})", device.name());
+        }
+    }
+}

@@ -436,8 +436,8 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
         (BASE.replace("[0.5, 0.5, 0.5]", "[-0.5, 0.5, 0.5]"), 9, "materials.white.albedo", "negative"),
         (BASE.replace("resolution = [16, 16]", "resolution = [-16, 16]"), 5, "camera.resolution[0]:", "-16"),
         (BASE.replace("resolution = [16, 16]", "resolution = [0, 16]"), 5, "camera.resolution", "1 to"),
-        (format!("{BASE}{obj}scale = -2\n"), 14, "objects[0].scale", "> 0"),
-        (format!("{BASE}{obj}scale = [1, 0, 1]\n"), 14, "objects[0].scale", "> 0"),
+        (format!("{BASE}{obj}scale = 0\n"), 14, "objects[0].scale", "not 0"),
+        (format!("{BASE}{obj}scale = [1, 0, 1]\n"), 14, "objects[0].scale", "not 0"),
         (format!("{BASE}\n[[objects]]\nmesh = \"nope.obj\"\n"), 12, "objects[0].mesh", "nope.obj"),
         (format!("{BASE}\n[[objects]]\nshape = \"box\"\nmaterial = \"chalk\"\n"), 13, "objects[0].material", "chalk"),
         (format!("{BASE}\n[[objects]]\nshape = \"cone\"\nmaterial = \"white\"\n"), 12, "objects[0].shape", "cone"),
@@ -501,10 +501,11 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
             "invertible",
         ),
         (
-            format!("{BASE}{obj}matrix = [[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n"),
+            // Columns within rounding of each other: singular, at any scale.
+            format!("{BASE}{obj}matrix = [[1e-6, 1e-6, 0, 0], [0, 1e-12, 0, 0], [0, 0, 1e-6, 0], [0, 0, 0, 1]]\n"),
             14,
             "objects[0].matrix",
-            "mirrors",
+            "invertible",
         ),
         (
             format!(
@@ -554,13 +555,29 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
             format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\nscale = [1, 0, 1]\n{ANIMATION}"),
             16,
             "objects[0].keyframes[0].scale",
-            "> 0",
+            "not 0",
         ),
         (
             format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\nscale = 0\n{ANIMATION}"),
             16,
             "objects[0].keyframes[0].scale",
-            "> 0",
+            "not 0",
+        ),
+        (
+            format!(
+                "{BASE}{obj}[[objects.keyframes]]\ntime = 0\nscale = [-1, 1, 1]\n[[objects.keyframes]]\ntime = 1\nscale = [1, 1, 1]\n{ANIMATION}"
+            ),
+            19,
+            "objects[0].keyframes[1].scale",
+            "mirrors differently from keyframes[0]'s",
+        ),
+        (
+            format!(
+                "{BASE}{obj}[[objects.keyframes]]\ntime = 0\nscale = -1\n[[objects.keyframes]]\ntime = 1\n{ANIMATION}"
+            ),
+            17,
+            "objects[0].keyframes[1].scale",
+            "a factor would pass through 0",
         ),
         (
             format!("{BASE}{obj}[[objects.keyframes]]\ntime = 0\ntranslate = [0, inf, 0]\n{ANIMATION}"),
@@ -691,5 +708,71 @@ fn non_finite_toml_numbers_are_named() {
         eprintln!("{line}: {e}");
         let want = format!("{}:14: {key}:", path.display());
         assert!(e.starts_with(&want), "{line}: expected an error starting {want:?}, got {e}");
+    }
+}
+
+/// Matrices are judged invertible by their shape, not their size: the Cornell box with every
+/// matrix scaled by 10^-4 (determinants near 10^-13) loads, and places the same triangles scaled.
+#[test]
+fn small_objects_load_whatever_their_scale() {
+    let text = std::fs::read_to_string(scenes_dir().join("cornell-box.toml")).unwrap();
+    // Each matrix's first three rows, every entry times 10^-4 (the last row stays 0 0 0 1).
+    let mut scaled = String::new();
+    let mut rows_left = 0;
+    for line in text.lines() {
+        if line.starts_with("matrix = [") {
+            rows_left = 3;
+            scaled += line;
+        } else if rows_left > 0 {
+            rows_left -= 1;
+            let inner = line.trim().trim_start_matches('[').trim_end_matches("],");
+            let nums: Vec<String> =
+                inner.split(',').map(|x| format!("{:e}", x.trim().parse::<f64>().unwrap() * 1e-4)).collect();
+            scaled += &format!("  [{}],", nums.join(", "));
+        } else {
+            scaled += line;
+        }
+        scaled.push('\n');
+    }
+    let big = Scene::parse(&text, scenes_dir().join("cornell-box.toml")).unwrap();
+    let small = Scene::parse(&scaled, scenes_dir().join("small.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let (a, _) = big.world_triangles();
+    let (b, _) = small.world_triangles();
+    assert_eq!(a.len(), b.len());
+    for (ta, tb) in a.iter().zip(&b) {
+        for (pa, pb) in [(ta.v0, tb.v0), (ta.v1, tb.v1), (ta.v2, tb.v2)] {
+            assert!((pa * 1e-4 - pb).length() <= 1e-9 + 1e-6 * pb.length(), "{pa} x 1e-4 is not {pb}");
+        }
+    }
+}
+
+/// A mirroring matrix, or a negative scale (also in keyframes), places the mirror image with
+/// each triangle's winding flipped, so that its front (the normal of `(v1 - v0) x (v2 - v0)`)
+/// is the mirror image of the front the file gave.
+#[test]
+fn mirrors_keep_each_triangle_front() {
+    let scene = |placement: &str| {
+        let text = format!(
+            "[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\
+             [materials.w]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+             [[objects]]\nshape = \"box\"\nmaterial = \"w\"\n{placement}"
+        );
+        Scene::parse(&text, "mirror.toml").unwrap_or_else(|e| panic!("{placement}: {e}"))
+    };
+    let (plain, _) = scene("translate = [0.25, 0, 0]\n").world_triangles();
+    let mirror = |p: Vec3| Vec3::new(-p.x, p.y, p.z);
+    for placement in [
+        "matrix = [[-1, 0, 0, -0.25], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n",
+        "scale = [-1, 1, 1]\ntranslate = [-0.25, 0, 0]\n",
+    ] {
+        let (mirrored, _) = scene(placement).world_triangles();
+        assert_eq!(plain.len(), mirrored.len());
+        for (t, m) in plain.iter().zip(&mirrored) {
+            let expected = mirror(t.normal()).normalize();
+            assert!((m.normal().normalize() - expected).length() < 1e-5, "{placement}: {m:?} against {t:?}");
+            // A box is closed: every front still faces out, away from its centre (-0.25, 0, 0).
+            let centre = (m.v0 + m.v1 + m.v2) / 3.0 - Vec3::new(-0.25, 0.0, 0.0);
+            assert!(m.normal().dot(centre) > 0.0, "{placement}: a face turned inwards");
+        }
     }
 }

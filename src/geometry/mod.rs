@@ -13,4 +13,4 @@ mod triangle;
 pub use aabb::{Aabb, ROBUST_SLAB_SCALE, RayInv, intersect_ray_packed, slab_interval};
 pub use mesh::{MeshError, TriangleMesh};
 pub use ray::{Ray, offset_ray_origin, spawn_ray};
-pub use triangle::{Triangle, TriangleHit, WatertightRay, gamma};
+pub use triangle::{Triangle, TriangleHit, WatertightRay, gamma, mirrors};

@@ -19,7 +19,7 @@ use super::material::RenderMaterial;
 use crate::bvh::dynamic::UpdateStats;
 use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
 use crate::bvh::{INVALID_INDEX, MeshBvh};
-use crate::geometry::{Ray, Triangle};
+use crate::geometry::{Ray, Triangle, mirrors};
 use crate::scene::Scene;
 
 /// A hit, resolved to what shading needs.
@@ -134,7 +134,7 @@ impl Instanced {
             };
             light_base[i] = world.len() as u32;
             for (p, t) in tris.iter().enumerate() {
-                world.push(t.transformed(&inst.world_from_object));
+                world.push(t.placed(&inst.world_from_object));
                 emission.push(emits(p));
             }
         }
@@ -185,11 +185,14 @@ impl Geometry {
                 let inst = &g.two_level.instances()[h.instance as usize];
                 let local = &g.mesh_triangles[inst.mesh as usize][h.prim_id as usize];
                 let base = g.light_base.get(h.instance as usize).copied().unwrap_or(INVALID_INDEX);
+                // A mirrored instance's triangle is placed with two vertices swapped, and the
+                // hit's barycentrics with them.
+                let (u, v) = if mirrors(&inst.world_from_object) { (h.v, h.u) } else { (h.u, h.v) };
                 SurfaceHit {
                     t: h.t,
-                    triangle: local.transformed(&inst.world_from_object),
-                    u: h.u,
-                    v: h.v,
+                    triangle: local.placed(&inst.world_from_object),
+                    u,
+                    v,
                     material: g.material(h.instance as usize, h.prim_id),
                     light: if base == INVALID_INDEX { INVALID_INDEX } else { base + h.prim_id },
                     surface: Surface { instance: h.instance, prim: h.prim_id },

@@ -680,14 +680,11 @@ fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError
         }
         // Written row by row; glam is column-major.
         let mat = Mat4::from_cols_array_2d(&rows).transpose();
-        if mat.row(3) != glam::Vec4::W || mat.determinant().abs() < 1e-12 {
+        if mat.row(3) != glam::Vec4::W || !invertible(&mat) {
             return Err(ctx.err(m.span(), key("matrix"), "must be affine (last row 0 0 0 1) and invertible"));
         }
-        // As for a negative `scale`: a mirror turns the mesh inside out (its faces' winding
-        // flips, and which side of a surface is its front with it).
-        if mat.determinant() < 0.0 {
-            return Err(ctx.err(m.span(), key("matrix"), "mirrors (determinant < 0); mirror the mesh itself instead"));
-        }
+        // A mirror (negative determinant) is accepted: placing the mesh flips its winding, so
+        // fronts stay where the file put them (`Triangle::placed`).
         return Ok(mat);
     }
     let (scale, rotation, translation) = trs(ctx, &key, &f.scale, &f.rotate, &f.translate)?;
@@ -697,6 +694,18 @@ fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError
         return Err(ctx.err(s.span(), key("scale"), "is too large: the placement overflows"));
     }
     Ok(mat)
+}
+
+/// Whether the linear part of `m` is invertible, judged without a scale: its determinant
+/// against the product of its columns' lengths (Hadamard's bound, which it reaches for
+/// orthogonal columns), so that a tiny object or a huge one is judged as its shape, not its
+/// size. Below 10^-6 the columns are within rounding of being dependent (f32 keeps 7 digits):
+/// the mesh would be flattened.
+fn invertible(m: &Mat4) -> bool {
+    let m3 = glam::Mat3::from_mat4(*m);
+    let det = f64::from(m3.determinant());
+    let bound: f64 = [m3.x_axis, m3.y_axis, m3.z_axis].iter().map(|c| f64::from(c.length())).product();
+    det.is_finite() && bound.is_finite() && det.abs() > 1e-6 * bound
 }
 
 /// Checked `scale`, `rotate` and `translate` keys (defaults 1, 0, 0), as scale, rotation and
@@ -717,10 +726,11 @@ fn trs(
                 ScaleFile::Uniform(x) => Vec3::splat(*x),
                 ScaleFile::PerAxis(a) => Vec3::from(*a),
             };
-            // Keyframe scales must be > 0 as well: a key of each sign would interpolate through
-            // zero (flat triangles), and a mirror flips which face of an emitter emits.
-            if !v.is_finite() || v.min_element() <= 0.0 {
-                return Err(ctx.err(s.span(), key("scale"), format!("{v} must be finite and > 0")));
+            // A negative factor mirrors (placing the mesh flips its winding, so fronts stay
+            // where the file put them); zero would flatten it. Keyframes check that no factor
+            // changes sign between keys, which would pass through zero.
+            if !v.is_finite() || v.cmpeq(Vec3::ZERO).any() {
+                return Err(ctx.err(s.span(), key("scale"), format!("{v} must be finite and not 0")));
             }
             v
         }
@@ -754,6 +764,18 @@ fn keyframes(ctx: &Ctx, index: usize, list: &S<Vec<S<KeyframeFile>>>, clock: boo
             ));
         }
         let (scale, rotation, translation) = trs(ctx, &key, &f.scale, &f.rotate, &f.translate)?;
+        if let Some(first) = keys.first()
+            && first.scale.cmplt(Vec3::ZERO) != scale.cmplt(Vec3::ZERO)
+        {
+            return Err(ctx.err(
+                f.scale.as_ref().map_or(k.span(), |s| s.span()),
+                key("scale"),
+                format!(
+                    "{scale} mirrors differently from keyframes[0]'s {}: between them a factor would pass through 0",
+                    first.scale
+                ),
+            ));
+        }
         keys.push(Keyframe { time: t, translation, rotation, scale });
     }
     Ok(Animation::Keyframes(keys))

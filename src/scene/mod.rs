@@ -199,9 +199,11 @@ impl Scene {
         for o in &self.objects {
             let m = &self.meshes[o.mesh];
             let world_from_object = o.world_from_object_at(time);
+            // A mirror keeps each triangle's front where the file put it: the winding flips.
+            let (b, c) = if world_from_object.determinant() < 0.0 { (2, 1) } else { (1, 2) };
             for (i, t) in m.mesh.indices.iter().enumerate() {
                 let p = |k: usize| world_from_object.transform_point3(m.mesh.positions[t[k] as usize]);
-                tris.push(Triangle::new(p(0), p(1), p(2)));
+                tris.push(Triangle::new(p(0), p(b), p(c)));
                 mats.push(o.material.unwrap_or(m.material_ids[i]));
             }
         }
