@@ -221,6 +221,7 @@ fn axis_aligned_walls_and_grazing_rays() {
         let quad = |o: glam::Vec3, u: glam::Vec3, v: glam::Vec3| arbor::geometry::TriangleMesh {
             positions: vec![o, o + u, o + u + v, o + v],
             indices: vec![[0, 1, 2], [0, 2, 3]],
+            ..Default::default()
         };
         mesh.append(&quad(glam::Vec3::new(s, 0.0, 0.0), glam::Vec3::Y, glam::Vec3::Z));
         mesh.append(&quad(glam::Vec3::new(0.0, s * 0.5, 0.0), glam::Vec3::X * 5.0, glam::Vec3::Z));

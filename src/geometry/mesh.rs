@@ -3,17 +3,23 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec2, Vec3};
 
 use super::obj::read_obj;
 use super::{Aabb, Triangle};
 
-/// Positions and triangles indexing them.
+/// Positions and triangles indexing them, with the per-vertex attributes a file gave.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TriangleMesh {
     pub positions: Vec<Vec3>,
     /// Every index is `< positions.len()`.
     pub indices: Vec<[u32; 3]>,
+    /// Shading normals, one per position (unit length), or empty where the file gave none. A
+    /// zero vector marks a vertex without one (a file that gave normals for part of a mesh).
+    pub normals: Vec<Vec3>,
+    /// Texture coordinates, one per position, as the file gave them (OBJ's `vt`: v up from the
+    /// image's bottom), or empty.
+    pub uvs: Vec<Vec2>,
 }
 
 /// Why an OBJ file (or an MTL file it names) cannot be used.
@@ -51,19 +57,35 @@ impl TriangleMesh {
         self.indices.iter().flatten().fold(Aabb::EMPTY, |b, &i| b.grow(self.positions[i as usize]))
     }
 
-    /// The mesh with every position mapped by `world_from_object`.
+    /// The mesh with every position mapped by `world_from_object`, and every normal by its
+    /// inverse transpose.
     pub fn transformed(&self, world_from_object: Mat4) -> Self {
+        let normal_matrix = glam::Mat3::from_mat4(world_from_object).inverse().transpose();
         Self {
             positions: self.positions.iter().map(|&p| world_from_object.transform_point3(p)).collect(),
             indices: self.indices.clone(),
+            normals: self.normals.iter().map(|&n| (normal_matrix * n).normalize_or_zero()).collect(),
+            uvs: self.uvs.clone(),
         }
     }
 
-    /// Appends `other`, re-basing its indices.
+    /// Appends `other`, re-basing its indices. Where only one of the two has normals (or
+    /// texture coordinates), the other's vertices get zero ones: no shading normal there.
     pub fn append(&mut self, other: &TriangleMesh) {
-        let base = self.positions.len() as u32;
+        let (before, added) = (self.positions.len(), other.positions.len());
+        let base = before as u32;
         self.positions.extend_from_slice(&other.positions);
         self.indices.extend(other.indices.iter().map(|t| t.map(|i| i + base)));
+        if !self.normals.is_empty() || !other.normals.is_empty() {
+            self.normals.resize(before, Vec3::ZERO);
+            self.normals.extend_from_slice(&other.normals);
+            self.normals.resize(before + added, Vec3::ZERO);
+        }
+        if !self.uvs.is_empty() || !other.uvs.is_empty() {
+            self.uvs.resize(before, Vec2::ZERO);
+            self.uvs.extend_from_slice(&other.uvs);
+            self.uvs.resize(before + added, Vec2::ZERO);
+        }
     }
 
     /// Loads every object of a Wavefront OBJ file into one mesh, triangulating polygons. Its MTL

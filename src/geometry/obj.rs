@@ -501,11 +501,26 @@ fn tobj_error(path: &Path, text: &[u8], read: u64, e: tobj::LoadError) -> MeshEr
 
 impl TriangleMesh {
     /// The positions and triangles of one tobj mesh (loaded with `single_index`, its polygons
-    /// triangulated by [`triangulate`]).
+    /// triangulated by [`triangulate`]), with its `vn` normals (normalised; a zero or
+    /// non-finite one becomes zero: none) and `vt` texture coordinates where every vertex has
+    /// them.
     pub(crate) fn from_tobj(m: &tobj::Mesh) -> Self {
+        let count = m.positions.len() / 3;
+        let normals = if m.normals.len() == 3 * count {
+            m.normals.chunks_exact(3).map(|n| Vec3::new(n[0], n[1], n[2]).normalize_or_zero()).collect()
+        } else {
+            Vec::new()
+        };
+        let uvs = if m.texcoords.len() == 2 * count {
+            m.texcoords.chunks_exact(2).map(|t| glam::Vec2::new(t[0], t[1])).collect()
+        } else {
+            Vec::new()
+        };
         TriangleMesh {
             positions: m.positions.chunks_exact(3).map(|p| Vec3::new(p[0], p[1], p[2])).collect(),
             indices: m.indices.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
+            normals,
+            uvs,
         }
     }
 }
@@ -513,6 +528,34 @@ impl TriangleMesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `vn` and `vt` are kept, one per vertex, each with the position it was given beside
+    /// (a position used with two normals becomes two vertices); a mesh part without them gets
+    /// zero normals where it is appended to one with them.
+    #[test]
+    fn normals_and_texture_coordinates_are_kept_per_vertex() {
+        let dir = std::env::temp_dir().join(format!("arbor-obj-attributes-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.obj");
+        let text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 2\nvn 0 1 1\n\
+                    f 1/1/1 2/2/1 3/3/2 4/4/2\n";
+        std::fs::write(&path, text).unwrap();
+        let m = TriangleMesh::load_obj(&path).unwrap();
+        assert_eq!(m.triangle_count(), 2);
+        assert_eq!((m.normals.len(), m.uvs.len()), (m.positions.len(), m.positions.len()));
+        let diagonal = Vec3::new(0.0, 1.0, 1.0).normalize();
+        for (k, p) in m.positions.iter().enumerate() {
+            let corner = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y].iter().position(|c| c == p).unwrap();
+            assert_eq!(m.uvs[k], glam::Vec2::new(p.x, p.y), "vt follows its position");
+            let normal = if corner < 2 { Vec3::Z } else { diagonal };
+            assert!((m.normals[k] - normal).length() < 1e-6, "vn normalised and kept: {:?}", m.normals[k]);
+        }
+        let mut both = m.clone();
+        both.append(&TriangleMesh::quad());
+        assert_eq!(both.normals.len(), both.positions.len());
+        assert!(both.normals[m.positions.len()..].iter().all(|n| *n == Vec3::ZERO));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     /// A U-shaped octagon and a 10-point star (concave) keep their shapes: their triangles
     /// add up to the polygon's area, all wound as the polygon (normal +z), and none covers

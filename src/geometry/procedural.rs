@@ -43,8 +43,11 @@ impl Pcg {
 /// Meister & Bittner 2018 (Table 1) instead of growing with the count.
 pub fn hairball(triangles: usize, seed: u64) -> TriangleMesh {
     let mut rng = Pcg(seed ^ 0x6861_6972);
-    let mut mesh =
-        TriangleMesh { positions: Vec::with_capacity(3 * triangles), indices: Vec::with_capacity(triangles) };
+    let mut mesh = TriangleMesh {
+        positions: Vec::with_capacity(3 * triangles),
+        indices: Vec::with_capacity(triangles),
+        ..Default::default()
+    };
     let step = (HAIR_DENSITY / triangles.max(1) as f32).sqrt().min(0.3);
     let (mut p, mut dir) = (Vec3::ZERO, Vec3::X);
     for i in 0..triangles as u32 {
@@ -83,6 +86,7 @@ pub fn city(triangles: usize, seed: u64) -> TriangleMesh {
     mesh.append(&TriangleMesh {
         positions: vec![Vec3::ZERO, Vec3::new(size, 0.0, 0.0), Vec3::new(size, 0.0, size), Vec3::new(0.0, 0.0, size)],
         indices: vec![[0, 2, 1], [0, 3, 2]],
+        ..Default::default()
     });
     for k in 0..boxes {
         let (x, z) = ((k % side) as f32, (k / side) as f32);
@@ -107,6 +111,7 @@ fn open_box(lo: Vec3, hi: Vec3) -> TriangleMesh {
     TriangleMesh {
         positions: (0..8).map(c).collect(),
         indices: quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect(),
+        ..Default::default()
     }
 }
 
@@ -126,8 +131,11 @@ pub fn subdivide(mesh: &TriangleMesh, min_triangles: usize) -> TriangleMesh {
             .map(|[a, b, c]| super::Triangle::new(a, b, c))
             .collect();
     }
-    let mut out =
-        TriangleMesh { positions: Vec::with_capacity(3 * tris.len()), indices: Vec::with_capacity(tris.len()) };
+    let mut out = TriangleMesh {
+        positions: Vec::with_capacity(3 * tris.len()),
+        indices: Vec::with_capacity(tris.len()),
+        ..Default::default()
+    };
     for (i, t) in tris.iter().enumerate() {
         let i = 3 * i as u32;
         out.positions.extend([t.v0, t.v1, t.v2]);

@@ -38,7 +38,7 @@ impl TriangleMesh {
                 indices.push([a, d, b]);
             }
         }
-        Self { positions, indices }
+        Self { positions, indices, ..Default::default() }
     }
 
     /// The built-in quad: the square [-1, 1]² in the xy plane, facing +z.
@@ -51,6 +51,7 @@ impl TriangleMesh {
                 Vec3::new(-1.0, 1.0, 0.0),
             ],
             indices: vec![[0, 1, 2], [0, 2, 3]],
+            ..Default::default()
         }
     }
 
@@ -68,6 +69,7 @@ impl TriangleMesh {
         Self {
             positions: (0..8).map(corner).collect(),
             indices: faces.iter().flat_map(|f| [[f[0], f[1], f[2]], [f[0], f[2], f[3]]]).collect(),
+            ..Default::default()
         }
     }
 
@@ -132,7 +134,7 @@ impl TriangleMesh {
                 })
                 .collect();
         }
-        Self { positions, indices }
+        Self { positions, indices, ..Default::default() }
     }
 
     /// A torus around the y axis: the tube of radius `minor` follows a circle of radius `major`,
@@ -157,7 +159,7 @@ impl TriangleMesh {
                 indices.push([a, d, c]);
             }
         }
-        Self { positions, indices }
+        Self { positions, indices, ..Default::default() }
     }
 }
 

@@ -211,8 +211,8 @@ impl Scene {
     }
 
     /// SHA-256 of what the scene renders, as lowercase hex: the camera (but the file line it
-    /// came from), the environment, the materials, every mesh's vertices, triangles and
-    /// materials, the objects with their animations, and the frame clock; not the file's path or
+    /// came from), the environment, the materials, every mesh's vertices (with their normals
+    /// and texture coordinates), triangles and materials, the objects with their animations, and the frame clock; not the file's path or
     /// layout, nor its `[render]` table (a render's seed, depth and samples are recorded beside
     /// it). Two tasks that load the same scene from different folders agree; any change to what
     /// is drawn changes it. Numbers are hashed by their exact bits (vectors and matrices through
@@ -236,6 +236,8 @@ impl Scene {
                 bytemuck::cast_slice::<_, u8>(&m.mesh.positions),
                 bytemuck::cast_slice(&m.mesh.indices),
                 bytemuck::cast_slice(&m.material_ids),
+                bytemuck::cast_slice(&m.mesh.normals),
+                bytemuck::cast_slice(&m.mesh.uvs),
             ] {
                 h.update((bytes.len() as u64).to_le_bytes());
                 h.update(bytes);

@@ -159,6 +159,7 @@ pub(crate) fn load_any_input(args: &Args) -> Result<(String, TriangleMesh)> {
             let mesh = TriangleMesh {
                 positions: triangles.iter().flat_map(|t| [t.v0, t.v1, t.v2]).collect(),
                 indices: (0..triangles.len() as u32).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect(),
+                ..Default::default()
             };
             Some((path.file_name().map_or(path.display().to_string(), |n| n.to_string_lossy().into_owned()), mesh))
         }
