@@ -11,6 +11,8 @@
 @group(0) @binding(3) var<storage, read> materials: array<GpuMaterial>;
 @group(0) @binding(4) var<storage, read> lights: array<GpuLight>;
 @group(0) @binding(5) var<storage, read_write> film: array<GpuPixel>;
+// Each triangle's vertex normals, nine floats in leaf order (HAS_SHADING_NORMALS).
+@group(0) @binding(6) var<storage, read> normals: array<f32>;
 
 // The largest finite f32: "no hit yet". (Infinite literals are not valid WGSL.)
 const T_FAR: f32 = 3.40282347e38;
@@ -493,11 +495,39 @@ fn choose_light(u: f32) -> u32 {
 
 // RenderScene::direct_light: one light sample, MIS-weighted against the BSDF. Returns the
 // contribution in xyz and the rays traced (0 or 1) in w.
+// agrees() of src/render/integrator.rs: the shading frame and the geometry agree on what a
+// scattering does, and wi is not along the surface.
+fn agrees(wi_ng: f32, wo_ng: f32, wi_n: f32, wo_n: f32) -> bool {
+    return ((wi_ng > 0.0) == (wo_ng > 0.0)) == ((wi_n > 0.0) == (wo_n > 0.0)) && wi_ng != 0.0;
+}
+
+// SurfaceHit::shading_normal: the vertex normals of leaf `index` interpolated at (u, v),
+// normalised and turned to ng's side; zero where a vertex has none or they cancel.
+fn shading_normal(index: u32, u: f32, v: f32, ng: vec3<f32>) -> vec3<f32> {
+    let b = 9u * index;
+    let a = vec3<f32>(normals[b], normals[b + 1u], normals[b + 2u]);
+    let c1 = vec3<f32>(normals[b + 3u], normals[b + 4u], normals[b + 5u]);
+    let c2 = vec3<f32>(normals[b + 6u], normals[b + 7u], normals[b + 8u]);
+    let zero = vec3<f32>(0.0);
+    if all(a == zero) || all(c1 == zero) || all(c2 == zero) {
+        return zero;
+    }
+    let n = (1.0 - u - v) * a + u * c1 + v * c2;
+    let len2 = dot(n, n);
+    if !(len2 > 0.0) || !is_finite_f(len2) {
+        return zero;
+    }
+    let m = n * (1.0 / sqrt(len2));
+    return select(m, -m, dot(m, ng) < 0.0);
+}
+
 fn direct_light(
     mat: GpuMaterial,
     frame: Frame,
     sp: SurfacePoint,
     ng: vec3<f32>,
+    check: bool,
+    wo_ng: f32,
     wo: vec3<f32>,
     beta: vec3<f32>,
     rng: ptr<function, Rng>,
@@ -518,6 +548,9 @@ fn direct_light(
         return vec4<f32>(0.0);
     }
     let wi = to_local(frame, wi_world);
+    if check && !agrees(dot(ng, wi_world), wo_ng, wi.z, wo.z) {
+        return vec4<f32>(0.0);
+    }
     let f = bsdf_eval(mat, wo, wi);
     if max3(f) <= 0.0 {
         return vec4<f32>(0.0);
@@ -584,10 +617,22 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         if mat.kind != MAT_DIELECTRIC && !front {
             break; // one-sided reflector seen from the back
         }
-        let frame = frame_from_normal(ng);
+        // The shading normal where the view sees the same side of it as of the surface
+        // (src/render/integrator.rs).
+        let wo_ng = dot(ng, wo_world);
+        var n = ng;
+        var check = false;
+        if HAS_SHADING_NORMALS {
+            let ns = shading_normal(hit.index, hit.u, hit.v, ng);
+            if any(ns != vec3<f32>(0.0)) && (dot(ns, wo_world) > 0.0) == (wo_ng > 0.0) {
+                n = ns;
+                check = true;
+            }
+        }
+        let frame = frame_from_normal(n);
         let wo = to_local(frame, wo_world);
         if HAS_LIGHTS && params.light_count > 0u && !mat_is_delta(mat) {
-            let direct = direct_light(mat, frame, sp, ng, wo, beta, rng);
+            let direct = direct_light(mat, frame, sp, ng, check, wo_ng, wo, beta, rng);
             l += direct.xyz;
             rays += u32(direct.w);
         }
@@ -597,10 +642,14 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         if !s.ok || !(all_finite(s.weight) && max3(s.weight) > 0.0) {
             break;
         }
+        let wi_world = normalize_glam(to_world(frame, s.wi));
+        if check && !agrees(dot(ng, wi_world), wo_ng, s.wi.z, wo.z) {
+            break;
+        }
         beta *= s.weight;
         prev_pdf = s.pdf;
         prev_delta = s.is_delta;
-        ray = spawn_ray(sp, ng, normalize_glam(to_world(frame, s.wi)));
+        ray = spawn_ray(sp, ng, wi_world);
         if depth >= RR_DEPTH {
             let q = min(max3(beta), 0.95);
             if rng_f32(rng) >= q {

@@ -187,7 +187,14 @@ fn specialized_and_general_variants_agree() {
     let (rs, _) = RenderScene::build(&scene, &lbvh());
     assert_eq!(
         Features::of(&rs),
-        Features { dielectric: false, conductor: false, environment: true, lights: false, thin_lens: false }
+        Features {
+            dielectric: false,
+            conductor: false,
+            environment: true,
+            lights: false,
+            thin_lens: false,
+            shading_normals: false
+        }
     );
     let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
     let specialized = trace::render(ctx, &gpu, 3, 8, 8, &mut |_| true).unwrap();
@@ -268,6 +275,7 @@ fn a_tree_deeper_than_the_stack_is_refused() {
         mesh,
         triangles: tris,
         material_of: vec![0; n as usize],
+        normals: Vec::new(),
     });
     let error = GpuScene::upload(ctx, &rs).err().expect("a 100-deep tree must be refused").to_string();
     assert!(error.contains("100 nodes deep") && error.contains("traversal stack"), "{error}");

@@ -77,7 +77,14 @@ pub fn build_render_scene(
     if compiled >= std::time::Duration::from_millis(1) {
         label += &format!("; {:.2} s compiling its kernels, not counted", compiled.as_secs_f64());
     }
-    Ok(Some(RenderScene::assemble(scene, triangles, material_of, &tree, start + compiled, label, Tracing::gpu())))
+    Ok(Some(RenderScene::assemble(
+        scene,
+        (triangles, material_of, 0.0),
+        &tree,
+        start + compiled,
+        label,
+        Tracing::gpu(),
+    )))
 }
 
 /// Turns off Mesa's Vulkan device-select layer where `XDG_RUNTIME_DIR` is unset (as in CI): the

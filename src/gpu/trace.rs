@@ -101,12 +101,20 @@ pub struct Features {
     /// Emitters to sample: next-event estimation and shadow rays.
     pub lights: bool,
     pub thin_lens: bool,
+    /// Vertex normals to shade with.
+    pub shading_normals: bool,
 }
 
 impl Features {
     /// Every feature: a variant that renders any scene.
-    pub const ALL: Features =
-        Features { dielectric: true, conductor: true, environment: true, lights: true, thin_lens: true };
+    pub const ALL: Features = Features {
+        dielectric: true,
+        conductor: true,
+        environment: true,
+        lights: true,
+        thin_lens: true,
+        shading_normals: true,
+    };
 
     /// What `scene` uses.
     pub fn of(scene: &RenderScene) -> Features {
@@ -117,6 +125,7 @@ impl Features {
             environment: scene.environment.is_some(),
             lights: !scene.lights.is_empty(),
             thin_lens: scene.camera.parts().lens_radius != 0.0,
+            shading_normals: matches!(&scene.geometry, Geometry::Flat(f) if !f.normals.is_empty()),
         }
     }
 
@@ -124,24 +133,26 @@ impl Features {
     pub fn key(&self) -> String {
         let b = |x: bool| u8::from(x);
         format!(
-            "trace[dielectric={} conductor={} environment={} lights={} thin_lens={}]",
+            "trace[dielectric={} conductor={} environment={} lights={} thin_lens={} shading_normals={}]",
             b(self.dielectric),
             b(self.conductor),
             b(self.environment),
             b(self.lights),
-            b(self.thin_lens)
+            b(self.thin_lens),
+            b(self.shading_normals)
         )
     }
 
     /// Every combination, for tests that validate each variant.
     pub fn every() -> Vec<Features> {
-        (0..32u32)
+        (0..64u32)
             .map(|m| Features {
                 dielectric: m & 1 != 0,
                 conductor: m & 2 != 0,
                 environment: m & 4 != 0,
                 lights: m & 8 != 0,
                 thin_lens: m & 16 != 0,
+                shading_normals: m & 32 != 0,
             })
             .collect()
     }
@@ -152,8 +163,13 @@ impl Features {
 pub fn shader_source(features: Features) -> String {
     let flags = format!(
         "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_ENVIRONMENT: bool = {};\n\
-         const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\n",
-        features.dielectric, features.conductor, features.environment, features.lights, features.thin_lens
+         const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\nconst HAS_SHADING_NORMALS: bool = {};\n",
+        features.dielectric,
+        features.conductor,
+        features.environment,
+        features.lights,
+        features.thin_lens,
+        features.shading_normals
     );
     with_prelude(&format!(
         "{flags}\n{}\n{}",
@@ -173,6 +189,9 @@ pub struct GpuScene {
     triangles: wgpu::Buffer,
     materials: wgpu::Buffer,
     lights: wgpu::Buffer,
+    /// Each triangle's three vertex normals (nine floats, leaf order; zero: none), or one
+    /// zero float where the scene has none.
+    normals: wgpu::Buffer,
     /// Camera, environment, clamp and light count; seed and samples are set per render.
     params: TraceParams,
     /// The variant to compile: [`Features::of`] the scene, or all of them under
@@ -286,6 +305,11 @@ impl GpuScene {
                 pad: 0,
             })
             .collect();
+        let normals: Vec<f32> = if flat.normals.is_empty() {
+            Vec::new()
+        } else {
+            bvh.prim_ids.iter().flat_map(|&prim| flat.normals[prim as usize].map(|n| n.to_array())).flatten().collect()
+        };
         let materials: Vec<GpuMaterial> = scene.materials.iter().map(gpu_material).collect();
         let lights: Vec<GpuLight> = scene
             .lights
@@ -327,6 +351,7 @@ impl GpuScene {
             triangles: ctx.storage_buffer("triangles", &at_least_one(triangles))?,
             materials: ctx.storage_buffer("materials", &at_least_one(materials))?,
             lights: ctx.storage_buffer("lights", &at_least_one(lights))?,
+            normals: ctx.storage_buffer("normals", &at_least_one(normals))?,
             params,
             features: if specialization_disabled() { Features::ALL } else { Features::of(scene) },
             width: scene.width,
@@ -351,7 +376,7 @@ pub fn flatten(scene: &Scene, time: f32, builder: &Builder) -> (RenderScene, Bui
     let prims: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
     let label = format!("{builder}, flattened for the GPU");
-    RenderScene::assemble(scene, triangles, material_of, &built.bvh, start, label, crate::bvh::Tracing::gpu())
+    RenderScene::assemble(scene, (triangles, material_of, time), &built.bvh, start, label, crate::bvh::Tracing::gpu())
 }
 
 /// The pipeline of `scene`'s variant, compiled on first use and cached in `ctx`.
@@ -370,7 +395,15 @@ fn bind_group(
 ) -> wgpu::BindGroup {
     ctx.bind_group(
         pipeline,
-        &[(0, params), (1, &scene.nodes), (2, &scene.triangles), (3, &scene.materials), (4, &scene.lights), (5, film)],
+        &[
+            (0, params),
+            (1, &scene.nodes),
+            (2, &scene.triangles),
+            (3, &scene.materials),
+            (4, &scene.lights),
+            (5, film),
+            (6, &scene.normals),
+        ],
     )
 }
 

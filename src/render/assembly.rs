@@ -77,7 +77,7 @@ impl RenderScene {
         let (triangles, material_of) = scene.world_triangles();
         let prims: Vec<_> = triangles.par_iter().map(Triangle::aabb).collect();
         let built = builder.build(&triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
-        Self::assemble(scene, triangles, material_of, &built.bvh, t, builder.to_string(), tracing)
+        Self::assemble(scene, (triangles, material_of, 0.0), &built.bvh, t, builder.to_string(), tracing)
     }
 
     /// The two-level build (see [`RenderScene::build`]).
@@ -104,13 +104,13 @@ impl RenderScene {
     }
 
     /// The rest of a flat build from a tree with one primitive per leaf over `triangles` (built
-    /// here, or on the GPU: `arbor::gpu::build_render_scene`): leaf collapse, the form the CPU
-    /// traces (`tracing`; a GPU render needs only the binary tree), materials, lights, camera.
-    /// The report's time runs from `start`.
+    /// here, or on the GPU: `arbor::gpu::build_render_scene`), the scene's world triangles and
+    /// materials at `time`: leaf collapse, the form the CPU traces (`tracing`; a GPU render
+    /// needs only the binary tree), shading normals, materials, lights, camera. The report's
+    /// time runs from `start`.
     pub fn assemble(
         scene: &Scene,
-        triangles: Vec<Triangle>,
-        material_of: Vec<u32>,
+        (triangles, material_of, time): (Vec<Triangle>, Vec<u32>, f32),
         leaf1: &crate::bvh::Bvh,
         start: Instant,
         builder: String,
@@ -132,7 +132,8 @@ impl RenderScene {
             collapse_ms,
             traced_sah,
         };
-        let geometry = Geometry::Flat(Flat { mesh, triangles, material_of });
+        let normals = scene.world_normals_at(time);
+        let geometry = Geometry::Flat(Flat { mesh, triangles, material_of, normals });
         (Self::with_geometry(scene, geometry, materials, lights), report)
     }
 

@@ -223,11 +223,18 @@ impl RenderScene {
         let lbvh_seconds = t.elapsed().as_secs_f64();
         let tracing = device.tracing();
         let assemble = |b: &crate::bvh::Bvh| {
-            Self::assemble(scene, triangles.clone(), material_of.clone(), b, Instant::now(), String::new(), tracing)
+            Self::assemble(
+                scene,
+                (triangles.clone(), material_of.clone(), 0.0),
+                b,
+                Instant::now(),
+                String::new(),
+                tracing,
+            )
         };
         let Some(baseline) = Self::auto_baseline(scene, rays, device, &bvh, &triangles, &assemble) else {
             let label = "auto: lbvh, a render too short to time on the device".to_owned();
-            return Self::assemble(scene, triangles, material_of, &bvh, t, label, tracing);
+            return Self::assemble(scene, (triangles, material_of, 0.0), &bvh, t, label, tracing);
         };
         t += baseline.excluded;
         let Baseline { judge, render_seconds, mut timed, probe_cost, measured, .. } = baseline;
@@ -262,7 +269,7 @@ impl RenderScene {
                 (report.builder, report.build_ms) = (label, t.elapsed().as_secs_f64() * 1e3);
                 (rs, report)
             }
-            None => Self::assemble(scene, triangles, material_of, &bvh, t, label, tracing),
+            None => Self::assemble(scene, (triangles, material_of, 0.0), &bvh, t, label, tracing),
         }
     }
 

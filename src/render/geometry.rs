@@ -35,6 +35,27 @@ pub struct SurfaceHit {
     pub light: u32,
     /// Which triangle was hit, for rays spawned from it to skip.
     pub surface: Surface,
+    /// The vertices' shading normals in world space, in `triangle`'s vertex order; zero where
+    /// the mesh has none.
+    pub normals: [Vec3; 3],
+}
+
+impl SurfaceHit {
+    /// The shading normal at the hit: the vertex normals interpolated, normalised, and turned to
+    /// the side of `ng` (the geometric normal, whose winding decides which side is the front);
+    /// `None` where a vertex has none or they cancel.
+    #[inline]
+    pub fn shading_normal(&self, ng: Vec3) -> Option<Vec3> {
+        let [a, b, c] = self.normals;
+        if a == Vec3::ZERO || b == Vec3::ZERO || c == Vec3::ZERO {
+            return None;
+        }
+        let n = ((1.0 - self.u - self.v) * a + self.u * b + self.v * c).normalize_or_zero();
+        if n == Vec3::ZERO {
+            return None;
+        }
+        Some(if n.dot(ng) < 0.0 { -n } else { n })
+    }
 }
 
 /// A triangle of the scene: its instance (0 in a flat scene) and its id there. A ray spawned
@@ -53,6 +74,8 @@ pub struct Flat {
     /// World-space triangles by primitive id.
     pub triangles: Vec<Triangle>,
     pub material_of: Vec<u32>,
+    /// Their vertices' shading normals by primitive id ([`Scene::world_normals_at`]), or empty.
+    pub normals: Vec<[Vec3; 3]>,
 }
 
 /// Meshes in object space under a top-level tree of instances (one per scene object).
@@ -62,6 +85,8 @@ pub struct Instanced {
     /// Each mesh's triangles (object space) and materials, by triangle id.
     mesh_triangles: Vec<Vec<Triangle>>,
     mesh_materials: Vec<Vec<u32>>,
+    /// Each mesh's vertex normals by triangle id (object space), or empty.
+    mesh_normals: Vec<Vec<[Vec3; 3]>>,
     /// Each object's material override.
     instance_material: Vec<Option<u32>>,
     /// Each object's first light id, or `INVALID_INDEX` when none of its triangles emits.
@@ -97,11 +122,23 @@ impl Instanced {
             .collect();
         let mesh_triangles: Vec<Vec<Triangle>> = scene.meshes.iter().map(|m| m.mesh.triangles()).collect();
         let mesh_materials = scene.meshes.iter().map(|m| m.material_ids.clone()).collect();
+        let mesh_normals = scene
+            .meshes
+            .iter()
+            .map(|m| {
+                let n = &m.mesh.normals;
+                if n.is_empty() {
+                    return Vec::new();
+                }
+                m.mesh.indices.iter().map(|t| t.map(|i| n[i as usize])).collect()
+            })
+            .collect();
         let instance_material = scene.objects.iter().map(|o| o.material).collect();
         Self {
             two_level: TwoLevel::new(meshes, instances),
             mesh_triangles,
             mesh_materials,
+            mesh_normals,
             instance_material,
             light_base: Vec::new(),
         }
@@ -180,6 +217,7 @@ impl Geometry {
                 material: f.material_of[h.prim_id as usize],
                 light: h.prim_id,
                 surface: Surface { instance: 0, prim: h.prim_id },
+                normals: f.normals.get(h.prim_id as usize).copied().unwrap_or([Vec3::ZERO; 3]),
             }),
             Geometry::Instanced(g) => g.two_level.closest_hit_skipping(ray, f32::INFINITY, skip_pair(from)).map(|h| {
                 let inst = &g.two_level.instances()[h.instance as usize];
@@ -187,7 +225,18 @@ impl Geometry {
                 let base = g.light_base.get(h.instance as usize).copied().unwrap_or(INVALID_INDEX);
                 // A mirrored instance's triangle is placed with two vertices swapped, and the
                 // hit's barycentrics with them.
-                let (u, v) = if mirrors(&inst.world_from_object) { (h.v, h.u) } else { (h.u, h.v) };
+                let mirrored = mirrors(&inst.world_from_object);
+                let (u, v) = if mirrored { (h.v, h.u) } else { (h.u, h.v) };
+                let normals = match g.mesh_normals[inst.mesh as usize].get(h.prim_id as usize) {
+                    Some(n) => {
+                        // The inverse transpose of the placement: its inverse's linear part,
+                        // transposed.
+                        let m = inst.object_from_world.matrix3.transpose();
+                        let [a, b, c] = n.map(|n| (m * n).normalize_or_zero());
+                        if mirrored { [a, c, b] } else { [a, b, c] }
+                    }
+                    None => [Vec3::ZERO; 3],
+                };
                 SurfaceHit {
                     t: h.t,
                     triangle: local.placed(&inst.world_from_object),
@@ -196,6 +245,7 @@ impl Geometry {
                     material: g.material(h.instance as usize, h.prim_id),
                     light: if base == INVALID_INDEX { INVALID_INDEX } else { base + h.prim_id },
                     surface: Surface { instance: h.instance, prim: h.prim_id },
+                    normals,
                 }
             }),
         }

@@ -9,6 +9,22 @@
 //! is weighted against the light sampling that could have found it, so it is neither lost nor
 //! counted twice. What a scene lacks costs nothing: no emitters, no shadow rays; no
 //! environment, no environment lookups.
+//!
+//! **Shading normals.** Where a mesh gives vertex normals, the BSDF is evaluated in the frame of
+//! the interpolated normal `ns` (turned to the side of the geometric normal `ng`, whose winding
+//! decides the front). Two rules keep that from breaking what the geometry says:
+//! - *No leaks*: a direction counts only where `ns` and `ng` agree on what it does: a
+//!   reflection (by `ns`) must stay on the side of the geometric surface it came from, and a
+//!   transmission must cross it. Light sampled through the surface, or a bounce sampled into it,
+//!   contributes nothing, so light never passes through a closed mesh.
+//! - *No black fringes*: where the view direction is above the geometric surface but below
+//!   `ns`'s horizon (silhouettes of coarse meshes), every reflection in `ns`'s frame would be
+//!   black; the hit is shaded with `ng` instead.
+//!
+//! Paths start at the camera and carry radiance, so the cosine at each bounce is the shading
+//! one, `|wi · ns|`, with no correction: Veach's adjoint correction for shading normals
+//! (Veach 1997, §5.3) applies to importance carried from the lights, which this integrator
+//! never does.
 
 use glam::Vec3;
 
@@ -69,19 +85,30 @@ impl RenderScene {
             if !dielectric && !front {
                 break; // one-sided reflector seen from the back
             }
-            let frame = Frame::from_normal(ng);
+            // The shading normal where the view sees the same side of it as of the surface
+            // (module docs).
+            let wo_ng = ng.dot(wo_world);
+            let shading = hit.shading_normal(ng).filter(|ns| (ns.dot(wo_world) > 0.0) == (wo_ng > 0.0));
+            let frame = Frame::from_normal(shading.unwrap_or(ng));
+            // Without a shading normal the frame is the geometry's, and every direction agrees.
+            let check = shading.map(|_| (ng, wo_ng));
             let wo = frame.to_local(wo_world);
             if !self.lights.is_empty() && bsdf.has_non_delta() {
-                rays += self.direct_light(&bsdf, &frame, (p, p_error, hit.surface), ng, wo, beta, rng, &mut l);
+                let at = (p, p_error, hit.surface);
+                rays += self.direct_light(&bsdf, &frame, at, ng, check, wo, beta, rng, &mut l);
             }
             let Some(s) = bsdf.sample(wo, rng.next_vec2(), rng.next_f32()) else { break };
             if !(s.weight.is_finite() && s.weight.max_element() > 0.0) {
                 break;
             }
+            let wi_world = frame.to_world(s.wi).normalize();
+            if check.is_some_and(|(ng, wo_ng)| !agrees(ng.dot(wi_world), wo_ng, s.wi.z, wo.z)) {
+                break;
+            }
             beta *= s.weight;
             prev_pdf = s.pdf;
             prev_delta = s.is_delta;
-            ray = spawn_ray(p, p_error, ng, frame.to_world(s.wi).normalize());
+            ray = spawn_ray(p, p_error, ng, wi_world);
             from = Some(hit.surface);
             if depth >= RR_DEPTH {
                 let q = beta.max_element().min(0.95);
@@ -103,6 +130,7 @@ impl RenderScene {
         frame: &Frame,
         (p, p_error, surface): (Vec3, Vec3, Surface),
         ng: Vec3,
+        check: Option<(Vec3, f32)>,
         wo: Vec3,
         beta: Vec3,
         rng: &mut Rng,
@@ -122,6 +150,9 @@ impl RenderScene {
             return 0;
         }
         let wi = frame.to_local(wi_world);
+        if check.is_some_and(|(ng, wo_ng)| !agrees(ng.dot(wi_world), wo_ng, wi.z, wo.z)) {
+            return 0;
+        }
         let f = bsdf.eval(wo, wi);
         if f.max_element() <= 0.0 {
             return 0;
@@ -153,4 +184,12 @@ impl RenderScene {
         *l += beta * f * wi.z.abs() * lp.radiance * (w / p_light);
         1
     }
+}
+
+/// Whether the shading frame and the geometry agree on what a scattering does: `wi` and `wo`
+/// on the same side of the shading normal (`wi_n`, `wo_n`: their local z) exactly when they
+/// are on the same side of the geometric surface (`wi_ng`, `wo_ng`), and `wi` not along it.
+#[inline]
+fn agrees(wi_ng: f32, wo_ng: f32, wi_n: f32, wo_n: f32) -> bool {
+    ((wi_ng > 0.0) == (wo_ng > 0.0)) == ((wi_n > 0.0) == (wo_n > 0.0)) && wi_ng != 0.0
 }

@@ -121,7 +121,7 @@ impl Refiner {
         let bvh = lbvh::build(&prims);
         let lbvh_seconds = t.elapsed().as_secs_f64();
         let label = "auto: lbvh, optimised while it renders where that pays".to_owned();
-        let (rs, report) = RenderScene::assemble(scene, triangles, material_of, &bvh, t, label, tracing);
+        let (rs, report) = RenderScene::assemble(scene, (triangles, material_of, 0.0), &bvh, t, label, tracing);
         // The whole assembly bounds what a new tree costs to trace (collapses, packing).
         let retree_seconds = (report.build_ms * 1e-3 - lbvh_seconds).max(0.0);
         let refiner = Refiner {

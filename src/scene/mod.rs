@@ -246,6 +246,32 @@ impl Scene {
         h.finalize().iter().map(|b| format!("{b:02x}")).collect()
     }
 
+    /// The shading normals of [`Scene::world_triangles_at`]'s triangles, in the same order and
+    /// with the same vertex order (a mirror swaps two vertices): each vertex's normal mapped by
+    /// the inverse transpose of its object's placement and normalised; zero where the mesh has
+    /// none. Empty where no mesh has normals.
+    pub fn world_normals_at(&self, time: f32) -> Vec<[Vec3; 3]> {
+        if self.meshes.iter().all(|m| m.mesh.normals.is_empty()) {
+            return Vec::new();
+        }
+        let mut out = Vec::new();
+        for o in &self.objects {
+            let m = &self.meshes[o.mesh].mesh;
+            if m.normals.is_empty() {
+                out.extend(std::iter::repeat_n([Vec3::ZERO; 3], m.indices.len()));
+                continue;
+            }
+            let world_from_object = o.world_from_object_at(time);
+            let normal_matrix = glam::Mat3::from_mat4(world_from_object).inverse().transpose();
+            let (b, c) = if world_from_object.determinant() < 0.0 { (2, 1) } else { (1, 2) };
+            for t in &m.indices {
+                let n = |k: usize| (normal_matrix * m.normals[t[k] as usize]).normalize_or_zero();
+                out.push([n(0), n(b), n(c)]);
+            }
+        }
+        out
+    }
+
     /// Whether any material emits.
     pub fn has_emitters(&self) -> bool {
         self.materials.iter().any(|m| m.emission.is_some())
