@@ -9,6 +9,13 @@
 //!   vertices; unknown `usemtl` names, `o`/`g` lines, comments, vertex colours, garbage), and
 //!   mostly valid files with a few such lines mixed in, as the OBJ and the MTL of an otherwise
 //!   valid scene;
+//! - random bytes, random PLY headers (valid and broken lines, huge and overflowing counts,
+//!   unknown types) over random bodies, and meshes of random types in each encoding (with
+//!   normals, texture coordinates, other properties and elements, NaN, infinite and huge
+//!   coordinates, indices negative and out of range, faces of fewer than 3 vertices), their
+//!   bytes mutated: truncated, changed, inserted, four bytes set to a huge count, -1, NaN or
+//!   infinity, a number of the header or an ASCII body replaced (wrong counts and list counts);
+//!   and valid meshes, which must load to the same mesh from each encoding;
 //! - every `scenes/*.toml`, mutated: lines deleted, duplicated, swapped; numbers replaced (nan,
 //!   inf, -1, 0, 1e30, 4294967296, a string, an array); keys and table names replaced; the file
 //!   truncated; random bytes inserted;
@@ -21,9 +28,9 @@
 //! Failures are not persisted (`failure_persistence: None`): each bug found is a named
 //! regression test at the end of this file.
 //!
-//! The default case counts (1000 for each random input, 500 for sizes, 256 for syntax lines)
-//! keep this file to about 4 s on 2 cores: the CI smoke run. `PROPTEST_CASES` overrides them
-//! all; a long run:
+//! The default case counts (1000 for each random input, 500 for sizes, 256 for syntax lines and
+//! for PLY encodings) keep this file to about 6 s on 2 cores: the CI smoke run. `PROPTEST_CASES`
+//! overrides them all; a long run:
 //!
 //! ```sh
 //! PROPTEST_CASES=20000 cargo test --test tests fuzz_loader
@@ -485,6 +492,432 @@ proptest! {
     fn random_obj_and_mtl_files(obj in obj_bytes(), mtl in mtl_bytes(), material in any::<bool>()) {
         let scene = obj_scene(material);
         check(&[("scene.toml", scene.as_bytes()), ("m.obj", &obj), ("m.mtl", &mtl)], &["m.obj"])?;
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// (2b) Random PLY files
+
+/// The scene naming `m.ply`, with or without an object material.
+fn ply_scene(material: bool) -> String {
+    obj_scene(material).replace("m.obj", "m.ply")
+}
+
+const PLY_FORMATS: [&str; 3] = ["ascii", "binary_little_endian", "binary_big_endian"];
+
+#[rustfmt::skip]
+const PLY_TYPES: &[&str] = &[
+    "char", "uchar", "short", "ushort", "int", "uint", "float", "double",
+    "int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64",
+];
+
+/// One property of a generated PLY element: a scalar of type `ty`, or a list of `ty` items
+/// after a count of type `count`.
+#[derive(Clone, Debug)]
+struct PlyProperty {
+    name: &'static str,
+    count: Option<&'static str>,
+    ty: &'static str,
+}
+
+/// A generated PLY element: each record its values in order, a list as its count then its items.
+#[derive(Clone, Debug)]
+struct PlyElement {
+    name: &'static str,
+    properties: Vec<PlyProperty>,
+    records: Vec<Vec<f64>>,
+}
+
+/// `elements` as a PLY file in `format`; a list writes as many items as its count says, or as
+/// there are. Values are cast to their type as Rust's `as` casts (saturating, NaN to 0).
+fn encode_ply(elements: &[PlyElement], format: &str) -> Vec<u8> {
+    let mut out = format!("ply\nformat {format} 1.0\ncomment fuzz\n");
+    for e in elements {
+        out += &format!("element {} {}\n", e.name, e.records.len());
+        for p in &e.properties {
+            out += &match p.count {
+                Some(count) => format!("property list {count} {} {}\n", p.ty, p.name),
+                None => format!("property {} {}\n", p.ty, p.name),
+            };
+        }
+    }
+    out += "end_header\n";
+    let mut out = out.into_bytes();
+    let big = format == "binary_big_endian";
+    for e in elements {
+        for record in &e.records {
+            let mut values = record.iter().copied();
+            let mut words: Vec<String> = Vec::new();
+            let mut put = |out: &mut Vec<u8>, ty: &str, x: f64| {
+                macro_rules! bytes {
+                    ($v:expr) => {{
+                        let v = $v;
+                        if big { v.to_be_bytes().to_vec() } else { v.to_le_bytes().to_vec() }
+                    }};
+                }
+                let (word, bytes) = match ty {
+                    "char" | "int8" => ((x as i8).to_string(), bytes!(x as i8)),
+                    "uchar" | "uint8" => ((x as u8).to_string(), bytes!(x as u8)),
+                    "short" | "int16" => ((x as i16).to_string(), bytes!(x as i16)),
+                    "ushort" | "uint16" => ((x as u16).to_string(), bytes!(x as u16)),
+                    "int" | "int32" => ((x as i32).to_string(), bytes!(x as i32)),
+                    "uint" | "uint32" => ((x as u32).to_string(), bytes!(x as u32)),
+                    "float" | "float32" => ((x as f32).to_string(), bytes!(x as f32)),
+                    _ => (x.to_string(), bytes!(x)),
+                };
+                if format == "ascii" {
+                    words.push(word);
+                } else {
+                    out.extend(bytes);
+                }
+            };
+            for p in &e.properties {
+                let n = match p.count {
+                    Some(count) => {
+                        let n = values.next().unwrap_or(0.0);
+                        put(&mut out, count, n);
+                        n.max(0.0) as usize
+                    }
+                    None => 1,
+                };
+                for x in values.by_ref().take(n) {
+                    put(&mut out, p.ty, x);
+                }
+            }
+            if format == "ascii" {
+                out.extend(words.join(" ").bytes());
+                out.push(b'\n');
+            }
+        }
+    }
+    out
+}
+
+/// A coordinate: mostly an ordinary number, now and then one no mesh should hold.
+fn ply_coordinate(finite: bool) -> BoxedStrategy<f64> {
+    let ordinary = (-10.0f64..10.0).boxed();
+    if finite {
+        return ordinary;
+    }
+    prop_oneof![
+        60 => ordinary,
+        1 => select(vec![f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e39, -1e300, 3.4e38, -0.0, 1e-45]),
+    ]
+    .boxed()
+}
+
+/// A face's vertex index among `n` vertices: mostly valid, now and then negative, out of range
+/// or past its type.
+fn ply_index(n: usize, valid: bool) -> BoxedStrategy<f64> {
+    let ordinary = (0..n).prop_map(|i| i as f64).boxed();
+    if valid {
+        return ordinary;
+    }
+    prop_oneof![
+        60 => ordinary,
+        1 => select(vec![-1.0, n as f64, 255.0, 256.0, 65535.0, 4294967295.0, -2147483648.0, 1e10]),
+    ]
+    .boxed()
+}
+
+/// A PLY mesh of a few vertices and faces in random types, with normals, texture coordinates,
+/// other properties and other elements or not. Where `valid`, every coordinate is finite (and
+/// of a float type), every index in range and every face of 3 to 5 vertices; otherwise now and
+/// then not.
+fn ply_mesh(valid: bool) -> impl Strategy<Value = Vec<PlyElement>> {
+    let coord_types: Vec<&'static str> =
+        if valid { vec!["float", "double", "float32", "float64"] } else { PLY_TYPES.to_vec() };
+    let index_types: Vec<&'static str> = vec!["int", "uint", "short", "ushort", "uchar", "char", "int32", "uint8"];
+    let count_types: Vec<&'static str> = vec!["uchar", "ushort", "uint", "char", "int", "uint8", "int32"];
+    (3usize..8, select(coord_types), select(index_types), select(count_types), any::<bool>(), 0usize..4, any::<bool>())
+        .prop_flat_map(move |(nv, coord, index, count, normals, uv, extra)| {
+            // An index type too small for the vertex count, or a count type for the corners,
+            // only where the file may be broken.
+            let index = if valid && matches!(index, "char" | "uchar" | "uint8") { "int" } else { index };
+            let count = if valid { "uchar" } else { count };
+            let attributes = 3 * usize::from(normals) + if uv > 0 { 2 } else { 0 };
+            let polygon = prop::collection::vec(ply_index(nv, valid), 3..6);
+            let face = if valid {
+                polygon.boxed()
+            } else {
+                prop_oneof![20 => polygon, 1 => prop::collection::vec(ply_index(nv, valid), 0..3)].boxed()
+            };
+            (
+                Just((coord, index, count, normals, uv, extra)),
+                prop::collection::vec(prop::collection::vec(ply_coordinate(valid), 3 + attributes), nv),
+                prop::collection::vec(face, 0..8),
+                prop::collection::vec(0u8..=255, nv),
+            )
+        })
+        .prop_map(|((coord, index, count, normals, uv, extra), vertices, faces, colours)| {
+            let p = |name, ty| PlyProperty { name, count: None, ty };
+            let mut properties = vec![p("x", coord), p("red", "uchar"), p("y", coord), p("z", coord)];
+            if normals {
+                properties.extend([p("nx", coord), p("ny", coord), p("nz", coord)]);
+            }
+            let uv_names = [["u", "v"], ["s", "t"], ["texture_u", "texture_v"]];
+            if uv > 0 {
+                properties.extend(uv_names[uv - 1].map(|n| p(n, coord)));
+            }
+            let records = vertices
+                .iter()
+                .zip(colours)
+                .map(|(v, c)| {
+                    let mut r = vec![v[0], f64::from(c)];
+                    r.extend(&v[1..]);
+                    r
+                })
+                .collect();
+            let mut elements = vec![PlyElement { name: "vertex", properties, records }];
+            let name = if extra { "vertex_index" } else { "vertex_indices" };
+            let list = PlyProperty { name, count: Some(count), ty: index };
+            let faces = faces
+                .into_iter()
+                .map(|f| {
+                    let mut r = vec![f.len() as f64];
+                    r.extend(f);
+                    if extra {
+                        r.push(7.0);
+                    }
+                    r
+                })
+                .collect();
+            let mut face_properties = vec![list];
+            if extra {
+                face_properties.push(p("flags", "int"));
+                let edge = PlyProperty { name: "weights", count: Some("uchar"), ty: "float" };
+                elements.insert(
+                    0,
+                    PlyElement {
+                        name: "edge",
+                        properties: vec![p("vertex1", "int"), edge],
+                        records: vec![vec![0.0, 2.0, 0.5, 0.25], vec![1.0, 0.0]],
+                    },
+                );
+            }
+            elements.push(PlyElement { name: "face", properties: face_properties, records: faces });
+            elements
+        })
+}
+
+/// One random change to a PLY file's bytes.
+#[derive(Clone, Debug)]
+enum PlyMutation {
+    Truncate(Index),
+    SetByte(Index, u8),
+    InsertBytes(Index, Vec<u8>),
+    /// Four bytes replaced by a value that breaks a count, an index or a coordinate: a count
+    /// of 2^32 - 1, an index of -1, NaN, infinity.
+    Overwrite(Index, [u8; 4]),
+    /// A number of the text (a header's count, an ASCII value) replaced.
+    ReplaceNumber(Index, &'static str),
+}
+
+fn ply_mutation() -> impl Strategy<Value = PlyMutation> {
+    let words = vec![
+        "nan",
+        "inf",
+        "-inf",
+        "-1",
+        "0",
+        "2",
+        "255",
+        "256",
+        "65536",
+        "4294967296",
+        "1000000000000",
+        "18446744073709551615",
+        "1e39",
+        "x",
+        "1.5",
+    ];
+    let values = vec![
+        [0xff; 4],
+        [0x7f, 0xc0, 0, 0],
+        [0, 0, 0xc0, 0x7f],
+        [0x7f, 0x80, 0, 0],
+        [0, 0, 0x80, 0x7f],
+        [0x80, 0, 0, 0],
+        [0, 0, 0, 0x80],
+        [0x02, 0, 0, 0],
+        [0, 0, 0, 0x02],
+        [0xff, 0xff, 0xff, 0x7f],
+    ];
+    prop_oneof![
+        1 => any::<Index>().prop_map(PlyMutation::Truncate),
+        1 => (any::<Index>(), any::<u8>()).prop_map(|(i, b)| PlyMutation::SetByte(i, b)),
+        1 => (any::<Index>(), prop::collection::vec(any::<u8>(), 1..8)).prop_map(|(i, b)| PlyMutation::InsertBytes(i, b)),
+        2 => (any::<Index>(), select(values)).prop_map(|(i, v)| PlyMutation::Overwrite(i, v)),
+        2 => (any::<Index>(), select(words)).prop_map(|(i, w)| PlyMutation::ReplaceNumber(i, w)),
+    ]
+}
+
+impl PlyMutation {
+    fn apply(&self, bytes: &mut Vec<u8>) {
+        let at = |i: &Index, len: usize| i.index(len + 1);
+        match self {
+            PlyMutation::Truncate(i) => bytes.truncate(at(i, bytes.len())),
+            PlyMutation::SetByte(i, b) if !bytes.is_empty() => {
+                let k = i.index(bytes.len());
+                bytes[k] = *b;
+            }
+            PlyMutation::SetByte(..) => {}
+            PlyMutation::InsertBytes(i, b) => {
+                let k = at(i, bytes.len());
+                splice(bytes, k..k, b);
+            }
+            PlyMutation::Overwrite(i, v) => {
+                if bytes.len() >= 4 {
+                    let k = i.index(bytes.len() - 3);
+                    bytes[k..k + 4].copy_from_slice(v);
+                }
+            }
+            PlyMutation::ReplaceNumber(i, w) => {
+                let found = numbers(bytes);
+                if !found.is_empty() {
+                    splice(bytes, found[i.index(found.len())].clone(), w.as_bytes());
+                }
+            }
+        }
+    }
+}
+
+/// An `element` line: a name and a count, mostly small, now and then huge, overflowing or not a
+/// number.
+fn ply_element_line() -> impl Strategy<Value = String> {
+    let count = prop_oneof![
+        6 => (0u64..6).prop_map(|n| n.to_string()),
+        1 => select(vec!["4294967296", "1000000000000", "18446744073709551615", "18446744073709551616", "-1", "x"])
+            .prop_map(str::to_owned),
+    ];
+    (select(vec!["vertex", "face", "edge", "material", ""]), count).prop_map(|(n, c)| format!("element {n} {c}"))
+}
+
+/// A `property` line: a scalar or a list, of a name the reader knows or not, and a type or not.
+fn ply_property_line() -> impl Strategy<Value = String> {
+    let names = vec![
+        "x",
+        "y",
+        "z",
+        "nx",
+        "ny",
+        "nz",
+        "u",
+        "v",
+        "s",
+        "t",
+        "texture_u",
+        "texture_v",
+        "red",
+        "vertex_indices",
+        "vertex_index",
+        "flags",
+    ];
+    let types = || {
+        prop_oneof![
+            12 => select(PLY_TYPES.to_vec()),
+            1 => select(vec!["real", "list", "", "int64"]),
+        ]
+    };
+    prop_oneof![
+        2 => (types(), select(names.clone())).prop_map(|(t, n)| format!("property {t} {n}")),
+        1 => (types(), types(), select(names)).prop_map(|(c, t, n)| format!("property list {c} {t} {n}")),
+    ]
+}
+
+/// A PLY header's line, valid and not.
+fn ply_header_line() -> impl Strategy<Value = String> {
+    prop_oneof![
+        3 => select(vec![
+            "ply", "format ascii 1.0", "format binary_little_endian 1.0", "format binary_big_endian 1.0",
+            "format ascii 2.0", "format utf8 1.0", "format", "comment x", "obj_info y", "end_header", "end_header x",
+            "element", "property", "property list", "", " ", "\u{e9}",
+        ])
+        .prop_map(str::to_owned),
+        2 => ply_element_line(),
+        3 => ply_property_line(),
+    ]
+}
+
+/// A header after `ply`: mostly a `format` line, then elements of a few properties each, any of
+/// them broken, with random lines mixed in; `end_header` or not; then random bytes or lines of
+/// random numbers.
+fn random_header_ply() -> impl Strategy<Value = Vec<u8>> {
+    let element = (ply_element_line(), prop::collection::vec(ply_property_line(), 0..5));
+    let body = prop_oneof![
+        prop::collection::vec(any::<u8>(), 0..200),
+        prop::collection::vec(prop::collection::vec(number(), 0..6).prop_map(|w| w.join(" ")), 0..12)
+            .prop_map(|l| l.join("\n").into_bytes()),
+    ];
+    let format = prop_oneof![
+        6 => select(PLY_FORMATS.to_vec()).prop_map(|f| format!("format {f} 1.0")),
+        1 => ply_header_line(),
+    ];
+    let faults = prop::collection::vec((any::<Index>(), ply_header_line()), 0..3);
+    (format, prop::collection::vec(element, 0..4), faults, any::<bool>(), body).prop_map(
+        |(format, elements, faults, end, body)| {
+            let mut lines = vec![format];
+            for (element, properties) in elements {
+                lines.push(element);
+                lines.extend(properties);
+            }
+            for (at, line) in faults {
+                lines.insert(at.index(lines.len() + 1), line);
+            }
+            if end {
+                lines.push("end_header".to_owned());
+            }
+            let mut out = format!("ply\n{}\n", lines.join("\n")).into_bytes();
+            out.extend(body);
+            out
+        },
+    )
+}
+
+fn ply_bytes() -> impl Strategy<Value = Vec<u8>> {
+    let mutated = (ply_mesh(false), select(PLY_FORMATS.to_vec()), prop::collection::vec(ply_mutation(), 0..3))
+        .prop_map(|(elements, format, mutations)| {
+            let mut bytes = encode_ply(&elements, format);
+            for m in &mutations {
+                m.apply(&mut bytes);
+            }
+            bytes
+        });
+    prop_oneof![1 => prop::collection::vec(any::<u8>(), 0..300), 2 => random_header_ply(), 5 => mutated]
+}
+
+proptest! {
+    #![proptest_config(config(1000))]
+
+    /// Random bytes, random headers, and meshes in every encoding with broken values and bytes:
+    /// whatever goes wrong is the PLY file's fault, and the error names it.
+    #[test]
+    fn random_ply_files(ply in ply_bytes(), material in any::<bool>()) {
+        let scene = ply_scene(material);
+        check(&[("scene.toml", scene.as_bytes()), ("m.ply", &ply)], &["m.ply"])?;
+    }
+}
+
+proptest! {
+    #![proptest_config(config(256))]
+
+    /// A valid mesh loads, and to the same mesh bit for bit from each encoding.
+    #[test]
+    fn ply_encodings_load_the_same_mesh(elements in ply_mesh(true)) {
+        let dir = CaseDir::new();
+        let bits = |m: &arbor::geometry::TriangleMesh| {
+            let v3 = |v: &[Vec3]| v.iter().flat_map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+            let uvs: Vec<u32> = m.uvs.iter().flat_map(|p| p.to_array().map(f32::to_bits)).collect();
+            (v3(&m.positions), v3(&m.normals), uvs, m.indices.clone())
+        };
+        let mut loaded = Vec::new();
+        for format in PLY_FORMATS {
+            let path = dir.write(&format!("{format}.ply"), &encode_ply(&elements, format));
+            let mesh = arbor::geometry::TriangleMesh::load_ply(&path);
+            let mesh = mesh.map_err(|e| TestCaseError::fail(format!("{format}: {e}\n{elements:?}")))?;
+            loaded.push(bits(&mesh));
+        }
+        prop_assert!(loaded[0] == loaded[1] && loaded[1] == loaded[2], "{elements:?}");
     }
 }
 

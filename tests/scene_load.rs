@@ -334,6 +334,79 @@ material = \"white\"
     assert!(err.contains(":27: objects[4].mesh") && err.contains("no MTL material"), "{err}");
 }
 
+/// A `mesh` whose extension is `.ply` (in any case) is read as PLY, in each encoding: the same
+/// mesh as the file, normals and texture coordinates kept, polygons triangulated, shared by
+/// the objects naming the file. A PLY file has no materials, so each object needs its own; and a
+/// broken PLY file is an error naming the scene's line and key, then the PLY file and its line
+/// (or, binary, its byte offset).
+#[test]
+fn ply_meshes_load_and_need_a_material() {
+    let dir = temp_dir("ply");
+    let mut mesh = TriangleMesh::icosphere(1);
+    mesh.normals = mesh.positions.iter().map(|p| p.normalize()).collect();
+    mesh.uvs = mesh.positions.iter().map(|p| glam::Vec2::new(p.x * 0.5 + 0.5, p.y)).collect();
+    let formats = ["ascii", "binary_little_endian", "binary_big_endian"];
+    for (name, format) in ["a.ply", "b.PLY", "c.Ply"].iter().zip(formats) {
+        std::fs::write(dir.join(name), common::ply::ply_bytes(&mesh, format)).unwrap();
+    }
+    // A quad and an L-shaped hexagon, in the ASCII encoding.
+    let polygons = "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n\
+                    element face 2\nproperty list uchar int vertex_indices\nend_header\n\
+                    0 0 0\n2 0 0\n2 1 0\n1 1 0\n1 2 0\n0 2 0\n4 0 1 2 5\n6 0 1 2 3 4 5\n";
+    std::fs::write(dir.join("polygons.ply"), polygons).unwrap();
+    let object = |mesh: &str, material: &str| format!("\n[[objects]]\nmesh = \"{mesh}\"\n{material}");
+    let white = "material = \"white\"\n";
+    let text = format!(
+        "{BASE}{}{}{}{}{}",
+        object("a.ply", white),
+        object("b.PLY", white),
+        object("c.Ply", white),
+        object("./sub/../a.ply", white),
+        object("polygons.ply", white),
+    );
+    std::fs::create_dir_all(dir.join("sub")).unwrap();
+    let scene = Scene::parse(&text, dir.join("s.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let meshes: Vec<usize> = scene.objects.iter().map(|o| o.mesh).collect();
+    assert_eq!(meshes, [0, 1, 2, 0, 3]);
+    for m in &scene.meshes[..3] {
+        let loaded = &m.mesh;
+        assert_eq!((&loaded.positions, &loaded.indices, &loaded.uvs), (&mesh.positions, &mesh.indices, &mesh.uvs));
+        let normals = loaded.normals.iter().zip(&mesh.normals).all(|(a, b)| (*a - *b).length() < 1e-6);
+        assert!(normals && loaded.normals.len() == mesh.normals.len(), "{}", m.source);
+        assert!(m.material_ids.iter().all(|&id| id == u32::MAX));
+    }
+    assert!(scene.objects.iter().all(|o| o.material == Some(0)));
+    let area: f32 = scene.meshes[3].mesh.triangles().iter().map(|t| t.area()).sum();
+    assert_eq!((scene.meshes[3].mesh.triangle_count(), area), (2 + 4, 3.0 + 3.0));
+    assert_eq!(scene.materials.len(), 1, "a PLY file adds no materials");
+
+    // Without an object material, and broken files: errors at the object's `mesh`.
+    let err = |mesh: &str, file: Option<&[u8]>| {
+        if let Some(bytes) = file {
+            std::fs::write(dir.join(mesh), bytes).unwrap();
+        }
+        let text = format!("{BASE}{}", object(mesh, if mesh == "a.ply" { "" } else { white }));
+        let err = Scene::parse(&text, dir.join("s.toml")).unwrap_err().to_string();
+        let prefix = format!("{}:12: objects[0].mesh: {}", dir.join("s.toml").display(), dir.join(mesh).display());
+        assert!(err.starts_with(&prefix), "{err}");
+        err[prefix.len()..].to_owned()
+    };
+    assert_eq!(err("a.ply", None), ": a PLY file has no materials; give the object a `material`");
+    let cut = polygons.replace("6 0 1 2 3 4 5", "6 0 1 2 3 4 9");
+    assert_eq!(
+        err("bad.ply", Some(cut.as_bytes())),
+        ":17: face 1, `vertex_indices`: vertex index 9 is past the last vertex (the file has 6)"
+    );
+    let binary = common::ply::ply_bytes(&mesh, "binary_little_endian");
+    let said = err("cut.ply", Some(&binary[..binary.len() - 1]));
+    let face = mesh.triangle_count() - 1;
+    let offset = binary.len() - 4;
+    assert_eq!(said, format!(": byte {offset}: the file ends in face {face} (of {}), at `vertex_indices`", face + 1));
+    let points = polygons.replace("element face 2", "element face 0");
+    assert_eq!(err("points.ply", Some(points.as_bytes())), ": no faces (a `face` element with `vertex_indices`)");
+    assert!(err("missing.ply", None).starts_with(": cannot read: "));
+}
+
 /// The animated example in docs/scene-format.md loads and does what its comments say.
 /// `city` and `hairball` make at least the triangles asked for, the same for the same seed, and
 /// objects asking for the same one share it.

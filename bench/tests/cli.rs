@@ -10,6 +10,8 @@ fn root() -> PathBuf {
 
 #[path = "../../tests/common/tools.rs"]
 mod common;
+#[path = "../../tests/common/ply.rs"]
+mod ply;
 
 fn bench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_bvh-bench"))
@@ -97,6 +99,30 @@ fn scenes_as_input() {
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(String::from_utf8_lossy(&out.stdout).contains("lbvh+prbvh"));
+}
+
+/// A `.ply` input (in any case) is read as PLY, binary or ASCII; its errors name its line.
+#[test]
+fn ply_meshes_as_input() {
+    let dir = temp_dir("ply");
+    let torus = arbor::geometry::TriangleMesh::torus(glam::Vec3::ZERO, 2.0, 0.7, 40, 20);
+    let (binary, json) = (dir.join("torus.PLY"), dir.join("r.json"));
+    std::fs::write(&binary, ply::ply_bytes(&torus, "binary_little_endian")).unwrap();
+    let out = bench()
+        .arg(&binary)
+        .args(["--builders", "lbvh", "--runs", "1", "--resolution", "16", "--json"])
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(report["triangles"], 1600);
+    let broken = dir.join("broken.ply");
+    let text = String::from_utf8(ply::ply_bytes(&torus, "ascii")).unwrap();
+    std::fs::write(&broken, text.replacen("property float y", "property real y", 1)).unwrap();
+    let out = bench().arg(&broken).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("broken.ply:5: unknown type `real`"), "{stderr}");
 }
 
 #[test]

@@ -1,11 +1,12 @@
-//! Indexed triangle meshes: loaded from OBJ ([`super::obj`]), or made in code
-//! ([`super::shapes`]).
+//! Indexed triangle meshes: loaded from OBJ ([`super::obj`]) or PLY ([`super::ply`]), or made in
+//! code ([`super::shapes`]).
 
 use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Vec2, Vec3};
 
 use super::obj::read_obj;
+use super::ply::read_ply;
 use super::{Aabb, Triangle};
 
 /// Positions and triangles indexing them, with the per-vertex attributes a file gave.
@@ -22,16 +23,20 @@ pub struct TriangleMesh {
     pub uvs: Vec<Vec2>,
 }
 
-/// Why an OBJ file (or an MTL file it names) cannot be used.
+/// Why an OBJ file (or an MTL file it names), or a PLY file, cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum MeshError {
     /// The I/O error is part of the message, not a `source`, so that a report of the whole
     /// error chain (`{:#}`) says it once.
     #[error("{path}: cannot read: {error}")]
     Read { path: PathBuf, error: std::io::Error },
-    /// A line that is not valid OBJ or MTL, or not usable.
+    /// A line that is not valid OBJ, MTL or PLY (its header, or an ASCII body), or not usable.
     #[error("{path}:{line}: {message}")]
     Invalid { path: PathBuf, line: usize, message: String },
+    /// A value in a binary PLY body that is not usable, or where the file ends early: its byte
+    /// offset from the start of the file.
+    #[error("{path}: byte {offset}: {message}")]
+    InvalidBinary { path: PathBuf, offset: usize, message: String },
     /// What tobj finds only when an object ends, past the line at fault.
     #[error("{path}: cannot read OBJ: {error}")]
     Obj { path: PathBuf, error: tobj::LoadError },
@@ -97,5 +102,11 @@ impl TriangleMesh {
             mesh.append(&TriangleMesh::from_tobj(&m.mesh));
         }
         Ok(mesh)
+    }
+
+    /// Loads a PLY file (ASCII or binary): its vertices, with their normals and texture
+    /// coordinates where it has them, and its faces, triangulated. See [`super::ply`].
+    pub fn load_ply(path: impl AsRef<Path>) -> Result<Self, MeshError> {
+        read_ply(path.as_ref())
     }
 }

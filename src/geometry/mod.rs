@@ -1,10 +1,11 @@
 //! Geometry: boxes, rays, triangles, Morton codes and meshes ([`mesh`]; built-in [`shapes`]; the
-//! OBJ/MTL reader, [`obj`]).
+//! OBJ/MTL reader, [`obj`]; the PLY reader, [`ply`]).
 
 mod aabb;
 pub mod mesh;
 pub mod morton;
 pub mod obj;
+pub mod ply;
 pub mod procedural;
 mod ray;
 pub mod shapes;

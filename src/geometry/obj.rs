@@ -101,8 +101,9 @@ fn triangulate(mesh: &mut tobj::Mesh) {
 /// Polygons above this size are fanned: ear clipping costs up to the cube of the size.
 const EAR_CLIPPING_MAX: usize = 1024;
 
-/// Appends the triangles of one polygon (vertex indices in order) to `out` (see [`triangulate`]).
-fn triangulate_polygon(polygon: &[u32], position: &impl Fn(u32) -> glam::DVec3, out: &mut Vec<u32>) {
+/// Appends the triangles of one polygon (vertex indices in order) to `out` (see [`triangulate`]);
+/// PLY faces are triangulated by it too.
+pub(crate) fn triangulate_polygon(polygon: &[u32], position: &impl Fn(u32) -> glam::DVec3, out: &mut Vec<u32>) {
     let n = polygon.len();
     let fan = |from: &[u32], out: &mut Vec<u32>| {
         for k in 1..from.len().saturating_sub(1) {

@@ -1,6 +1,6 @@
 //! Turning a parsed scene file into a checked [`Scene`]: value checks, materials (from the TOML
-//! and from MTL files), meshes (one per OBJ file or built-in shape, shared by the objects naming
-//! it), transforms, keyframes and scattered instances. Every error names file, line and key.
+//! and from MTL files), meshes (one per OBJ or PLY file or built-in shape, shared by the objects
+//! naming it), transforms, keyframes and scattered instances. Every error names file, line and key.
 //!
 //! Scattered instances draw from a local SplitMix64 (Steele, Lea and Flood 2014, "Fast splittable
 //! pseudorandom number generators"), not the renderer's PCG32 streams: a scene's layout must not
@@ -378,7 +378,7 @@ fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, Scen
 
 /// What every object is built against.
 struct ObjectEnv<'a> {
-    /// The scene file's folder, where OBJ paths start.
+    /// The scene file's folder, where mesh paths start.
     base: &'a Path,
     by_name: HashMap<String, u32>,
     /// Whether the scene has an `[animation]` table, which anything that moves needs.
@@ -390,7 +390,7 @@ struct Built {
     /// The scene's materials, then each OBJ file's MTL materials, appended once per file.
     materials: Vec<Material>,
     meshes: Vec<SceneMesh>,
-    /// The mesh already made for an OBJ file or a built-in shape.
+    /// The mesh already made for an OBJ or PLY file or a built-in shape.
     known: HashMap<MeshKey, KnownMesh>,
     objects: Vec<Object>,
     /// Triangles of the procedural shapes made so far.
@@ -400,8 +400,8 @@ struct Built {
 /// What makes two objects' meshes the same.
 #[derive(PartialEq, Eq, Hash)]
 enum MeshKey {
-    /// The OBJ file's canonical path (the joined path when it has none).
-    Obj(PathBuf),
+    /// The OBJ or PLY file's canonical path (the joined path when it has none).
+    File(PathBuf),
     /// A built-in shape ([`ShapeSpec`]).
     Shape(ShapeSpec),
 }
@@ -409,7 +409,7 @@ enum MeshKey {
 struct KnownMesh {
     index: usize,
     /// Why an object using this mesh needs its own `material` (a triangle without an MTL
-    /// material), if it does.
+    /// material, or any PLY triangle), if it does.
     needs_material: Option<String>,
 }
 
@@ -433,7 +433,7 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
     let mesh = match (&f.mesh, &f.shape) {
         (Some(path), None) => {
             if path.get_ref().trim().is_empty() {
-                return Err(ctx.err(path.span(), key("mesh"), "is empty: name an OBJ file"));
+                return Err(ctx.err(path.span(), key("mesh"), "is empty: name an OBJ or PLY file"));
             }
             if let Some(s) = &f.subdivisions {
                 return Err(ctx.err(s.span(), key("subdivisions"), "only a built-in sphere takes subdivisions"));
@@ -444,7 +444,7 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
             if let Some(s) = &f.seed {
                 return Err(ctx.err(s.span(), key("seed"), "only a procedural shape takes `seed`"));
             }
-            let known = shared_obj_mesh(ctx, &key("mesh"), path, env.base, out)?;
+            let known = shared_file_mesh(ctx, &key("mesh"), path, env.base, out)?;
             if let (None, Some(why)) = (material, &known.needs_material) {
                 return Err(ctx.err(path.span(), key("mesh"), why.clone()));
             }
@@ -476,7 +476,9 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
             known.index
         }
         (Some(p), Some(_)) => return Err(ctx.err(p.span(), key("mesh"), "give either `mesh` or `shape`, not both")),
-        (None, None) => return Err(ctx.err(o.span(), key("mesh"), "an object needs `mesh` (an OBJ file) or `shape`")),
+        (None, None) => {
+            return Err(ctx.err(o.span(), key("mesh"), "an object needs `mesh` (an OBJ or PLY file) or `shape`"));
+        }
     };
     let world_from_object = transform(ctx, index, f)?;
     let animation = match (&f.keyframes, &f.scatter) {
@@ -494,8 +496,9 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
     Ok(())
 }
 
-/// The mesh of the OBJ file `rel` names, loaded (with its MTL materials) the first time.
-fn shared_obj_mesh<'a>(
+/// The mesh of the file `rel` names, loaded the first time: a PLY file where its extension is
+/// `.ply` (in any case), an OBJ file (with its MTL materials) otherwise.
+fn shared_file_mesh<'a>(
     ctx: &Ctx,
     key: &str,
     rel: &S<String>,
@@ -505,11 +508,13 @@ fn shared_obj_mesh<'a>(
     let path = base.join(rel.get_ref());
     // Canonical, so `a.obj` and `./models/../a.obj` are one mesh; a file that is not there keeps
     // its joined path, and loading it reports the error.
-    let id = MeshKey::Obj(std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone()));
+    let id = MeshKey::File(std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone()));
     match out.known.entry(id) {
         Entry::Occupied(e) => Ok(e.into_mut()),
         Entry::Vacant(e) => {
-            let (mesh, needs_material) = obj_mesh(ctx, key, rel, &path, &mut out.materials)?;
+            let ply = path.extension().is_some_and(|x| x.eq_ignore_ascii_case("ply"));
+            let (mesh, needs_material) =
+                if ply { ply_mesh(ctx, key, rel, &path)? } else { obj_mesh(ctx, key, rel, &path, &mut out.materials)? };
             out.meshes.push(mesh);
             Ok(e.insert(KnownMesh { index: out.meshes.len() - 1, needs_material }))
         }
@@ -629,6 +634,19 @@ fn obj_mesh(
         return Err(ctx.err(rel.span(), key, format!("{}: no faces (`f` lines)", path.display())));
     }
     Ok((SceneMesh { source: path.display().to_string(), mesh, material_ids }, needs_material))
+}
+
+/// The PLY mesh at `path` (`rel` as written). A PLY file has no materials: every triangle gets id
+/// `u32::MAX`, and the second value says that an object using the mesh needs its own `material`.
+fn ply_mesh(ctx: &Ctx, key: &str, rel: &S<String>, path: &Path) -> Result<(SceneMesh, Option<String>), SceneError> {
+    let mesh = TriangleMesh::load_ply(path).map_err(|e| ctx.err(rel.span(), key, e.to_string()))?;
+    if mesh.indices.is_empty() {
+        let msg = format!("{}: no faces (a `face` element with `vertex_indices`)", path.display());
+        return Err(ctx.err(rel.span(), key, msg));
+    }
+    let material_ids = vec![u32::MAX; mesh.indices.len()];
+    let needs_material = format!("{}: a PLY file has no materials; give the object a `material`", path.display());
+    Ok((SceneMesh { source: path.display().to_string(), mesh, material_ids }, Some(needs_material)))
 }
 
 /// Why object `model` of the OBJ file at `path` has no MTL material: the error when the scene

@@ -1,6 +1,6 @@
 //! Scenes: the TOML scene format (documented in `docs/scene-format.md`) and its loader.
 //!
-//! [`Scene::load`] reads a scene file and the OBJ/MTL meshes it names, checks every value, and
+//! [`Scene::load`] reads a scene file and the OBJ/MTL and PLY meshes it names, checks every value, and
 //! returns plain data: a camera, render settings, materials by index, meshes and the objects
 //! placing them, some of them animated ([`Animation`]). Any error names the scene file, the line
 //! and the key at fault ([`SceneError`]); nothing panics on bad input.
@@ -105,11 +105,11 @@ pub struct Material {
 }
 
 /// A mesh with one material per triangle (indices into [`Scene::materials`]). Objects naming the
-/// same OBJ file or the same built-in shape share one; a built-in shape's `material_ids` hold the
+/// same OBJ or PLY file or the same built-in shape share one; a built-in shape's `material_ids` hold the
 /// first such object's material, and every object using it overrides them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneMesh {
-    /// Where it came from: the OBJ path, or the built-in shape's name.
+    /// Where it came from: the OBJ or PLY path, or the built-in shape's name.
     pub source: String,
     pub mesh: TriangleMesh,
     pub material_ids: Vec<u32>,

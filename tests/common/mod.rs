@@ -1,8 +1,9 @@
-//! Helpers shared by the integration tests: seeded random geometry and rays, and the shared test
-//! meshes.
+//! Helpers shared by the integration tests: seeded random geometry and rays, the shared test
+//! meshes, and PLY files ([`ply`]).
 #![allow(dead_code)]
 
 pub mod analytic;
+pub mod ply;
 mod tools;
 
 pub use tools::{gpu_or_skip, output_with_stdout_closed};

@@ -33,7 +33,7 @@ use std::path::PathBuf;
 #[derive(Parser, Debug)]
 #[command(name = "bvh-bench", version)]
 pub(crate) struct Args {
-    /// Mesh (.obj) or scene (.toml) to build over. Optional with --procedural, except for
+    /// Mesh (.obj, or .ply in any case) or scene (.toml) to build over. Optional with --procedural, except for
     /// `subdivided`.
     pub(crate) input: Option<PathBuf>,
     /// Make a mesh instead: hairball:N, city:N, or subdivided:N (the input mesh split until it
