@@ -2,7 +2,7 @@
 //! the LBVH build over its triangles: the median of a few runs of each. The files are written to
 //! the system's temporary folder and removed at the end.
 //!
-//! `cargo run --release --example mesh_load_times [-- RUNS]` (default 5 runs)
+//! `cargo run --release -p arbor-bench --example mesh_load_times [-- RUNS]` (default 5 runs)
 
 use std::io::Write as _;
 use std::time::Instant;
