@@ -662,10 +662,10 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
 }
 
 // Adds `v` to the 128-bit two's-complement fixed-point integer `limbs` (four 32-bit limbs,
-// least significant first, in units of 2^-50): the film's exact sums (src/render/film.rs), which
-// make the image of any split of the samples the same. `v` is rounded to the nearest unit, ties
-// to even, as the CPU's `to_fixed` rounds; the caller has checked that |v| < 2^44, so `v` times
-// 2^50 needs at most 94 bits.
+// least significant first, in units of 2^-FILM_FRACTION_BITS): the film's exact sums
+// (src/render/film.rs), which make the image of any split of the samples the same. `v` is
+// rounded to the nearest unit, ties to even, as the CPU's `to_fixed` rounds; the caller has
+// checked that |v| < FILM_SAMPLE_LIMIT (2^44), so `v` in units needs at most 94 bits.
 fn add_fixed(limbs: ptr<function, array<u32, 12>>, base: u32, v: f32) {
     let bits = bitcast<u32>(v);
     let e = (bits >> 23u) & 0xffu;
@@ -673,8 +673,8 @@ fn add_fixed(limbs: ptr<function, array<u32, 12>>, base: u32, v: f32) {
     if e != 0u {
         m = m | 0x800000u;
     }
-    // |v| = m × 2^(max(e, 1) − 150), so |v| × 2^50 = m × 2^(max(e, 1) − 100).
-    let s = i32(max(e, 1u)) - 100;
+    // |v| = m × 2^(max(e, 1) − 150), so |v| in units is m × 2^(max(e, 1) − 150 + FILM_FRACTION_BITS).
+    let s = i32(max(e, 1u)) - 150 + FILM_FRACTION_BITS;
     var q = array<u32, 4>(0u, 0u, 0u, 0u);
     if s < 0 {
         let r = u32(-s);
@@ -739,7 +739,7 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>) {
         var l = path.l;
         // Film::add_sample: non-finite samples are counted and dropped; then the clamp (which
         // on the CPU turns an infinite sample into NaN, dropped all the same); then samples too
-        // large for the exact sums (2^44) are dropped as the CPU drops them.
+        // large for the exact sums are dropped as the CPU drops them.
         if !all_finite(l) {
             acc.non_finite += 1u;
             continue;
@@ -750,7 +750,7 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>) {
                 l *= params.clamp / m;
             }
         }
-        if max3(abs(l)) >= 17592186044416.0 {
+        if max3(abs(l)) >= FILM_SAMPLE_LIMIT {
             acc.non_finite += 1u;
             continue;
         }

@@ -134,19 +134,19 @@ pub enum PieceError {
     Memory(#[from] crate::memory::OutOfMemory),
 }
 
-/// Writes `piece` to `path` (atomically: see [`crate::atomic_file`]).
-pub fn write_piece(path: &Path, piece: &FilmPiece) -> Result<(), crate::image_io::ImageError> {
+/// Writes the piece `info` describes, its film `film`, to `path` (atomically: see
+/// [`crate::atomic_file`]).
+pub fn write_piece(path: &Path, info: &PieceInfo, film: &Film) -> Result<(), crate::image_io::ImageError> {
     use crate::image_io::ImageError;
     let encoded =
-        encode(piece).map_err(|source| ImageError::Exr { path: path.to_path_buf(), what: "encode", source })?;
+        encode(info, film).map_err(|source| ImageError::Exr { path: path.to_path_buf(), what: "encode", source })?;
     write_atomic(path, |out| std::io::Write::write_all(out, &encoded)).map_err(|e| match e {
         AtomicWriteError::Io { what, source } => ImageError::Io { path: path.to_path_buf(), what, source },
         AtomicWriteError::Write(source) => ImageError::Io { path: path.to_path_buf(), what: "cannot write", source },
     })
 }
 
-fn encode(piece: &FilmPiece) -> Result<Vec<u8>, exr::error::Error> {
-    let (info, film) = (&piece.info, &piece.film);
+fn encode(info: &PieceInfo, film: &Film) -> Result<Vec<u8>, exr::error::Error> {
     let px = film.pixels();
     let u32s = |f: &dyn Fn(&PixelAccum) -> u32| FlatSamples::U32(px.iter().map(f).collect());
     let mut channels: Vec<AnyChannel<FlatSamples>> = Vec::new();
@@ -307,8 +307,16 @@ pub fn parse_rect(s: &str) -> Option<Rect> {
 /// rectangle, every channel is there, and each pixel's samples added and dropped make the
 /// samples it holds.
 pub fn read_piece(path: &Path) -> Result<FilmPiece, PieceError> {
-    let info =
-        read_info(path)?.ok_or_else(|| foreign(path, "it has no arbor.format attribute (an image, not a piece)"))?;
+    read_pixels(path, piece_info(path)?)
+}
+
+/// [`read_info`] of a file that must be a piece.
+fn piece_info(path: &Path) -> Result<PieceInfo, PieceError> {
+    read_info(path)?.ok_or_else(|| foreign(path, "it has no arbor.format attribute (an image, not a piece)"))
+}
+
+/// [`read_piece`] of a file whose header has been read: `info`.
+fn read_pixels(path: &Path, info: PieceInfo) -> Result<FilmPiece, PieceError> {
     // The pixels read hold 25 channels of 4 bytes; the film is 96 bytes a pixel.
     let what = format!("{}: a {}x{} piece", path.display(), info.rect.width(), info.rect.height());
     crate::memory::check_fits(&what, info.rect.pixel_count() as f64 * 200.0)?;
@@ -435,9 +443,7 @@ pub fn merge(pieces: &[(PathBuf, FilmPiece)]) -> Result<(PieceInfo, Film), Piece
 pub fn merge_files(paths: &[PathBuf]) -> Result<(PieceInfo, Film), PieceError> {
     let mut infos = Vec::with_capacity(paths.len());
     for path in paths {
-        let info = read_info(path)?
-            .ok_or_else(|| foreign(path, "it has no arbor.format attribute (an image, not a piece)"))?;
-        infos.push((path.clone(), info));
+        infos.push((path.clone(), piece_info(path)?));
     }
     let merged = check_pieces(&infos)?;
     let what = format!("{}: the merged {}x{} image", paths[0].display(), merged.width, merged.height);
@@ -446,10 +452,7 @@ pub fn merge_files(paths: &[PathBuf]) -> Result<(PieceInfo, Film), PieceError> {
     infos.sort_by_key(|(_, info)| merge_order(info));
     let mut film = Film::new(merged.width, merged.height);
     for (path, info) in &infos {
-        let piece = read_piece(path)?;
-        if piece.info != *info {
-            return Err(foreign(path, "it changed while the merge read it"));
-        }
+        let piece = read_pixels(path, info.clone())?;
         film.merge_at(&piece.film, info.rect.x0, info.rect.y0);
     }
     Ok((merged, film))
@@ -570,7 +573,7 @@ mod tests {
         let p = piece_with(Rect { x0: 1, y0: 2, x1: 5, y1: 4 }, 3..9, true);
         assert_eq!(p.film.non_finite_count(), 1);
         let path = dir.join("p.exr");
-        write_piece(&path, &p).unwrap();
+        write_piece(&path, &p.info, &p.film).unwrap();
         let back = read_piece(&path).unwrap();
         assert_eq!(back, p);
         assert_eq!(read_info(&path).unwrap(), Some(p.info.clone()));
@@ -586,7 +589,7 @@ mod tests {
         let dir = scratch("refused");
         let p = piece(Rect { x0: 0, y0: 0, x1: 6, y1: 4 }, 0..4);
         let path = dir.join("p.exr");
-        write_piece(&path, &p).unwrap();
+        write_piece(&path, &p.info, &p.film).unwrap();
         let bytes = std::fs::read(&path).unwrap();
         let cut = dir.join("cut.exr");
         std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
@@ -604,7 +607,7 @@ mod tests {
         lying.info.samples = 0..5;
         lying.info.done = 5;
         let lie = dir.join("lie.exr");
-        write_piece(&lie, &lying).unwrap();
+        write_piece(&lie, &lying.info, &lying.film).unwrap();
         let e = read_piece(&lie).unwrap_err().to_string();
         assert!(e.contains("pixel (0, 0)'s sums do not hold the 5 samples"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);

@@ -34,11 +34,19 @@ pub struct Instance {
     pub mesh: u32,
     pub world_from_object: Affine3A,
     pub object_from_world: Affine3A,
+    /// Whether the placement mirrors (negative determinant), which flips its triangles'
+    /// winding as placed ([`crate::geometry::Triangle::placed`]).
+    pub mirrors: bool,
 }
 
 impl Instance {
     pub fn new(mesh: u32, world_from_object: Affine3A) -> Self {
-        Self { mesh, world_from_object, object_from_world: world_from_object.inverse() }
+        Self {
+            mesh,
+            world_from_object,
+            object_from_world: world_from_object.inverse(),
+            mirrors: crate::geometry::mirrors(&world_from_object),
+        }
     }
 }
 

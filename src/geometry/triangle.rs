@@ -39,6 +39,12 @@ pub struct TriangleHit {
     pub v: f32,
 }
 
+/// Whether `m` mirrors (its linear part has a negative determinant).
+#[inline]
+pub fn mirrors(m: &glam::Affine3A) -> bool {
+    m.matrix3.determinant() < 0.0
+}
+
 impl Triangle {
     pub fn new(v0: Vec3, v1: Vec3, v2: Vec3) -> Self {
         Self { v0, v1, v2 }
@@ -49,23 +55,15 @@ impl Triangle {
         Self::new(m.transform_point3(self.v0), m.transform_point3(self.v1), m.transform_point3(self.v2))
     }
 
-    /// The triangle placed by `m`, its front kept: a mirroring `m` (negative determinant, as
-    /// glTF files and exports from modelling tools give) would turn its winding, and so which
-    /// side is its front, inside out, so `v1` and `v2` are swapped. A point at barycentrics
-    /// `(u, v)` of `self` is then at `(v, u)` of the result.
-    pub fn placed(&self, m: &glam::Affine3A) -> Self {
+    /// The triangle placed by `m`, its front kept: where `m` mirrors (`mirrored`: its
+    /// determinant is negative, as glTF files and exports from modelling tools give), placing
+    /// would turn its winding, and so which side is its front, inside out, so `v1` and `v2` are
+    /// swapped. A point at barycentrics `(u, v)` of `self` is then at `(v, u)` of the result.
+    pub fn placed(&self, m: &glam::Affine3A, mirrored: bool) -> Self {
         let t = self.transformed(m);
-        if mirrors(m) { Self::new(t.v0, t.v2, t.v1) } else { t }
+        if mirrored { Self::new(t.v0, t.v2, t.v1) } else { t }
     }
-}
 
-/// Whether `m` mirrors (its linear part has a negative determinant).
-#[inline]
-pub fn mirrors(m: &glam::Affine3A) -> bool {
-    m.matrix3.determinant() < 0.0
-}
-
-impl Triangle {
     pub fn aabb(&self) -> Aabb {
         Aabb::from_point(self.v0).grow(self.v1).grow(self.v2)
     }

@@ -351,9 +351,13 @@ fn trace_constants() -> String {
          const MAT_DIELECTRIC: u32 = {MAT_DIELECTRIC}u;\n\
          const MAT_EMITS: u32 = {MAT_EMITS}u;\n\
          const MAT_TWO_SIDED: u32 = {MAT_TWO_SIDED}u;\n\
-         const MAT_COMPLEX_FRESNEL: u32 = {MAT_COMPLEX_FRESNEL}u;\n",
-        crate::render::integrator::RR_DEPTH
+         const MAT_COMPLEX_FRESNEL: u32 = {MAT_COMPLEX_FRESNEL}u;\n\
+         const FILM_FRACTION_BITS: i32 = {};\n",
+        crate::render::integrator::RR_DEPTH,
+        crate::render::film::FRACTION_BITS,
     );
+    // The film's exact sums (`render::film`): samples this large are dropped.
+    s += &wgsl_f32("FILM_SAMPLE_LIMIT", 2f32.powi(crate::render::film::SAMPLE_LIMIT_LOG2));
     s += &wgsl_f32("SMOOTH_ALPHA", crate::render::bsdf::SMOOTH_ALPHA);
     s += &wgsl_f32("CULL_SCALE", crate::bvh::CULL_SCALE);
     // traverse.rs's absolute culling slack per unit of distance, CULL_ABS_ULPS ULPs of 1.

@@ -222,9 +222,13 @@ impl Film {
             self.width,
             self.height
         );
-        let tile_width = (tile.width as usize).max(1);
-        for (ty, row) in tile.pixels.chunks(tile_width).enumerate() {
-            let start = self.index(tile.x0, tile.y0 + ty as u32);
+        self.merge_rect(&tile.pixels, tile.width, (tile.x0, tile.y0));
+    }
+
+    /// Merges `pixels`, rows of `width` that fit inside this film from `origin` on.
+    fn merge_rect(&mut self, pixels: &[PixelAccum], width: u32, origin: (u32, u32)) {
+        for (y, row) in pixels.chunks((width as usize).max(1)).enumerate() {
+            let start = self.index(origin.0, origin.1 + y as u32);
             for (dst, src) in self.pixels[start..start + row.len()].iter_mut().zip(row) {
                 dst.merge(src);
             }
@@ -254,13 +258,7 @@ impl Film {
             self.width,
             self.height
         );
-        let width = (other.width as usize).max(1);
-        for (y, row) in other.pixels.chunks(width).enumerate() {
-            let start = self.index(x0, y0 + y as u32);
-            for (dst, src) in self.pixels[start..start + row.len()].iter_mut().zip(row) {
-                dst.merge(src);
-            }
-        }
+        self.merge_rect(&other.pixels, other.width, (x0, y0));
     }
 
     /// The image: each pixel the mean of its finite samples (black without any).

@@ -19,7 +19,7 @@ use super::material::RenderMaterial;
 use crate::bvh::dynamic::UpdateStats;
 use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
 use crate::bvh::{INVALID_INDEX, MeshBvh};
-use crate::geometry::{Ray, Triangle, mirrors};
+use crate::geometry::{Ray, Triangle};
 use crate::scene::Scene;
 
 /// A hit, resolved to what shading needs.
@@ -171,7 +171,7 @@ impl Instanced {
             };
             light_base[i] = world.len() as u32;
             for (p, t) in tris.iter().enumerate() {
-                world.push(t.placed(&inst.world_from_object));
+                world.push(t.placed(&inst.world_from_object, inst.mirrors));
                 emission.push(emits(p));
             }
         }
@@ -225,7 +225,7 @@ impl Geometry {
                 let base = g.light_base.get(h.instance as usize).copied().unwrap_or(INVALID_INDEX);
                 // A mirrored instance's triangle is placed with two vertices swapped, and the
                 // hit's barycentrics with them.
-                let mirrored = mirrors(&inst.world_from_object);
+                let mirrored = inst.mirrors;
                 let (u, v) = if mirrored { (h.v, h.u) } else { (h.u, h.v) };
                 let normals = match g.mesh_normals[inst.mesh as usize].get(h.prim_id as usize) {
                     Some(n) => {
@@ -239,7 +239,7 @@ impl Geometry {
                 };
                 SurfaceHit {
                     t: h.t,
-                    triangle: local.placed(&inst.world_from_object),
+                    triangle: local.placed(&inst.world_from_object, mirrored),
                     u,
                     v,
                     material: g.material(h.instance as usize, h.prim_id),

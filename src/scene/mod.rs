@@ -199,8 +199,7 @@ impl Scene {
         for o in &self.objects {
             let m = &self.meshes[o.mesh];
             let world_from_object = o.world_from_object_at(time);
-            // A mirror keeps each triangle's front where the file put it: the winding flips.
-            let (b, c) = if world_from_object.determinant() < 0.0 { (2, 1) } else { (1, 2) };
+            let [b, c] = placed_order(&world_from_object);
             for (i, t) in m.mesh.indices.iter().enumerate() {
                 let p = |k: usize| world_from_object.transform_point3(m.mesh.positions[t[k] as usize]);
                 tris.push(Triangle::new(p(0), p(b), p(c)));
@@ -263,7 +262,7 @@ impl Scene {
             }
             let world_from_object = o.world_from_object_at(time);
             let normal_matrix = glam::Mat3::from_mat4(world_from_object).inverse().transpose();
-            let (b, c) = if world_from_object.determinant() < 0.0 { (2, 1) } else { (1, 2) };
+            let [b, c] = placed_order(&world_from_object);
             for t in &m.indices {
                 let n = |k: usize| (normal_matrix * m.normals[t[k] as usize]).normalize_or_zero();
                 out.push([n(0), n(b), n(c)]);
@@ -276,4 +275,11 @@ impl Scene {
     pub fn has_emitters(&self) -> bool {
         self.materials.iter().any(|m| m.emission.is_some())
     }
+}
+
+/// Which of a triangle's vertices come second and third once placed by `world_from_object`: a
+/// mirror keeps each triangle's front where the file put it, so the winding flips (as
+/// [`Triangle::placed`] does).
+fn placed_order(world_from_object: &Mat4) -> [usize; 2] {
+    if world_from_object.determinant() < 0.0 { [2, 1] } else { [1, 2] }
 }

@@ -452,7 +452,7 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
             rays: frame.rays - before.0,
         });
         if split {
-            write_piece(&output.path, &piece_of(&info, &frame))?;
+            write_piece(&output.path, &held(&info, &frame), &frame.film)?;
         } else {
             // Missing folders are made by the write (each frame's, where the pattern names folders).
             write_image(&output.path, &frame.film.mean())?;
@@ -498,7 +498,7 @@ fn render_output(
         if frame.samples == wanted || out_of_time {
             return Ok(frame);
         }
-        write_piece(state, &piece_of(info, &frame))?;
+        write_piece(state, &held(info, &frame), &frame.film)?;
         if job::stopped(stop) {
             let done = region.samples.start + frame.samples;
             return Err(Interrupted { state: state.to_path_buf(), done, of: region.samples.end }.into());
@@ -507,15 +507,9 @@ fn render_output(
     }
 }
 
-/// The partial film of `frame`, a render of the piece `info` describes.
-fn piece_of(info: &PieceInfo, frame: &RenderedFrame) -> FilmPiece {
-    let info = PieceInfo {
-        done: info.samples.start + frame.samples,
-        rays: frame.rays,
-        seconds: frame.seconds,
-        ..info.clone()
-    };
-    FilmPiece { info, film: frame.film.clone() }
+/// What the partial film of `frame`, a render of the piece `info` describes, holds.
+fn held(info: &PieceInfo, frame: &RenderedFrame) -> PieceInfo {
+    PieceInfo { done: info.samples.start + frame.samples, rays: frame.rays, seconds: frame.seconds, ..info.clone() }
 }
 
 /// Where a whole render keeps its state: `OUT.partial.exr`.
@@ -595,10 +589,7 @@ fn merge(args: &Args, report: &mut Report) -> Result<()> {
             info.samples.start,
             info.samples.end,
             info.seconds,
-            match film.non_finite_count() {
-                0 => String::new(),
-                n => format!(", {n} non-finite samples dropped"),
-            },
+            dropped(&film),
         );
     }
     Ok(())
@@ -639,12 +630,17 @@ fn print_frame(renderer: &Renderer, output: &Path, update_ms: Option<f64>, frame
         frame.seconds,
         frame.rays as f64 / frame.seconds.max(1e-9) / 1e6,
         frame.samples,
-        match frame.film.non_finite_count() {
-            0 => String::new(),
-            n => format!(", {n} non-finite samples dropped"),
-        },
+        dropped(&frame.film),
         peak_memory(triangles),
     );
+}
+
+/// `, N non-finite samples dropped` where the film dropped any.
+fn dropped(film: &arbor::render::film::Film) -> String {
+    match film.non_finite_count() {
+        0 => String::new(),
+        n => format!(", {n} non-finite samples dropped"),
+    }
 }
 
 /// `, peak memory M MB (B bytes per triangle)` where the system reports it.
