@@ -91,7 +91,7 @@ impl RenderScene {
             let shading = hit.shading_normal(ng).filter(|ns| (ns.dot(wo_world) > 0.0) == (wo_ng > 0.0));
             let frame = Frame::from_normal(shading.unwrap_or(ng));
             // Without a shading normal the frame is the geometry's, and every direction agrees.
-            let check = shading.map(|_| (ng, wo_ng));
+            let check = shading.map(|_| wo_ng);
             let wo = frame.to_local(wo_world);
             if !self.lights.is_empty() && bsdf.has_non_delta() {
                 let at = (p, p_error, hit.surface);
@@ -102,7 +102,7 @@ impl RenderScene {
                 break;
             }
             let wi_world = frame.to_world(s.wi).normalize();
-            if check.is_some_and(|(ng, wo_ng)| !agrees(ng.dot(wi_world), wo_ng, s.wi.z, wo.z)) {
+            if check.is_some_and(|wo_ng| !agrees(ng.dot(wi_world), wo_ng, s.wi.z, wo.z)) {
                 break;
             }
             beta *= s.weight;
@@ -130,7 +130,7 @@ impl RenderScene {
         frame: &Frame,
         (p, p_error, surface): (Vec3, Vec3, Surface),
         ng: Vec3,
-        check: Option<(Vec3, f32)>,
+        check: Option<f32>,
         wo: Vec3,
         beta: Vec3,
         rng: &mut Rng,
@@ -150,7 +150,7 @@ impl RenderScene {
             return 0;
         }
         let wi = frame.to_local(wi_world);
-        if check.is_some_and(|(ng, wo_ng)| !agrees(ng.dot(wi_world), wo_ng, wi.z, wo.z)) {
+        if check.is_some_and(|wo_ng| !agrees(ng.dot(wi_world), wo_ng, wi.z, wo.z)) {
             return 0;
         }
         let f = bsdf.eval(wo, wi);
