@@ -13,6 +13,9 @@
 @group(0) @binding(5) var<storage, read_write> film: array<GpuPixel>;
 // Each triangle's vertex normals, nine floats in leaf order (HAS_SHADING_NORMALS).
 @group(0) @binding(6) var<storage, read> normals: array<f32>;
+// The environment map (HAS_ENV_MAP), src/gpu/trace.rs's env_map_data: RGB texels, then the
+// sampling density per texel, the marginal CDF and the rows' conditional CDFs.
+@group(0) @binding(7) var<storage, read> env_map: array<f32>;
 
 // The largest finite f32: "no hit yet". (Infinite literals are not valid WGSL.)
 const T_FAR: f32 = 3.40282347e38;
@@ -476,6 +479,165 @@ fn occluded(ray: Ray, t_max: f32) -> bool {
     return false;
 }
 
+// ---- the environment map: src/render/environment.rs ----
+
+// The map's frame from the world's.
+fn env_local(d: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(dot(params.env_x, d), dot(params.env_y, d), dot(params.env_z, d));
+}
+
+// direction_to_uv: u = atan2(x, -z) / 2π in [0, 1), v = acos(y) / π.
+fn env_uv(d: vec3<f32>) -> vec2<f32> {
+    var u = atan2(d.x, -d.z) * (0.5 / PI);
+    if u < 0.0 {
+        u += 1.0;
+    }
+    if u >= 1.0 {
+        u = 0.0;
+    }
+    return vec2<f32>(u, acos(clamp(d.y, -1.0, 1.0)) * FRAC_1_PI);
+}
+
+fn env_texel(c: u32, r: u32) -> vec3<f32> {
+    let i = 3u * (r * params.env_width + c);
+    return vec3<f32>(env_map[i], env_map[i + 1u], env_map[i + 2u]);
+}
+
+// EnvironmentMap::eval: bilinear between texel centres, wrapping in u, held at the poles.
+fn env_eval(dir: vec3<f32>) -> vec3<f32> {
+    let uv = env_uv(env_local(dir));
+    let w = f32(params.env_width);
+    let h = f32(params.env_height);
+    let x = uv.x * w - 0.5;
+    let y = clamp(uv.y * h - 0.5, 0.0, h - 1.0);
+    let x0 = floor(x);
+    let y0 = floor(y);
+    let fx = x - x0;
+    let fy = y - y0;
+    let iw = i32(params.env_width);
+    let c0 = u32(((i32(x0) % iw) + iw) % iw);
+    let c1 = u32(((i32(x0) + 1) % iw + iw) % iw);
+    let r0 = u32(y0);
+    let r1 = min(r0 + 1u, params.env_height - 1u);
+    let top = env_texel(c0, r0) * (1.0 - fx) + env_texel(c1, r0) * fx;
+    let bottom = env_texel(c0, r1) * (1.0 - fx) + env_texel(c1, r1) * fx;
+    return top * (1.0 - fy) + bottom * fy;
+}
+
+// EnvironmentMap::pdf: the density per steradian of drawing world direction `dir`.
+fn env_pdf(dir: vec3<f32>) -> f32 {
+    let d = env_local(dir);
+    let sin_theta = sqrt(d.x * d.x + d.z * d.z);
+    if !(sin_theta > 0.0) {
+        return 0.0;
+    }
+    let uv = env_uv(d);
+    let c = min(u32(uv.x * f32(params.env_width)), params.env_width - 1u);
+    let r = min(u32(uv.y * f32(params.env_height)), params.env_height - 1u);
+    let pdf = env_map[3u * params.env_width * params.env_height + r * params.env_width + c];
+    return pdf / (2.0 * PI * PI * sin_theta);
+}
+
+// In a CDF of count + 1 values at env_map[start], the interval holding u (partition_point).
+fn env_cdf_find(start: u32, count: u32, u: f32) -> u32 {
+    var lo = 0u;
+    var hi = count + 1u;
+    while lo < hi {
+        let mid = (lo + hi) / 2u;
+        if env_map[start + mid] <= u {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    return clamp(lo, 1u, count) - 1u;
+}
+
+fn env_within(lo: f32, hi: f32, x: f32) -> f32 {
+    if hi > lo {
+        return clamp((x - lo) / (hi - lo), 0.0, 1.0);
+    }
+    return 0.5;
+}
+
+fn next_down(x: f32) -> f32 {
+    return bitcast<f32>(bitcast<u32>(x) - 1u);
+}
+
+// EnvironmentMap::sample: a world direction in xyz and its density per steradian in w (0: none).
+fn env_sample(u: vec2<f32>) -> vec4<f32> {
+    let w = params.env_width;
+    let h = params.env_height;
+    let marginal = 4u * w * h;
+    let r = env_cdf_find(marginal, h, u.y);
+    let row = marginal + h + 1u + r * (w + 1u);
+    let c = env_cdf_find(row, w, u.x);
+    let dv = env_within(env_map[marginal + r], env_map[marginal + r + 1u], u.y);
+    let du = env_within(env_map[row + c], env_map[row + c + 1u], u.x);
+    let uv = vec2<f32>(
+        min((f32(c) + du) / f32(w), next_down(f32(c + 1u) / f32(w))),
+        min((f32(r) + dv) / f32(h), next_down(f32(r + 1u) / f32(h))),
+    );
+    let p = env_map[3u * w * h + r * w + c];
+    let phi = 2.0 * PI * uv.x;
+    let theta = PI * uv.y;
+    let sin_theta = sin(theta);
+    if !(p > 0.0) || !(sin_theta > 0.0) {
+        return vec4<f32>(0.0);
+    }
+    let local = vec3<f32>(sin(phi) * sin_theta, cos(theta), -cos(phi) * sin_theta);
+    let world = params.env_x * local.x + params.env_y * local.y + params.env_z * local.z;
+    return vec4<f32>(world, p / (2.0 * PI * PI * sin_theta));
+}
+
+// The radiance arriving along `dir` from the environment after a bounce sampled with density
+// prev_pdf (RenderScene::escaped).
+fn escaped(dir: vec3<f32>, prev_pdf: f32, prev_delta: bool) -> vec3<f32> {
+    if HAS_ENV_MAP && params.env_width > 0u {
+        let le = params.environment * env_eval(dir);
+        if prev_delta {
+            return le;
+        }
+        return le * power_heuristic(prev_pdf, params.env_select * env_pdf(dir));
+    }
+    return params.environment;
+}
+
+// The environment-map half of direct_light: a direction drawn from the map, weighted against
+// the BSDF. The shadow ray leaves along the normal, as a bounce does, and has no end.
+fn direct_env(
+    mat: GpuMaterial,
+    frame: Frame,
+    sp: SurfacePoint,
+    ng: vec3<f32>,
+    check: bool,
+    wo_ng: f32,
+    wo: vec3<f32>,
+    beta: vec3<f32>,
+    u: vec2<f32>,
+) -> vec4<f32> {
+    let s = env_sample(u);
+    if !(s.w > 0.0) {
+        return vec4<f32>(0.0);
+    }
+    let wi_world = s.xyz;
+    let le = params.environment * env_eval(wi_world);
+    let wi = to_local(frame, wi_world);
+    if check && !agrees(dot(ng, wi_world), wo_ng, wi.z, wo.z) {
+        return vec4<f32>(0.0);
+    }
+    let f = bsdf_eval(mat, wo, wi);
+    if max3(f) <= 0.0 || max3(le) <= 0.0 {
+        return vec4<f32>(0.0);
+    }
+    if occluded(spawn_ray(sp, ng, wi_world), T_FAR) {
+        return vec4<f32>(0.0, 0.0, 0.0, 1.0);
+    }
+    let p_light = params.env_select * s.w;
+    let w = power_heuristic(p_light, bsdf_pdf(mat, wo, wi));
+    return vec4<f32>(beta * f * abs(wi.z) * le * (w / p_light), 1.0);
+}
+
 // ---- the integrator ----
 
 // Lights::sample's choice: the first light whose CDF value exceeds u (binary search).
@@ -532,8 +694,16 @@ fn direct_light(
     beta: vec3<f32>,
     rng: ptr<function, Rng>,
 ) -> vec4<f32> {
-    let u_select = rng_f32(rng);
+    var u_select = rng_f32(rng);
     let u = rng_vec2(rng);
+    var area_select = 1.0;
+    if HAS_ENV_MAP && params.env_width > 0u {
+        if u_select < params.env_select {
+            return direct_env(mat, frame, sp, ng, check, wo_ng, wo, beta, u);
+        }
+        u_select = min((u_select - params.env_select) / (1.0 - params.env_select), 1.0 - 5.9604645e-8);
+        area_select = 1.0 - params.env_select;
+    }
     let light = lights[choose_light(u_select)];
     let b = uniform_triangle(u);
     let lp = point_with_error(light.v0, light.v1, light.v2, b.y, b.z);
@@ -567,7 +737,7 @@ fn direct_light(
     if !(is_finite_f(clear) && clear < dist && t_max > 0.0) || occluded(shadow, t_max) {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);
     }
-    let p_light = solid_angle_pdf(light.pdf_area, to, abs(cos_light));
+    let p_light = area_select * solid_angle_pdf(light.pdf_area, to, abs(cos_light));
     let w = power_heuristic(p_light, bsdf_pdf(mat, wo, wi));
     return vec4<f32>(beta * f * abs(wi.z) * light.radiance * (w / p_light), 1.0);
 }
@@ -585,12 +755,19 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
     var prev_delta = true;
     var rays = 0u;
     var ray = camera;
+    // The probability that next-event estimation picks an area light, not the map.
+    var area_select = 1.0;
+    var env_lit = false;
+    if HAS_ENV_MAP && params.env_width > 0u {
+        area_select = 1.0 - params.env_select;
+        env_lit = true;
+    }
     for (var depth = 1u; depth <= params.max_depth; depth++) {
         rays += 1u;
         let hit = closest_hit(ray);
         if hit.index == INVALID_INDEX {
             if HAS_ENVIRONMENT {
-                l += beta * params.environment;
+                l += beta * escaped(ray.dir, prev_pdf, prev_delta);
             }
             break;
         }
@@ -607,7 +784,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
             if prev_delta {
                 l += beta * mat.emission;
             } else {
-                let p_light = solid_angle_pdf(tri.light_pdf, sp.p - ray.origin, abs(dot(ng, wo_world)));
+                let p_light = area_select * solid_angle_pdf(tri.light_pdf, sp.p - ray.origin, abs(dot(ng, wo_world)));
                 l += beta * mat.emission * power_heuristic(prev_pdf, p_light);
             }
         }
@@ -631,7 +808,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         }
         let frame = frame_from_normal(n);
         let wo = to_local(frame, wo_world);
-        if HAS_LIGHTS && params.light_count > 0u && !mat_is_delta(mat) {
+        if ((HAS_LIGHTS && params.light_count > 0u) || env_lit) && !mat_is_delta(mat) {
             let direct = direct_light(mat, frame, sp, ng, check, wo_ng, wo, beta, rng);
             l += direct.xyz;
             rays += u32(direct.w);

@@ -167,7 +167,7 @@ fn usable(s: &Scene) -> Result<(), String> {
     if r.spp == 0 || r.max_depth == 0 || r.time.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
         return Err(format!("render {r:?}"));
     }
-    if s.environment.is_some_and(|e| !e.is_finite() || e.min_element() < 0.0) {
+    if s.environment.as_ref().is_some_and(|e| !e.radiance.is_finite() || e.radiance.min_element() < 0.0) {
         return Err(format!("environment {:?}", s.environment));
     }
     for m in &s.materials {

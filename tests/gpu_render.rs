@@ -193,7 +193,8 @@ fn specialized_and_general_variants_agree() {
             environment: true,
             lights: false,
             thin_lens: false,
-            shading_normals: false
+            shading_normals: false,
+            env_map: false
         }
     );
     let mut gpu = GpuScene::upload(ctx, &rs).unwrap();

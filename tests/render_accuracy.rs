@@ -242,7 +242,7 @@ fn write_obj_with_normals(path: &Path, mesh: &arbor::geometry::TriangleMesh) {
 }
 
 /// The devices a test renders on: the CPU, and the GPU where one exists (always under CI=true).
-fn devices(test: &str) -> Vec<arbor::device::Device> {
+pub(crate) fn devices(test: &str) -> Vec<arbor::device::Device> {
     let mut devices = vec![arbor::device::Device::Cpu];
     #[cfg(feature = "gpu")]
     if let Some(ctx) = common::gpu_or_skip(test) {

@@ -19,6 +19,7 @@ mod fuzz_loader;
 mod scene_load;
 
 // Rendering: exact answers, the independent reference, golden images, numerical stress.
+mod environment;
 mod golden;
 mod render_accuracy;
 mod stability;

@@ -265,6 +265,16 @@ pub struct TraceParams {
     pub origin_y: u32,
     pub rect_width: u32,
     pub rect_height: u32,
+    /// The environment map's frame from the world's, row by row (`environment` is then the
+    /// map's scale), its size in texels (0: no map), and the probability that next-event
+    /// estimation samples it rather than the area lights
+    /// ([`crate::render::RenderScene::environment_light`]).
+    pub env_x: Vec3,
+    pub env_width: u32,
+    pub env_y: Vec3,
+    pub env_height: u32,
+    pub env_z: Vec3,
+    pub env_select: f32,
 }
 }
 
@@ -275,7 +285,7 @@ const _: () = assert!(size_of::<GpuTriangle>() == 48);
 const _: () = assert!(size_of::<GpuMaterial>() == 64);
 const _: () = assert!(size_of::<GpuLight>() == 80);
 const _: () = assert!(size_of::<GpuPixel>() == 96);
-const _: () = assert!(size_of::<TraceParams>() == 128);
+const _: () = assert!(size_of::<TraceParams>() == 176);
 
 impl From<Aabb> for GpuAabb {
     fn from(b: Aabb) -> Self {

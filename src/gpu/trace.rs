@@ -79,6 +79,7 @@ use crate::bvh::builders::Builder;
 use crate::bvh::prbvh::PrbvhConfig;
 use crate::geometry::{Aabb, Triangle};
 use crate::render::bsdf::{Bsdf, ConductorFresnel};
+use crate::render::environment::EnvironmentMap;
 use crate::render::film::{Film, PixelAccum};
 use crate::render::geometry::Geometry;
 use crate::render::region::Rect;
@@ -103,6 +104,8 @@ pub struct Features {
     pub thin_lens: bool,
     /// Vertex normals to shade with.
     pub shading_normals: bool,
+    /// An environment map, sampled for next-event estimation.
+    pub env_map: bool,
 }
 
 impl Features {
@@ -114,6 +117,7 @@ impl Features {
         lights: true,
         thin_lens: true,
         shading_normals: true,
+        env_map: true,
     };
 
     /// What `scene` uses.
@@ -126,6 +130,7 @@ impl Features {
             lights: !scene.lights.is_empty(),
             thin_lens: scene.camera.parts().lens_radius != 0.0,
             shading_normals: matches!(&scene.geometry, Geometry::Flat(f) if !f.normals.is_empty()),
+            env_map: scene.environment_light().is_some(),
         }
     }
 
@@ -133,19 +138,20 @@ impl Features {
     pub fn key(&self) -> String {
         let b = |x: bool| u8::from(x);
         format!(
-            "trace[dielectric={} conductor={} environment={} lights={} thin_lens={} shading_normals={}]",
+            "trace[dielectric={} conductor={} environment={} lights={} thin_lens={} shading_normals={} env_map={}]",
             b(self.dielectric),
             b(self.conductor),
             b(self.environment),
             b(self.lights),
             b(self.thin_lens),
-            b(self.shading_normals)
+            b(self.shading_normals),
+            b(self.env_map)
         )
     }
 
     /// Every combination, for tests that validate each variant.
     pub fn every() -> Vec<Features> {
-        (0..64u32)
+        (0..128u32)
             .map(|m| Features {
                 dielectric: m & 1 != 0,
                 conductor: m & 2 != 0,
@@ -153,6 +159,7 @@ impl Features {
                 lights: m & 8 != 0,
                 thin_lens: m & 16 != 0,
                 shading_normals: m & 32 != 0,
+                env_map: m & 64 != 0,
             })
             .collect()
     }
@@ -163,13 +170,15 @@ impl Features {
 pub fn shader_source(features: Features) -> String {
     let flags = format!(
         "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_ENVIRONMENT: bool = {};\n\
-         const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\nconst HAS_SHADING_NORMALS: bool = {};\n",
+         const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\nconst HAS_SHADING_NORMALS: bool = {};\n\
+         const HAS_ENV_MAP: bool = {};\n",
         features.dielectric,
         features.conductor,
         features.environment,
         features.lights,
         features.thin_lens,
-        features.shading_normals
+        features.shading_normals,
+        features.env_map
     );
     with_prelude(&format!(
         "{flags}\n{}\n{}",
@@ -192,6 +201,8 @@ pub struct GpuScene {
     /// Each triangle's three vertex normals (nine floats, leaf order; zero: none), or one
     /// zero float where the scene has none.
     normals: wgpu::Buffer,
+    /// The environment map and its distribution ([`env_map_data`]), or one zero float.
+    env_map: wgpu::Buffer,
     /// Camera, environment, clamp and light count; seed and samples are set per render.
     params: TraceParams,
     /// The variant to compile: [`Features::of`] the scene, or all of them under
@@ -255,6 +266,19 @@ fn gpu_material(m: &RenderMaterial) -> GpuMaterial {
         g.flags |= MAT_TWO_SIDED;
     }
     g
+}
+
+/// An environment map as `shaders/trace.wgsl` reads it, one array of f32: the texels' RGB
+/// (row-major, row 0 at the top), then the distribution's per-texel density, its marginal CDF
+/// (`height + 1` values) and its conditional CDFs (`width + 1` values a row).
+fn env_map_data(map: &EnvironmentMap) -> Vec<f32> {
+    let d = &map.distribution;
+    let mut data = Vec::with_capacity(map.texels.len() * 3 + d.pdf.len() + d.marginal.len() + d.conditional.len());
+    data.extend(map.texels.iter().flatten());
+    data.extend(&d.pdf);
+    data.extend(&d.marginal);
+    data.extend(&d.conditional);
+    data
 }
 
 /// `data`, or one zeroed element when it is empty (a binding must hold at least one).
@@ -330,7 +354,7 @@ impl GpuScene {
             .collect();
         let light_count = lights.len() as u32;
         let camera = scene.camera.parts();
-        let params = TraceParams {
+        let mut params = TraceParams {
             cam_origin: camera.origin,
             width: scene.width,
             cam_forward: camera.forward,
@@ -339,19 +363,27 @@ impl GpuScene {
             tan_x: camera.tan_x,
             cam_up: camera.up,
             tan_y: camera.tan_y,
-            environment: scene.environment.unwrap_or(Vec3::ZERO),
+            environment: scene.environment.as_ref().map_or(Vec3::ZERO, |e| e.radiance),
             lens_radius: camera.lens_radius,
             focus_distance: camera.focus_distance,
             clamp: scene.sample_clamp.unwrap_or(0.0),
             light_count,
             ..Default::default()
         };
+        let mut env_map = Vec::new();
+        if let Some((map, _, select)) = scene.environment_light() {
+            let rows = map.map_from_world;
+            (params.env_x, params.env_y, params.env_z) = (rows.row(0), rows.row(1), rows.row(2));
+            (params.env_width, params.env_height, params.env_select) = (map.width, map.height, select);
+            env_map = env_map_data(map);
+        }
         Ok(GpuScene {
             nodes: ctx.storage_buffer("BVH nodes", &nodes)?,
             triangles: ctx.storage_buffer("triangles", &at_least_one(triangles))?,
             materials: ctx.storage_buffer("materials", &at_least_one(materials))?,
             lights: ctx.storage_buffer("lights", &at_least_one(lights))?,
             normals: ctx.storage_buffer("normals", &at_least_one(normals))?,
+            env_map: ctx.storage_buffer("environment map", &at_least_one(env_map))?,
             params,
             features: if specialization_disabled() { Features::ALL } else { Features::of(scene) },
             width: scene.width,
@@ -403,6 +435,7 @@ fn bind_group(
             (4, &scene.lights),
             (5, film),
             (6, &scene.normals),
+            (7, &scene.env_map),
         ],
     )
 }

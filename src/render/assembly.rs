@@ -8,6 +8,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::camera::CameraModel;
+use super::environment::EnvironmentMap;
 use super::geometry::{Flat, Geometry, Instanced, flat_lights, wants_instancing};
 use super::lights::Lights;
 use super::material::RenderMaterial;
@@ -16,14 +17,15 @@ use crate::bvh::instances::TopLevelUpdate;
 use crate::bvh::prbvh::PrbvhConfig;
 use crate::bvh::{CollapseConfig, MeshBvh, Tracing, collapse_leaves, sah_cost};
 use crate::geometry::Triangle;
-use crate::scene::Scene;
+use crate::scene::{Environment, Scene};
 
 /// Everything a render reads: geometry and its BVH, materials, lights, camera.
 pub struct RenderScene {
     pub geometry: Geometry,
     pub materials: Vec<RenderMaterial>,
     pub lights: Lights,
-    pub environment: Option<Vec3>,
+    /// Light from far away; `None` where it is black (a black map, or a scale of 0).
+    pub environment: Option<Environment>,
     pub camera: CameraModel,
     pub width: u32,
     pub height: u32,
@@ -57,6 +59,17 @@ pub fn first_frame_time(scene: &Scene) -> f32 {
 }
 
 impl RenderScene {
+    /// The environment map to sample for next-event estimation, if any, with the probability
+    /// of choosing it over the area lights: 1 without area lights, else one half. (A map's
+    /// power against the lights' depends on how much of the scene it reaches, which is unknown
+    /// before rendering; one half never starves either.) A constant environment is found by
+    /// BSDF sampling alone, as well as light sampling would.
+    pub fn environment_light(&self) -> Option<(&EnvironmentMap, Vec3, f32)> {
+        let env = self.environment.as_ref()?;
+        let map = env.map.as_deref()?;
+        Some((map, env.radiance, if self.lights.is_empty() { 1.0 } else { 0.5 }))
+    }
+
     /// Builds the scene's geometry as it is at its first frame (static scenes: as it is).
     ///
     /// A static scene is flattened to world-space triangles under one BVH built with `builder`,
@@ -142,7 +155,10 @@ impl RenderScene {
             geometry,
             materials,
             lights,
-            environment: scene.environment.filter(|e| e.max_element() > 0.0),
+            environment: scene
+                .environment
+                .clone()
+                .filter(|e| e.radiance.max_element() > 0.0 && !e.map.as_ref().is_some_and(|m| m.is_black())),
             camera: CameraModel::new(&scene.camera),
             width: scene.camera.width,
             height: scene.camera.height,

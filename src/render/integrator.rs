@@ -51,12 +51,13 @@ impl RenderScene {
         let mut rays = 0;
         // The surface the ray leaves, which it skips (see `Surface`).
         let mut from = None;
+        // The probability that next-event estimation picks an area light, not the map.
+        let area_select = 1.0 - self.environment_light().map_or(0.0, |(_, _, p)| p);
+        let lit = !self.lights.is_empty() || self.environment_light().is_some();
         for depth in 1..=max_depth {
             rays += 1;
             let Some(hit) = self.geometry.intersect_from(&ray, from) else {
-                if let Some(env) = self.environment {
-                    l += beta * env;
-                }
+                l += beta * self.escaped(ray.dir, prev_pdf, prev_delta);
                 break;
             };
             let tri = &hit.triangle;
@@ -72,8 +73,8 @@ impl RenderScene {
                 if prev_delta {
                     l += beta * le;
                 } else {
-                    let p_light =
-                        solid_angle_pdf(self.lights.pdf_area(hit.light), p - ray.origin, ng.dot(wo_world).abs());
+                    let p_light = area_select
+                        * solid_angle_pdf(self.lights.pdf_area(hit.light), p - ray.origin, ng.dot(wo_world).abs());
                     l += beta * le * power_heuristic(prev_pdf, p_light);
                 }
             }
@@ -93,7 +94,7 @@ impl RenderScene {
             // Without a shading normal the frame is the geometry's, and every direction agrees.
             let check = shading.map(|_| wo_ng);
             let wo = frame.to_local(wo_world);
-            if !self.lights.is_empty() && bsdf.has_non_delta() {
+            if lit && bsdf.has_non_delta() {
                 let at = (p, p_error, hit.surface);
                 rays += self.direct_light(&bsdf, &frame, at, ng, check, wo, beta, rng, &mut l);
             }
@@ -136,8 +137,36 @@ impl RenderScene {
         rng: &mut Rng,
         l: &mut Vec3,
     ) -> u32 {
-        let u_select = rng.next_f32();
+        let mut u_select = rng.next_f32();
         let u = rng.next_vec2();
+        let mut area_select = 1.0;
+        if let Some((map, scale, p_env)) = self.environment_light() {
+            if u_select < p_env {
+                let Some((wi_world, pdf)) = map.sample(u) else { return 0 };
+                let le = scale * map.eval(wi_world);
+                let wi = frame.to_local(wi_world);
+                if check.is_some_and(|wo_ng| !agrees(ng.dot(wi_world), wo_ng, wi.z, wo.z)) {
+                    return 0;
+                }
+                let f = bsdf.eval(wo, wi);
+                if f.max_element() <= 0.0 || le.max_element() <= 0.0 {
+                    return 0;
+                }
+                // The light is at infinity: the direction is exact, so the ray may start off
+                // the surface along the normal, as a bounce does, and has no end.
+                let shadow = spawn_ray(p, p_error, ng, wi_world);
+                if self.geometry.occluded_from(&shadow, f32::INFINITY, Some(surface)) {
+                    return 1;
+                }
+                let p_light = p_env * pdf;
+                let w = power_heuristic(p_light, bsdf.pdf(wo, wi));
+                *l += beta * f * wi.z.abs() * le * (w / p_light);
+                return 1;
+            }
+            // The rest of the unit interval picks an area light.
+            u_select = ((u_select - p_env) / (1.0 - p_env)).min(1.0 - f32::EPSILON / 2.0);
+            area_select = 1.0 - p_env;
+        }
         let Some(lp) = self.lights.sample(u_select, u) else { return 0 };
         let to = lp.point - p;
         let dist = robust_length(to);
@@ -179,10 +208,22 @@ impl RenderScene {
         {
             return 1;
         }
-        let p_light = solid_angle_pdf(lp.pdf_area, to, cos_light.abs());
+        let p_light = area_select * solid_angle_pdf(lp.pdf_area, to, cos_light.abs());
         let w = power_heuristic(p_light, bsdf.pdf(wo, wi));
         *l += beta * f * wi.z.abs() * lp.radiance * (w / p_light);
         1
+    }
+}
+
+impl RenderScene {
+    /// The radiance arriving along `dir` (unit) from the environment, for a path whose last
+    /// bounce was sampled with density `prev_pdf` (`prev_delta`: from a delta lobe): a map's
+    /// radiance is weighted against the light sampling that could have found it.
+    fn escaped(&self, dir: Vec3, prev_pdf: f32, prev_delta: bool) -> Vec3 {
+        let Some(env) = &self.environment else { return Vec3::ZERO };
+        let Some((map, scale, p_env)) = self.environment_light() else { return env.radiance };
+        let le = scale * map.eval(dir);
+        if prev_delta { le } else { le * power_heuristic(prev_pdf, p_env * map.pdf(dir)) }
     }
 }
 

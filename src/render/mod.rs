@@ -2,6 +2,7 @@
 //!
 //! - [`assembly`]: a loaded scene turned into the [`RenderScene`] the integrator reads;
 //! - [`auto`]: `--builder auto`, the tree the render's length repays;
+//! - [`environment`]: environment maps and their importance sampling;
 //! - [`integrator`]: the path tracer, one path at a time;
 //! - [`tiles`]: the CPU's loop over pixels and samples into a [`film::Film`].
 
@@ -9,6 +10,7 @@ pub mod assembly;
 pub mod auto;
 pub mod bsdf;
 pub mod camera;
+pub mod environment;
 pub mod film;
 pub mod geometry;
 pub mod integrator;

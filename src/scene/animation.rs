@@ -132,7 +132,7 @@ impl Scene {
             path: self.path.clone(),
             camera: self.camera.clone(),
             render: self.render,
-            environment: self.environment,
+            environment: self.environment.clone(),
             materials: self.materials.clone(),
             meshes: self.meshes.clone(),
             objects,

@@ -62,8 +62,12 @@ pub(super) struct RenderFile {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct EnvironmentFile {
-    #[serde(deserialize_with = "exact")]
-    pub radiance: S<[f32; 3]>,
+    #[serde(default, deserialize_with = "exact_opt")]
+    pub radiance: Option<S<[f32; 3]>>,
+    pub map: Option<S<String>>,
+    pub scale: Option<S<ScaleFile>>,
+    #[serde(default, deserialize_with = "exact_opt")]
+    pub rotate: Option<S<[f32; 3]>>,
 }
 
 /// Every key any material type takes; which ones a type allows is checked when building.

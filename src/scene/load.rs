@@ -11,16 +11,18 @@ use std::collections::hash_map::Entry;
 use std::f32::consts::TAU;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::{EulerRot, Mat4, Quat, Vec3};
 
-use super::file::{KeyframeFile, MaterialFile, ObjectFile, S, ScaleFile, ScatterFile, SceneFile};
+use super::file::{EnvironmentFile, KeyframeFile, MaterialFile, ObjectFile, S, ScaleFile, ScatterFile, SceneFile};
 use super::{
-    Animation, AnimationSettings, Camera, ConductorFresnel, Keyframe, Material, Object, RenderSettings, Scattering,
-    Scene, SceneError, SceneMesh,
+    Animation, AnimationSettings, Camera, ConductorFresnel, Environment, Keyframe, Material, Object, RenderSettings,
+    Scattering, Scene, SceneError, SceneMesh,
 };
 use crate::geometry::obj::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
+use crate::render::environment::{EnvironmentMap, Sampling};
 
 /// Most subdivisions of a built-in sphere: 20 · 4^8 ≈ 1.3 M triangles.
 const MAX_SUBDIVISIONS: u32 = 8;
@@ -140,10 +142,7 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
     })?;
     let camera = camera(&ctx, &parsed)?;
     let render = render(&ctx, &parsed)?;
-    let environment = match &parsed.environment {
-        Some(env) => Some(ctx.color(&env.get_ref().radiance, "environment.radiance")?),
-        None => None,
-    };
+    let environment = parsed.environment.as_ref().map(|e| environment(&ctx, e, &file)).transpose()?;
     let mut materials = Vec::new();
     let mut by_name = HashMap::new();
     for (name, m) in &parsed.materials {
@@ -724,6 +723,49 @@ fn invertible(m: &Mat4) -> bool {
     let det = f64::from(m3.determinant());
     let bound: f64 = [m3.x_axis, m3.y_axis, m3.z_axis].iter().map(|c| f64::from(c.length())).product();
     det.is_finite() && bound.is_finite() && det.abs() > 1e-6 * bound
+}
+
+/// The `[environment]` table: a constant `radiance`, or a `map` with its `scale` and `rotate`.
+fn environment(ctx: &Ctx, e: &S<EnvironmentFile>, file: &Path) -> Result<Environment, SceneError> {
+    let f = e.get_ref();
+    let Some(map) = &f.map else {
+        if let Some(k) = &f.scale {
+            return Err(ctx.err(k.span(), "environment.scale", "only a `map` takes a scale"));
+        }
+        if let Some(k) = &f.rotate {
+            return Err(ctx.err(k.span(), "environment.rotate", "only a `map` takes `rotate`"));
+        }
+        let radiance = f.radiance.as_ref().ok_or_else(|| {
+            ctx.err(e.span(), "environment", "give `radiance` (a constant) or `map` (an .exr or .hdr file)")
+        })?;
+        return Ok(Environment { radiance: ctx.color(radiance, "environment.radiance")?, map: None });
+    };
+    if let Some(r) = &f.radiance {
+        return Err(ctx.err(r.span(), "environment.radiance", "give either `radiance` or `map` (with `scale`)"));
+    }
+    let radiance = match &f.scale {
+        None => Vec3::ONE,
+        Some(s) => {
+            let v = match s.get_ref() {
+                ScaleFile::Uniform(x) => Vec3::splat(*x),
+                ScaleFile::PerAxis(a) => Vec3::from(*a),
+            };
+            if !v.is_finite() || v.min_element() < 0.0 {
+                let msg = format!("{v} must be finite and not negative (a number, or one per channel)");
+                return Err(ctx.err(s.span(), "environment.scale", msg));
+            }
+            v
+        }
+    };
+    let key = |k: &str| format!("environment.{k}");
+    let (_, rotation, _) = trs(ctx, &key, &None, &f.rotate, &None)?;
+    if map.get_ref().trim().is_empty() {
+        return Err(ctx.err(map.span(), "environment.map", "is empty: name an .exr or .hdr file"));
+    }
+    let path = file.parent().unwrap_or(Path::new(".")).join(map.get_ref());
+    let loaded = EnvironmentMap::load(&path, glam::Mat3::from_quat(rotation), Sampling::Luminance)
+        .map_err(|e| ctx.err(map.span(), "environment.map", e.to_string()))?;
+    Ok(Environment { radiance, map: Some(Arc::new(loaded)) })
 }
 
 /// Checked `scale`, `rotate` and `translate` keys (defaults 1, 0, 0), as scale, rotation and

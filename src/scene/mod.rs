@@ -12,10 +12,12 @@ mod load;
 pub use animation::{Animation, AnimationSettings, Keyframe};
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use glam::{Mat4, Vec3};
 
 use crate::geometry::{Triangle, TriangleMesh};
+use crate::render::environment::EnvironmentMap;
 
 /// A pinhole or thin-lens camera.
 #[derive(Clone, Debug, PartialEq)]
@@ -128,14 +130,25 @@ pub struct Object {
     pub animation: Option<Animation>,
 }
 
+/// Light arriving from infinitely far away: a constant radiance, or an environment map.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Environment {
+    /// The constant radiance from every direction, or with a map the factor its texels are
+    /// multiplied by (`[environment] scale`). Finite, non-negative.
+    pub radiance: Vec3,
+    /// The equirectangular map, turned by `[environment] rotate`; shared, since every frame of
+    /// an animation renders with it.
+    pub map: Option<Arc<EnvironmentMap>>,
+}
+
 /// A loaded, checked scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Scene {
     pub path: PathBuf,
     pub camera: Camera,
     pub render: RenderSettings,
-    /// Constant radiance arriving from every direction, or `None` for black.
-    pub environment: Option<Vec3>,
+    /// Light from infinitely far away, or `None` for black.
+    pub environment: Option<Environment>,
     pub materials: Vec<Material>,
     pub meshes: Vec<SceneMesh>,
     pub objects: Vec<Object>,
@@ -225,10 +238,21 @@ impl Scene {
             h.update(s.as_bytes());
         };
         text("camera", format!("{:?}", Camera { resolution_line: 0, ..self.camera.clone() }));
-        text("environment", format!("{:?}", self.environment));
+        // A map by its size, rotation and texels, not its path; the distribution follows from them.
+        let environment = self
+            .environment
+            .as_ref()
+            .map(|e| (e.radiance, e.map.as_ref().map(|m| (m.width, m.height, m.world_from_map))));
+        text("environment", format!("{environment:?}"));
         text("materials", format!("{:?}", self.materials));
         text("objects", format!("{:?}", self.objects));
         text("animation", format!("{:?}", self.animation));
+        if let Some(m) = self.environment.as_ref().and_then(|e| e.map.as_ref()) {
+            let bytes = bytemuck::cast_slice::<_, u8>(&m.texels);
+            h.update(b"environment map");
+            h.update((bytes.len() as u64).to_le_bytes());
+            h.update(bytes);
+        }
         for m in &self.meshes {
             h.update(b"mesh");
             for bytes in [
