@@ -239,7 +239,7 @@ const TOML_TOKENS: &[&str] = &[
     "position", "look_at", "up", "fov", "resolution", "aperture", "spp", "max_depth", "time", "radiance", "type",
     "\"diffuse\"", "\"emissive\"", "albedo", "roughness", "shape", "\"box\"", "\"sphere\"", "\"city\"",
     "subdivisions", "triangles", "material", "\"m\"", "mesh", "\"m.obj\"", "scale", "translate", "matrix",
-    "count", "min", "max", "fps", "frames",
+    "count", "min", "max", "fps", "frames", "map", "\"m.exr\"", "rotate",
     " = ", "=", "\n", "[", "]", "[0, 0, 1]", "[16, 16]", "{", "}", ",", ".", "\"", "'", "\"\"\"", "'''", "#",
     "0", "1", "-1", "2.5", "nan", "-inf", "1e400", "9223372036854775808", "true", "1979-05-27T07:32:00Z",
     "\\u0000", "\\", "\u{e9}", "\u{2028}", "\t", "\r\n", "\r", " ",
@@ -953,7 +953,7 @@ const KEYS: &[&str] = &[
     "max_depth", "seed", "time", "environment", "radiance", "materials", "type", "albedo", "two_sided", "roughness",
     "eta", "k", "base_color", "ior", "objects", "mesh", "shape", "subdivisions", "triangles", "material", "translate",
     "rotate", "scale", "matrix", "keyframes", "scatter", "animation", "fps", "frames", "count", "min", "max",
-    "moving", "radius", "period", "bogus", "a.b", "\"quoted key\"", "position.x",
+    "moving", "radius", "period", "map", "bogus", "a.b", "\"quoted key\"", "position.x",
 ];
 
 #[rustfmt::skip]
@@ -1624,4 +1624,72 @@ fn vertex_position_past_f32_says_it_overflows() {
     assert!(err.ends_with("m.obj:2: vertex 2: `1e39` overflows f32"), "{err}");
     let err = obj_mesh("v inf 0 0\n").unwrap_err();
     assert!(err.ends_with("m.obj:1: vertex 1: position [inf, 0.0, 0.0] is not finite"), "{err}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Environment maps: EXR and Radiance HDR files, valid, mutated and random
+
+fn map_scene(file: &str) -> String {
+    format!(
+        "[camera]\nposition = [0, 0, 4]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\
+         [environment]\nmap = \"{file}\"\n"
+    )
+}
+
+/// A small valid map in `format` ("exr" or "hdr"), as bytes.
+fn map_bytes(format: &str) -> Vec<u8> {
+    let (w, h) = (6u32, 3u32);
+    let pixels: Vec<[f32; 3]> = (0..w * h).map(|i| [i as f32, 0.5, 2.0]).collect();
+    let dir = CaseDir::new();
+    let path = dir.0.join(format!("m.{format}"));
+    if format == "exr" {
+        arbor::image_io::write_image(&path, &arbor::image_io::Image { width: w, height: h, pixels }).unwrap();
+    } else {
+        let rgb: Vec<image::Rgb<f32>> = pixels.into_iter().map(image::Rgb).collect();
+        let file = std::fs::File::create(&path).unwrap();
+        image::codecs::hdr::HdrEncoder::new(file).encode(&rgb, w as usize, h as usize).unwrap();
+    }
+    std::fs::read(path).unwrap()
+}
+
+proptest! {
+    #![proptest_config(config(300))]
+
+    /// A map file with bytes changed, cut short or random: it loads, or the error names the
+    /// scene's line and key and the map file.
+    #[test]
+    fn mutated_and_random_maps(
+        exr in any::<bool>(),
+        edits in prop::collection::vec((any::<Index>(), any::<u8>()), 0..6),
+        cut in prop::option::of(any::<Index>()),
+        random in prop::option::of(prop::collection::vec(any::<u8>(), 0..300)),
+    ) {
+        let format = if exr { "exr" } else { "hdr" };
+        let mut bytes = random.unwrap_or_else(|| map_bytes(format));
+        for (at, b) in edits {
+            if !bytes.is_empty() {
+                let i = at.index(bytes.len());
+                bytes[i] = b;
+            }
+        }
+        if let Some(at) = cut.filter(|_| !bytes.is_empty()) {
+            bytes.truncate(at.index(bytes.len()));
+        }
+        let name = format!("m.{format}");
+        check(&[("scene.toml", map_scene(&name).as_bytes()), (&name, &bytes)], &[&name])?;
+    }
+}
+
+/// The valid maps themselves load.
+#[test]
+fn valid_maps_load() {
+    for format in ["exr", "hdr"] {
+        let name = format!("m.{format}");
+        let (scene, bytes) = (map_scene(&name), map_bytes(format));
+        let Outcome::Loaded(scene) = load(&[("scene.toml", scene.as_bytes()), (&name, &bytes)]).0 else {
+            panic!("{name} does not load");
+        };
+        let map = scene.environment.unwrap().map.unwrap();
+        assert_eq!((map.width, map.height), (6, 3));
+    }
 }
