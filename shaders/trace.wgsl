@@ -16,6 +16,11 @@
 // The environment map (HAS_ENV_MAP), src/gpu/trace.rs's env_map_data: RGB texels, then the
 // sampling density per texel, the marginal CDF and the rows' conditional CDFs.
 @group(0) @binding(7) var<storage, read> env_map: array<f32>;
+// Textures (HAS_TEXTURES), src/render/texture.rs's gpu_texture_data: the sRGB decoding table,
+// four header words a texture, the texels; and each triangle's texture coordinates, six floats
+// in leaf order.
+@group(0) @binding(8) var<storage, read> textures: array<u32>;
+@group(0) @binding(9) var<storage, read> uvs: array<f32>;
 
 // The largest finite f32: "no hit yet". (Infinite literals are not valid WGSL.)
 const T_FAR: f32 = 3.40282347e38;
@@ -371,7 +376,8 @@ fn closest_hit(ray: Ray) -> Hit {
         if node.prim_count > 0u {
             for (var i = node.first; i < node.first + node.prim_count; i++) {
                 let h = intersect_triangle(triangles[i], r, best.t);
-                if h.x > 0.0 && (h.x < best.t || (h.x == best.t && i < best.index)) {
+                if h.x > 0.0 && (h.x < best.t || (h.x == best.t && i < best.index))
+                    && !(HAS_TEXTURES && cut_out(i, h.y, h.z)) {
                     best = Hit(h.x, i, h.y, h.z);
                     limit = best.t * CULL_SCALE + slack;
                 }
@@ -439,7 +445,8 @@ fn occluded(ray: Ray, t_max: f32) -> bool {
     loop {
         if node.prim_count > 0u {
             for (var i = node.first; i < node.first + node.prim_count; i++) {
-                if intersect_triangle(triangles[i], r, t_max).x > 0.0 {
+                let h = intersect_triangle(triangles[i], r, t_max);
+                if h.x > 0.0 && !(HAS_TEXTURES && cut_out(i, h.y, h.z)) {
                     return true;
                 }
             }
@@ -477,6 +484,92 @@ fn occluded(ray: Ray, t_max: f32) -> bool {
         node = nodes[stack_node[sp]];
     }
     return false;
+}
+
+// ---- textures: src/render/texture.rs ----
+
+// Index `i` (integer-valued) wrapped into 0..n: 0 repeat, 1 clamp, 2 mirror.
+fn tex_wrap(i: f32, n: u32, wrap: u32) -> u32 {
+    let nf = f32(n);
+    var k: f32;
+    if wrap == 1u {
+        k = clamp(i, 0.0, nf - 1.0);
+    } else if wrap == 2u {
+        let m = i - 2.0 * nf * floor(i / (2.0 * nf));
+        k = select(m, 2.0 * nf - 1.0 - m, m >= nf);
+    } else {
+        k = i - nf * floor(i / nf);
+    }
+    return min(u32(max(k, 0.0)), n - 1u);
+}
+
+fn tex_texel(header: u32, x: u32, y: u32, srgb: bool) -> vec4<f32> {
+    let offset = textures[header];
+    let i = y * textures[header + 1u] + x;
+    if (textures[header + 3u] & 1u) != 0u {
+        let w = offset + 4u * i;
+        return vec4<f32>(
+            bitcast<f32>(textures[w]),
+            bitcast<f32>(textures[w + 1u]),
+            bitcast<f32>(textures[w + 2u]),
+            bitcast<f32>(textures[w + 3u]),
+        );
+    }
+    let p = textures[offset + i];
+    let code = vec4<u32>(p & 255u, (p >> 8u) & 255u, (p >> 16u) & 255u, p >> 24u);
+    if srgb {
+        return vec4<f32>(
+            bitcast<f32>(textures[code.x]),
+            bitcast<f32>(textures[code.y]),
+            bitcast<f32>(textures[code.z]),
+            f32(code.w) / 255.0,
+        );
+    }
+    return vec4<f32>(code) / 255.0;
+}
+
+// Texture::sample for a packed reference (gpu_texture_ref): bilinear, v up from the bottom row.
+fn tex_sample(tex: u32, uv: vec2<f32>) -> vec4<f32> {
+    let header = 256u + 4u * (tex & 0xffffffu);
+    let wrap = (tex >> 24u) & 3u;
+    let srgb = ((tex >> 26u) & 1u) != 0u;
+    let w = textures[header + 1u];
+    let h = textures[header + 2u];
+    let x = uv.x * f32(w) - 0.5;
+    let y = (1.0 - uv.y) * f32(h) - 0.5;
+    let x0 = floor(x);
+    let y0 = floor(y);
+    let fx = x - x0;
+    let fy = y - y0;
+    let c0 = tex_wrap(x0, w, wrap);
+    let c1 = tex_wrap(x0 + 1.0, w, wrap);
+    let r0 = tex_wrap(y0, h, wrap);
+    let r1 = tex_wrap(y0 + 1.0, h, wrap);
+    let top = tex_texel(header, c0, r0, srgb) * (1.0 - fx) + tex_texel(header, c1, r0, srgb) * fx;
+    let bottom = tex_texel(header, c0, r1, srgb) * (1.0 - fx) + tex_texel(header, c1, r1, srgb) * fx;
+    return top * (1.0 - fy) + bottom * fy;
+}
+
+// The texture coordinates of leaf triangle `index` at barycentrics (u, v).
+fn triangle_uv(index: u32, u: f32, v: f32) -> vec2<f32> {
+    let b = 6u * index;
+    let a = vec2<f32>(uvs[b], uvs[b + 1u]);
+    let c1 = vec2<f32>(uvs[b + 2u], uvs[b + 3u]);
+    let c2 = vec2<f32>(uvs[b + 4u], uvs[b + 5u]);
+    return (1.0 - u - v) * a + u * c1 + v * c2;
+}
+
+// Cutouts::cut: whether leaf triangle `index` is cut out at (u, v) by its material's mask
+// (the alpha channel where the texture has one, else its first channel).
+fn cut_out(index: u32, u: f32, v: f32) -> bool {
+    let mat = materials[triangles[index].material];
+    if mat.alpha_tex == INVALID_INDEX {
+        return false;
+    }
+    let t = tex_sample(mat.alpha_tex, triangle_uv(index, u, v));
+    let header = 256u + 4u * (mat.alpha_tex & 0xffffffu);
+    let coverage = select(t.x, t.w, (textures[header + 3u] & 2u) != 0u);
+    return coverage < mat.alpha_cutoff;
 }
 
 // ---- the environment map: src/render/environment.rs ----
@@ -779,7 +872,13 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         let sp = point_with_error(tri.v0, tri.v1, tri.v2, hit.u, hit.v);
         let wo_world = -ray.dir;
         let front = dot(ng, wo_world) > 0.0;
-        let mat = materials[tri.material];
+        var mat = materials[tri.material];
+        if HAS_TEXTURES && mat.base_color_tex != INVALID_INDEX {
+            // RenderMaterial::bsdf_at: the albedo or Schlick F0 times the texture.
+            if mat.kind == MAT_DIFFUSE || (mat.kind == MAT_CONDUCTOR && (mat.flags & MAT_COMPLEX_FRESNEL) == 0u) {
+                mat.albedo *= tex_sample(mat.base_color_tex, triangle_uv(hit.index, hit.u, hit.v)).xyz;
+            }
+        }
         if (mat.flags & MAT_EMITS) != 0u && (front || (mat.flags & MAT_TWO_SIDED) != 0u) {
             if prev_delta {
                 l += beta * mat.emission;

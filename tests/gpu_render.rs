@@ -194,7 +194,8 @@ fn specialized_and_general_variants_agree() {
             lights: false,
             thin_lens: false,
             shading_normals: false,
-            env_map: false
+            env_map: false,
+            textures: false
         }
     );
     let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
@@ -277,6 +278,8 @@ fn a_tree_deeper_than_the_stack_is_refused() {
         triangles: tris,
         material_of: vec![0; n as usize],
         normals: Vec::new(),
+        uvs: Vec::new(),
+        cutouts: None,
     });
     let error = GpuScene::upload(ctx, &rs).err().expect("a 100-deep tree must be refused").to_string();
     assert!(error.contains("100 nodes deep") && error.contains("traversal stack"), "{error}");

@@ -23,6 +23,7 @@ mod environment;
 mod golden;
 mod render_accuracy;
 mod stability;
+mod textures;
 
 // The `render` command line, and renders split into jobs and merged.
 mod distributed;

@@ -161,6 +161,40 @@ impl TwoLevel {
         .map(|(instance, t, (prim_id, u, v))| InstanceHit { t, instance, prim_id, u, v })
     }
 
+    /// [`TwoLevel::closest_hit`] leaving out every hit `(instance, prim, u, v)` that `reject`
+    /// refuses (the skipped triangle, cut-out texels).
+    pub fn closest_hit_filtered<R: Fn(u32, u32, f32, f32) -> bool>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        reject: &R,
+    ) -> Option<InstanceHit> {
+        let bvh = self.tlas.bvh();
+        if bvh.is_empty() {
+            return None;
+        }
+        bvh.closest_hit(ray, t_max, |_, i, t_limit| {
+            let inst = &self.instances[i as usize];
+            let local = to_object(inst, ray);
+            self.meshes[inst.mesh as usize]
+                .closest_hit_filtered(&local, t_limit, &|prim, u, v| reject(i, prim, u, v))
+                .map(|h| (h.t, (h.prim_id, h.u, h.v)))
+        })
+        .map(|(instance, t, (prim_id, u, v))| InstanceHit { t, instance, prim_id, u, v })
+    }
+
+    /// [`TwoLevel::any_hit`] counting only hits `(instance, prim, u, v)` that `reject` does not
+    /// refuse.
+    pub fn any_hit_filtered<R: Fn(u32, u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
+        let bvh = self.tlas.bvh();
+        !bvh.is_empty()
+            && bvh.any_hit(ray, t_max, |_, i, t_limit| {
+                let inst = &self.instances[i as usize];
+                self.meshes[inst.mesh as usize]
+                    .any_hit_filtered(&to_object(inst, ray), t_limit, &|prim, u, v| reject(i, prim, u, v))
+            })
+    }
+
     /// Whether anything is hit with `0 < t <= t_max`.
     pub fn any_hit(&self, ray: &Ray, t_max: f32) -> bool {
         self.any_hit_skipping(ray, t_max, None)

@@ -130,21 +130,27 @@ impl MeshBvh {
     }
 
     fn binary_closest(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        self.binary_closest_filtered(ray, t_max, &|prim, _, _| prim == skip)
+    }
+
+    fn binary_closest_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> Option<Hit> {
         let wr = WatertightRay::new(ray);
         self.bvh
             .closest_hit(ray, t_max, |pos, prim, t_limit| {
-                if prim == skip {
-                    return None;
-                }
-                self.triangles[pos as usize].intersect(&wr, t_limit).map(|h| (h.t, (h.u, h.v)))
+                let h = self.triangles[pos as usize].intersect(&wr, t_limit)?;
+                (!reject(prim, h.u, h.v)).then_some((h.t, (h.u, h.v)))
             })
             .map(Hit::from_traversal)
     }
 
     fn binary_any(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        self.binary_any_filtered(ray, t_max, &|prim, _, _| prim == skip)
+    }
+
+    fn binary_any_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
         let wr = WatertightRay::new(ray);
         self.bvh.any_hit(ray, t_max, |pos, prim, t_limit| {
-            prim != skip && self.triangles[pos as usize].intersect(&wr, t_limit).is_some()
+            self.triangles[pos as usize].intersect(&wr, t_limit).is_some_and(|h| !reject(prim, h.u, h.v))
         })
     }
 
@@ -162,6 +168,27 @@ impl MeshBvh {
             Wide::Eight(w) => w.closest_hit(ray, t_max, skip),
             Wide::Four(w) => w.closest_hit(ray, t_max, skip),
             Wide::None => self.binary_closest(ray, t_max, skip),
+        }
+    }
+
+    /// [`MeshBvh::closest_hit`] leaving out every hit `(prim, u, v)` that `reject` refuses: the
+    /// skipped triangle, cut-out texels.
+    #[inline]
+    pub fn closest_hit_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> Option<Hit> {
+        match &self.wide {
+            Wide::Eight(w) => w.closest_hit_filtered(ray, t_max, reject),
+            Wide::Four(w) => w.closest_hit_filtered(ray, t_max, reject),
+            Wide::None => self.binary_closest_filtered(ray, t_max, reject),
+        }
+    }
+
+    /// [`MeshBvh::any_hit`] counting only hits `(prim, u, v)` that `reject` does not refuse.
+    #[inline]
+    pub fn any_hit_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
+        match &self.wide {
+            Wide::Eight(w) => w.any_hit_filtered(ray, t_max, reject),
+            Wide::Four(w) => w.any_hit_filtered(ray, t_max, reject),
+            Wide::None => self.binary_any_filtered(ray, t_max, reject),
         }
     }
 

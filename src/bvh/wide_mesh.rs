@@ -186,6 +186,13 @@ impl<const N: usize> WideMesh<N> {
     /// ([`INVALID_INDEX`] for none); ties go to the lowest primitive id.
     #[inline]
     pub fn closest_hit(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+        self.closest_hit_filtered(ray, t_max, &|prim, _, _| prim == skip)
+    }
+
+    /// [`WideMesh::closest_hit`] leaving out every hit `(prim, u, v)` that `reject` refuses
+    /// (the skipped primitive, cut-out texels): the nearest hit it keeps.
+    #[inline]
+    pub fn closest_hit_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         match self.simd {
             // SAFETY: `simd` is a path this CPU has (checked in `from_binary`).
             #[cfg(target_arch = "x86_64")]
@@ -197,13 +204,19 @@ impl<const N: usize> WideMesh<N> {
             #[cfg(target_arch = "aarch64")]
             SimdPath::Neon => unsafe { self.closest_neon(ray, t_max, skip) },
             // SAFETY: portable code.
-            _ => unsafe { self.closest::<Scalar>(ray, t_max, skip) },
+            _ => unsafe { self.closest::<Scalar, R>(ray, t_max, skip) },
         }
     }
 
     /// Whether any triangle but `skip` is hit with `0 < t <= t_max`; stops at the first found.
     #[inline]
     pub fn any_hit(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+        self.any_hit_filtered(ray, t_max, &|prim, _, _| prim == skip)
+    }
+
+    /// [`WideMesh::any_hit`] counting only hits `(prim, u, v)` that `reject` does not refuse.
+    #[inline]
+    pub fn any_hit_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         match self.simd {
             // SAFETY: `simd` is a path this CPU has (checked in `from_binary`).
             #[cfg(target_arch = "x86_64")]
@@ -215,62 +228,62 @@ impl<const N: usize> WideMesh<N> {
             #[cfg(target_arch = "aarch64")]
             SimdPath::Neon => unsafe { self.any_neon(ray, t_max, skip) },
             // SAFETY: portable code.
-            _ => unsafe { self.any::<Scalar>(ray, t_max, skip) },
+            _ => unsafe { self.any::<Scalar, R>(ray, t_max, skip) },
         }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn closest_avx2(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+    unsafe fn closest_avx2<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.closest::<super::simd::Avx2>(ray, t_max, skip) }
+        unsafe { self.closest::<super::simd::Avx2, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "sse4.1")]
-    unsafe fn closest_sse4(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+    unsafe fn closest_sse4<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.closest::<super::simd::Sse4>(ray, t_max, skip) }
+        unsafe { self.closest::<super::simd::Sse4, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn any_avx2(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+    unsafe fn any_avx2<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.any::<super::simd::Avx2>(ray, t_max, skip) }
+        unsafe { self.any::<super::simd::Avx2, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "sse4.1")]
-    unsafe fn any_sse4(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+    unsafe fn any_sse4<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.any::<super::simd::Sse4>(ray, t_max, skip) }
+        unsafe { self.any::<super::simd::Sse4, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "aarch64")]
     #[target_feature(enable = "neon")]
-    unsafe fn closest_neon(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+    unsafe fn closest_neon<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.closest::<super::simd::Neon>(ray, t_max, skip) }
+        unsafe { self.closest::<super::simd::Neon, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "aarch64")]
     #[target_feature(enable = "neon")]
-    unsafe fn any_neon(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+    unsafe fn any_neon<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.any::<super::simd::Neon>(ray, t_max, skip) }
+        unsafe { self.any::<super::simd::Neon, R>(ray, t_max, skip) }
     }
 
     /// # Safety
     /// The CPU has `K`'s instruction set.
     #[inline(always)]
-    unsafe fn closest<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
+    unsafe fn closest<K: Kernel, R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         if self.nodes.is_empty() {
             return None;
         }
@@ -302,9 +315,6 @@ impl<const N: usize> WideMesh<N> {
                         let i = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
                         let prim = p.prim[i];
-                        if prim == skip {
-                            continue;
-                        }
                         let t_limit = best.map_or(t_max, |b| b.t);
                         let h = if hits.accept & (1 << i) != 0 {
                             // Known hit, at most the limit the kernel was given; a nearer hit
@@ -317,6 +327,9 @@ impl<const N: usize> WideMesh<N> {
                             let Some(h) = p.triangle(i).intersect(&pr.wr, t_limit) else { continue };
                             Hit { t: h.t, prim_id: prim, u: h.u, v: h.v }
                         };
+                        if skip(prim, h.u, h.v) {
+                            continue;
+                        }
                         if best.is_none_or(|b| h.t < b.t || (h.t == b.t && prim < b.prim_id)) {
                             limit = cull_limit(h.t, *slack.get_or_insert_with(|| cull_slack(&self.bounds, ray)));
                             best = Some(h);
@@ -355,7 +368,7 @@ impl<const N: usize> WideMesh<N> {
     /// # Safety
     /// The CPU has `K`'s instruction set.
     #[inline(always)]
-    unsafe fn any<K: Kernel>(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
+    unsafe fn any<K: Kernel, R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         if self.nodes.is_empty() {
             return false;
         }
@@ -377,9 +390,13 @@ impl<const N: usize> WideMesh<N> {
                     while lanes != 0 {
                         let i = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
-                        if p.prim[i] != skip
-                            && (hits.accept & (1 << i) != 0 || p.triangle(i).intersect(&pr.wr, t_max).is_some())
-                        {
+                        let (u, v) = if hits.accept & (1 << i) != 0 {
+                            (hits.u[i], hits.v[i])
+                        } else {
+                            let Some(h) = p.triangle(i).intersect(&pr.wr, t_max) else { continue };
+                            (h.u, h.v)
+                        };
+                        if !skip(p.prim[i], u, v) {
                             return true;
                         }
                     }

@@ -199,9 +199,12 @@ pub struct GpuMaterial {
     pub ior: f32,
     /// `MAT_EMITS | MAT_TWO_SIDED | MAT_COMPLEX_FRESNEL`.
     pub flags: u32,
-    pub pad0: u32,
-    pub pad1: u32,
-    pub pad2: u32,
+    /// The base colour texture and the cut-out mask, packed
+    /// ([`crate::render::texture::gpu_texture_ref`]; `INVALID_INDEX`: none), and the mask's
+    /// cutoff.
+    pub base_color_tex: u32,
+    pub alpha_tex: u32,
+    pub alpha_cutoff: f32,
 }
 
 /// An emissive triangle ([`crate::render::lights::Lights`]): `cdf` is the running sum of power

@@ -83,6 +83,7 @@ use crate::render::environment::EnvironmentMap;
 use crate::render::film::{Film, PixelAccum};
 use crate::render::geometry::Geometry;
 use crate::render::region::Rect;
+use crate::render::texture::{gpu_texture_data, gpu_texture_ref};
 use crate::render::{BuildReport, RenderMaterial, RenderScene};
 use crate::scene::Scene;
 
@@ -106,6 +107,8 @@ pub struct Features {
     pub shading_normals: bool,
     /// An environment map, sampled for next-event estimation.
     pub env_map: bool,
+    /// Image textures: base colours and cut-out masks.
+    pub textures: bool,
 }
 
 impl Features {
@@ -118,6 +121,7 @@ impl Features {
         thin_lens: true,
         shading_normals: true,
         env_map: true,
+        textures: true,
     };
 
     /// What `scene` uses.
@@ -131,6 +135,8 @@ impl Features {
             thin_lens: scene.camera.parts().lens_radius != 0.0,
             shading_normals: matches!(&scene.geometry, Geometry::Flat(f) if !f.normals.is_empty()),
             env_map: scene.environment_light().is_some(),
+            textures: matches!(&scene.geometry, Geometry::Flat(f) if !f.uvs.is_empty())
+                && scene.materials.iter().any(|m| m.base_color.is_some() || m.alpha.is_some()),
         }
     }
 
@@ -138,20 +144,21 @@ impl Features {
     pub fn key(&self) -> String {
         let b = |x: bool| u8::from(x);
         format!(
-            "trace[dielectric={} conductor={} environment={} lights={} thin_lens={} shading_normals={} env_map={}]",
+            "trace[dielectric={} conductor={} environment={} lights={} thin_lens={} shading_normals={} env_map={} textures={}]",
             b(self.dielectric),
             b(self.conductor),
             b(self.environment),
             b(self.lights),
             b(self.thin_lens),
             b(self.shading_normals),
-            b(self.env_map)
+            b(self.env_map),
+            b(self.textures)
         )
     }
 
     /// Every combination, for tests that validate each variant.
     pub fn every() -> Vec<Features> {
-        (0..128u32)
+        (0..256u32)
             .map(|m| Features {
                 dielectric: m & 1 != 0,
                 conductor: m & 2 != 0,
@@ -160,6 +167,7 @@ impl Features {
                 thin_lens: m & 16 != 0,
                 shading_normals: m & 32 != 0,
                 env_map: m & 64 != 0,
+                textures: m & 128 != 0,
             })
             .collect()
     }
@@ -171,14 +179,15 @@ pub fn shader_source(features: Features) -> String {
     let flags = format!(
         "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_ENVIRONMENT: bool = {};\n\
          const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\nconst HAS_SHADING_NORMALS: bool = {};\n\
-         const HAS_ENV_MAP: bool = {};\n",
+         const HAS_ENV_MAP: bool = {};\nconst HAS_TEXTURES: bool = {};\n",
         features.dielectric,
         features.conductor,
         features.environment,
         features.lights,
         features.thin_lens,
         features.shading_normals,
-        features.env_map
+        features.env_map,
+        features.textures
     );
     with_prelude(&format!(
         "{flags}\n{}\n{}",
@@ -203,6 +212,10 @@ pub struct GpuScene {
     normals: wgpu::Buffer,
     /// The environment map and its distribution ([`env_map_data`]), or one zero float.
     env_map: wgpu::Buffer,
+    /// The textures ([`gpu_texture_data`]) and each triangle's texture coordinates (six floats,
+    /// leaf order), or one zero word each.
+    textures: wgpu::Buffer,
+    uvs: wgpu::Buffer,
     /// Camera, environment, clamp and light count; seed and samples are set per render.
     params: TraceParams,
     /// The variant to compile: [`Features::of`] the scene, or all of them under
@@ -265,6 +278,9 @@ fn gpu_material(m: &RenderMaterial) -> GpuMaterial {
     if m.two_sided {
         g.flags |= MAT_TWO_SIDED;
     }
+    g.base_color_tex = gpu_texture_ref(m.base_color);
+    g.alpha_tex = gpu_texture_ref(m.alpha.map(|(r, _)| r));
+    g.alpha_cutoff = m.alpha.map_or(0.0, |(_, c)| c);
     g
 }
 
@@ -335,6 +351,12 @@ impl GpuScene {
             bvh.prim_ids.iter().flat_map(|&prim| flat.normals[prim as usize].map(|n| n.to_array())).flatten().collect()
         };
         let materials: Vec<GpuMaterial> = scene.materials.iter().map(gpu_material).collect();
+        let (textures, uvs): (Vec<u32>, Vec<f32>) = if flat.uvs.is_empty() || scene.textures.is_empty() {
+            (Vec::new(), Vec::new())
+        } else {
+            let uvs = bvh.prim_ids.iter().flat_map(|&prim| flat.uvs[prim as usize].map(|t| t.to_array())).flatten();
+            (gpu_texture_data(&scene.textures), uvs.collect())
+        };
         let lights: Vec<GpuLight> = scene
             .lights
             .gpu_arrays()
@@ -384,6 +406,8 @@ impl GpuScene {
             lights: ctx.storage_buffer("lights", &at_least_one(lights))?,
             normals: ctx.storage_buffer("normals", &at_least_one(normals))?,
             env_map: ctx.storage_buffer("environment map", &at_least_one(env_map))?,
+            textures: ctx.storage_buffer("textures", &at_least_one(textures))?,
+            uvs: ctx.storage_buffer("texture coordinates", &at_least_one(uvs))?,
             params,
             features: if specialization_disabled() { Features::ALL } else { Features::of(scene) },
             width: scene.width,
@@ -436,6 +460,8 @@ fn bind_group(
             (5, film),
             (6, &scene.normals),
             (7, &scene.env_map),
+            (8, &scene.textures),
+            (9, &scene.uvs),
         ],
     )
 }

@@ -2,6 +2,7 @@
 //! geometry under a BVH made by a named builder (flat), one BVH per mesh under a top-level tree
 //! (instanced), or a tree made elsewhere (on the GPU, or by `auto`: [`super::auto`]).
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::Vec3;
@@ -9,9 +10,10 @@ use rayon::prelude::*;
 
 use super::camera::CameraModel;
 use super::environment::EnvironmentMap;
-use super::geometry::{Flat, Geometry, Instanced, flat_lights, wants_instancing};
+use super::geometry::{Cutouts, Flat, Geometry, Instanced, flat_lights, wants_instancing};
 use super::lights::Lights;
 use super::material::RenderMaterial;
+use super::texture::Texture;
 use crate::bvh::builders::Builder;
 use crate::bvh::instances::TopLevelUpdate;
 use crate::bvh::prbvh::PrbvhConfig;
@@ -27,6 +29,8 @@ pub struct RenderScene {
     /// Light from far away; `None` where it is black (a black map, or a scale of 0).
     pub environment: Option<Environment>,
     pub camera: CameraModel,
+    /// The image textures materials use ([`Scene::textures`]).
+    pub textures: Vec<Arc<Texture>>,
     pub width: u32,
     pub height: u32,
     /// Firefly clamp, off (`None`) unless the user asks (`render --clamp`): a sample whose
@@ -145,8 +149,9 @@ impl RenderScene {
             collapse_ms,
             traced_sah,
         };
-        let normals = scene.world_normals_at(time);
-        let geometry = Geometry::Flat(Flat { mesh, triangles, material_of, normals });
+        let (normals, uvs) = (scene.world_normals_at(time), scene.world_uvs_at(time));
+        let cutouts = Cutouts::of(scene);
+        let geometry = Geometry::Flat(Flat { mesh, triangles, material_of, normals, uvs, cutouts });
         (Self::with_geometry(scene, geometry, materials, lights), report)
     }
 
@@ -160,6 +165,7 @@ impl RenderScene {
                 .clone()
                 .filter(|e| e.radiance.max_element() > 0.0 && !e.map.as_ref().is_some_and(|m| m.is_black())),
             camera: CameraModel::new(&scene.camera),
+            textures: scene.textures.clone(),
             width: scene.camera.width,
             height: scene.camera.height,
             sample_clamp: None,

@@ -11,11 +11,14 @@
 //! Both answer with a [`SurfaceHit`] carrying the hit triangle in world space, so shading is the
 //! same code either way.
 
-use glam::{Affine3A, Vec3};
+use std::sync::Arc;
+
+use glam::{Affine3A, Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::lights::Lights;
 use super::material::RenderMaterial;
+use super::texture::{Texture, TextureRef};
 use crate::bvh::dynamic::UpdateStats;
 use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
 use crate::bvh::{INVALID_INDEX, MeshBvh};
@@ -38,6 +41,9 @@ pub struct SurfaceHit {
     /// The vertices' shading normals in world space, in `triangle`'s vertex order; zero where
     /// the mesh has none.
     pub normals: [Vec3; 3],
+    /// The vertices' texture coordinates, in `triangle`'s vertex order; zero where the mesh has
+    /// none or the scene has no textures.
+    pub uvs: [Vec2; 3],
 }
 
 impl SurfaceHit {
@@ -55,6 +61,44 @@ impl SurfaceHit {
             return None;
         }
         Some(if n.dot(ng) < 0.0 { -n } else { n })
+    }
+
+    /// The texture coordinates at the hit.
+    #[inline]
+    pub fn uv(&self) -> Vec2 {
+        interpolate(&self.uvs, self.u, self.v)
+    }
+}
+
+#[inline]
+fn interpolate(uvs: &[Vec2; 3], u: f32, v: f32) -> Vec2 {
+    (1.0 - u - v) * uvs[0] + u * uvs[1] + v * uvs[2]
+}
+
+/// The cut-out masks of a scene's materials (`map_d`): a hit where a mask's coverage is below
+/// its cutoff is no hit, for closest-hit and shadow rays alike. Absent where no material has
+/// one, and then tracing is as it was.
+#[derive(Debug)]
+pub struct Cutouts {
+    /// Each material's mask and cutoff, `None` for an opaque material.
+    masks: Vec<Option<(TextureRef, f32)>>,
+    textures: Vec<Arc<Texture>>,
+}
+
+impl Cutouts {
+    /// The scene's masks, or `None` where no material has one.
+    pub fn of(scene: &Scene) -> Option<Self> {
+        let masks: Vec<_> =
+            scene.materials.iter().map(|m| m.textures.alpha.map(|r| (r, m.textures.alpha_cutoff))).collect();
+        masks.iter().any(Option::is_some).then(|| Self { masks, textures: scene.textures.clone() })
+    }
+
+    /// Whether material `material` is cut out at barycentrics `(u, v)` of a triangle with
+    /// texture coordinates `uvs`.
+    #[inline]
+    pub fn cut(&self, material: u32, uvs: &[Vec2; 3], u: f32, v: f32) -> bool {
+        let Some(Some((r, cutoff))) = self.masks.get(material as usize) else { return false };
+        self.textures[r.texture as usize].coverage(interpolate(uvs, u, v), r.wrap) < *cutoff
     }
 }
 
@@ -76,6 +120,9 @@ pub struct Flat {
     pub material_of: Vec<u32>,
     /// Their vertices' shading normals by primitive id ([`Scene::world_normals_at`]), or empty.
     pub normals: Vec<[Vec3; 3]>,
+    /// Their vertices' texture coordinates by primitive id ([`Scene::world_uvs_at`]), or empty.
+    pub uvs: Vec<[Vec2; 3]>,
+    pub cutouts: Option<Cutouts>,
 }
 
 /// Meshes in object space under a top-level tree of instances (one per scene object).
@@ -87,6 +134,10 @@ pub struct Instanced {
     mesh_materials: Vec<Vec<u32>>,
     /// Each mesh's vertex normals by triangle id (object space), or empty.
     mesh_normals: Vec<Vec<[Vec3; 3]>>,
+    /// Each mesh's texture coordinates by triangle id, or empty (as for a scene without
+    /// textures).
+    mesh_uvs: Vec<Vec<[Vec2; 3]>>,
+    cutouts: Option<Cutouts>,
     /// Each object's material override.
     instance_material: Vec<Option<u32>>,
     /// Each object's first light id, or `INVALID_INDEX` when none of its triangles emits.
@@ -134,11 +185,23 @@ impl Instanced {
             })
             .collect();
         let instance_material = scene.objects.iter().map(|o| o.material).collect();
+        let mesh_uvs = scene
+            .meshes
+            .iter()
+            .map(|m| {
+                if m.mesh.uvs.is_empty() || scene.textures.is_empty() {
+                    return Vec::new();
+                }
+                m.mesh.indices.iter().map(|t| t.map(|i| m.mesh.uvs[i as usize])).collect()
+            })
+            .collect();
         Self {
             two_level: TwoLevel::new(meshes, instances),
             mesh_triangles,
             mesh_materials,
             mesh_normals,
+            mesh_uvs,
+            cutouts: Cutouts::of(scene),
             instance_material,
             light_base: Vec::new(),
         }
@@ -209,7 +272,7 @@ impl Geometry {
     #[inline]
     pub fn intersect_from(&self, ray: &Ray, from: Option<Surface>) -> Option<SurfaceHit> {
         match self {
-            Geometry::Flat(f) => f.mesh.closest_hit_skipping(ray, f32::INFINITY, skip_prim(from)).map(|h| SurfaceHit {
+            Geometry::Flat(f) => f.closest_hit(ray, from).map(|h| SurfaceHit {
                 t: h.t,
                 triangle: f.triangles[h.prim_id as usize],
                 u: h.u,
@@ -218,8 +281,9 @@ impl Geometry {
                 light: h.prim_id,
                 surface: Surface { instance: 0, prim: h.prim_id },
                 normals: f.normals.get(h.prim_id as usize).copied().unwrap_or([Vec3::ZERO; 3]),
+                uvs: f.uvs.get(h.prim_id as usize).copied().unwrap_or([Vec2::ZERO; 3]),
             }),
-            Geometry::Instanced(g) => g.two_level.closest_hit_skipping(ray, f32::INFINITY, skip_pair(from)).map(|h| {
+            Geometry::Instanced(g) => g.closest_hit(ray, from).map(|h| {
                 let inst = &g.two_level.instances()[h.instance as usize];
                 let local = &g.mesh_triangles[inst.mesh as usize][h.prim_id as usize];
                 let base = g.light_base.get(h.instance as usize).copied().unwrap_or(INVALID_INDEX);
@@ -237,6 +301,11 @@ impl Geometry {
                     }
                     None => [Vec3::ZERO; 3],
                 };
+                let uvs = match g.mesh_uvs[inst.mesh as usize].get(h.prim_id as usize) {
+                    Some(&[a, b, c]) if mirrored => [a, c, b],
+                    Some(&uvs) => uvs,
+                    None => [Vec2::ZERO; 3],
+                };
                 SurfaceHit {
                     t: h.t,
                     triangle: local.placed(&inst.world_from_object, mirrored),
@@ -246,6 +315,7 @@ impl Geometry {
                     light: if base == INVALID_INDEX { INVALID_INDEX } else { base + h.prim_id },
                     surface: Surface { instance: h.instance, prim: h.prim_id },
                     normals,
+                    uvs,
                 }
             }),
         }
@@ -261,8 +331,22 @@ impl Geometry {
     #[inline]
     pub fn occluded_from(&self, ray: &Ray, t_max: f32, from: Option<Surface>) -> bool {
         match self {
-            Geometry::Flat(f) => f.mesh.any_hit_skipping(ray, t_max, skip_prim(from)),
-            Geometry::Instanced(g) => g.two_level.any_hit_skipping(ray, t_max, skip_pair(from)),
+            Geometry::Flat(f) => match &f.cutouts {
+                None => f.mesh.any_hit_skipping(ray, t_max, skip_prim(from)),
+                Some(c) => {
+                    let skip = skip_prim(from);
+                    f.mesh.any_hit_filtered(ray, t_max, &|prim, u, v| prim == skip || f.cut(c, prim, u, v))
+                }
+            },
+            Geometry::Instanced(g) => match &g.cutouts {
+                None => g.two_level.any_hit_skipping(ray, t_max, skip_pair(from)),
+                Some(c) => {
+                    let skip = skip_pair(from);
+                    g.two_level.any_hit_filtered(ray, t_max, &|i, prim, u, v| {
+                        skip == Some((i, prim)) || g.cut(c, i, prim, u, v)
+                    })
+                }
+            },
         }
     }
 
@@ -282,6 +366,45 @@ impl Geometry {
             Geometry::Flat(f) => f.mesh.bvh.bounds(),
             Geometry::Instanced(g) => g.two_level.top_level().bvh().bounds(),
         }
+    }
+}
+
+impl Flat {
+    fn closest_hit(&self, ray: &Ray, from: Option<Surface>) -> Option<crate::bvh::Hit> {
+        let skip = skip_prim(from);
+        match &self.cutouts {
+            None => self.mesh.closest_hit_skipping(ray, f32::INFINITY, skip),
+            Some(c) => self
+                .mesh
+                .closest_hit_filtered(ray, f32::INFINITY, &|prim, u, v| prim == skip || self.cut(c, prim, u, v)),
+        }
+    }
+
+    #[inline]
+    fn cut(&self, c: &Cutouts, prim: u32, u: f32, v: f32) -> bool {
+        let uvs = self.uvs.get(prim as usize).unwrap_or(&[Vec2::ZERO; 3]);
+        c.cut(self.material_of[prim as usize], uvs, u, v)
+    }
+}
+
+impl Instanced {
+    fn closest_hit(&self, ray: &Ray, from: Option<Surface>) -> Option<crate::bvh::instances::InstanceHit> {
+        let skip = skip_pair(from);
+        match &self.cutouts {
+            None => self.two_level.closest_hit_skipping(ray, f32::INFINITY, skip),
+            Some(c) => self.two_level.closest_hit_filtered(ray, f32::INFINITY, &|i, prim, u, v| {
+                skip == Some((i, prim)) || self.cut(c, i, prim, u, v)
+            }),
+        }
+    }
+
+    /// Whether instance `i`'s triangle `prim` is cut out at `(u, v)`: barycentrics of the mesh's
+    /// own vertex order, the one its texture coordinates are in.
+    #[inline]
+    fn cut(&self, c: &Cutouts, i: u32, prim: u32, u: f32, v: f32) -> bool {
+        let mesh = self.two_level.instances()[i as usize].mesh as usize;
+        let uvs = self.mesh_uvs[mesh].get(prim as usize).unwrap_or(&[Vec2::ZERO; 3]);
+        c.cut(self.material(i as usize, prim), uvs, u, v)
     }
 }
 

@@ -1,8 +1,11 @@
 //! Materials as the integrator uses them: a scene's material turned into a BSDF and an emission.
 
-use glam::Vec3;
+use std::sync::Arc;
+
+use glam::{Vec2, Vec3};
 
 use super::bsdf::{Bsdf, ConductorFresnel as BsdfFresnel};
+use super::texture::{Texture, TextureRef};
 use crate::scene::{ConductorFresnel, Scattering};
 
 /// A material as the integrator uses it.
@@ -12,6 +15,11 @@ pub struct RenderMaterial {
     pub bsdf: Option<Bsdf>,
     pub emission: Option<Vec3>,
     pub two_sided: bool,
+    /// Multiplies the diffuse albedo or the conductor's Schlick F0 at the hit.
+    pub base_color: Option<TextureRef>,
+    /// The cut-out mask and its cutoff (the CPU reads them through
+    /// [`super::geometry::Cutouts`], the GPU from here).
+    pub alpha: Option<(TextureRef, f32)>,
 }
 
 impl RenderMaterial {
@@ -28,6 +36,27 @@ impl RenderMaterial {
             }),
             Scattering::Dielectric { ior, roughness } => Some(Bsdf::Dielectric { alpha: *roughness, ior: *ior }),
         };
-        Self { bsdf, emission: m.emission, two_sided: m.two_sided }
+        Self {
+            bsdf,
+            emission: m.emission,
+            two_sided: m.two_sided,
+            base_color: m.textures.base_color,
+            alpha: m.textures.alpha.map(|r| (r, m.textures.alpha_cutoff)),
+        }
+    }
+
+    /// The BSDF at a hit with texture coordinates `uv`: the base colour texture applied.
+    #[inline]
+    pub fn bsdf_at(&self, textures: &[Arc<Texture>], uv: Vec2) -> Option<Bsdf> {
+        let bsdf = self.bsdf?;
+        let Some(r) = self.base_color else { return Some(bsdf) };
+        let c = textures[r.texture as usize].sample(uv, r.wrap, r.srgb).truncate();
+        Some(match bsdf {
+            Bsdf::Diffuse { albedo } => Bsdf::Diffuse { albedo: albedo * c },
+            Bsdf::Conductor { alpha, fresnel: BsdfFresnel::Schlick { f0 } } => {
+                Bsdf::Conductor { alpha, fresnel: BsdfFresnel::Schlick { f0: f0 * c } }
+            }
+            other => other,
+        })
     }
 }

@@ -134,6 +134,7 @@ impl Scene {
             render: self.render,
             environment: self.environment.clone(),
             materials: self.materials.clone(),
+            textures: self.textures.clone(),
             meshes: self.meshes.clone(),
             objects,
             animation: None,

@@ -89,6 +89,8 @@ pub(super) struct MaterialFile {
     #[serde(default, deserialize_with = "exact_opt")]
     pub base_color: Option<S<[f32; 3]>>,
     pub ior: Option<S<f32>>,
+    pub texture: Option<S<String>>,
+    pub alpha_texture: Option<S<String>>,
 }
 
 #[derive(Deserialize)]

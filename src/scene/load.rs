@@ -17,12 +17,13 @@ use glam::{EulerRot, Mat4, Quat, Vec3};
 
 use super::file::{EnvironmentFile, KeyframeFile, MaterialFile, ObjectFile, S, ScaleFile, ScatterFile, SceneFile};
 use super::{
-    Animation, AnimationSettings, Camera, ConductorFresnel, Environment, Keyframe, Material, Object, RenderSettings,
-    Scattering, Scene, SceneError, SceneMesh,
+    Animation, AnimationSettings, Camera, ConductorFresnel, Environment, Keyframe, Material, MaterialTextures, Object,
+    RenderSettings, Scattering, Scene, SceneError, SceneMesh,
 };
 use crate::geometry::obj::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
 use crate::render::environment::{EnvironmentMap, Sampling};
+use crate::render::texture::{TextureCache, TextureRef, Wrap};
 
 /// Most subdivisions of a built-in sphere: 20 · 4^8 ≈ 1.3 M triangles.
 const MAX_SUBDIVISIONS: u32 = 8;
@@ -143,21 +144,30 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
     let camera = camera(&ctx, &parsed)?;
     let render = render(&ctx, &parsed)?;
     let environment = parsed.environment.as_ref().map(|e| environment(&ctx, e, &file)).transpose()?;
+    let base = file.parent().unwrap_or(Path::new("."));
+    let mut textures = TextureCache::default();
     let mut materials = Vec::new();
     let mut by_name = HashMap::new();
     for (name, m) in &parsed.materials {
         by_name.insert(name.clone(), materials.len() as u32);
-        materials.push(material(&ctx, name, m)?);
+        materials.push(material(&ctx, name, m, base, &mut textures)?);
     }
     let animation = animation(&ctx, &parsed)?;
-    let env = ObjectEnv { base: file.parent().unwrap_or(Path::new(".")), by_name, clock: animation.is_some() };
-    let mut out =
-        Built { materials, meshes: Vec::new(), known: HashMap::new(), objects: Vec::new(), procedural_triangles: 0 };
+    let env = ObjectEnv { base, by_name, clock: animation.is_some() };
+    let mut out = Built {
+        materials,
+        textures,
+        meshes: Vec::new(),
+        known: HashMap::new(),
+        objects: Vec::new(),
+        procedural_triangles: 0,
+    };
     for (i, o) in parsed.objects.iter().enumerate() {
         object(&ctx, i, o, &env, &mut out)?;
     }
-    let Built { materials, meshes, objects, .. } = out;
-    Ok(Scene { path: file.clone(), camera, render, environment, materials, meshes, objects, animation })
+    let Built { materials, textures, meshes, objects, .. } = out;
+    let textures = textures.textures;
+    Ok(Scene { path: file.clone(), camera, render, environment, materials, textures, meshes, objects, animation })
 }
 
 fn animation(ctx: &Ctx, f: &SceneFile) -> Result<Option<AnimationSettings>, SceneError> {
@@ -271,15 +281,21 @@ fn render(ctx: &Ctx, f: &SceneFile) -> Result<RenderSettings, SceneError> {
 /// The keys each material type accepts, besides `type`.
 fn allowed_keys(kind: &str) -> Option<&'static [&'static str]> {
     Some(match kind {
-        "diffuse" => &["albedo"],
-        "emissive" => &["radiance", "two_sided", "albedo"],
-        "conductor" => &["roughness", "eta", "k", "base_color"],
-        "dielectric" => &["ior", "roughness"],
+        "diffuse" => &["albedo", "texture", "alpha_texture"],
+        "emissive" => &["radiance", "two_sided", "albedo", "texture", "alpha_texture"],
+        "conductor" => &["roughness", "eta", "k", "base_color", "texture", "alpha_texture"],
+        "dielectric" => &["ior", "roughness", "alpha_texture"],
         _ => return None,
     })
 }
 
-fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, SceneError> {
+fn material(
+    ctx: &Ctx,
+    name: &str,
+    m: &S<MaterialFile>,
+    base: &Path,
+    textures: &mut TextureCache,
+) -> Result<Material, SceneError> {
     let f = m.get_ref();
     let key = |k: &str| format!("materials.{name}.{k}");
     let kind = f.kind.get_ref().as_str();
@@ -290,7 +306,9 @@ fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, Scen
             format!("unknown type `{kind}`; known: diffuse, emissive, conductor, dielectric"),
         )
     })?;
-    let present: [(&str, Option<Range<usize>>); 8] = [
+    let present: [(&str, Option<Range<usize>>); 10] = [
+        ("texture", f.texture.as_ref().map(|v| v.span())),
+        ("alpha_texture", f.alpha_texture.as_ref().map(|v| v.span())),
         ("albedo", f.albedo.as_ref().map(|v| v.span())),
         ("radiance", f.radiance.as_ref().map(|v| v.span())),
         ("two_sided", f.two_sided.as_ref().map(|v| v.span())),
@@ -322,11 +340,33 @@ fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, Scen
         Some(r) => ctx.number(r, &key("roughness"), |x| (0.0..=1.0).contains(&x), "in [0, 1]")?,
         None => 0.0,
     };
-    let mut out = Material { name: name.to_owned(), scattering: Scattering::Black, emission: None, two_sided: false };
+    let mut out = Material {
+        name: name.to_owned(),
+        scattering: Scattering::Black,
+        emission: None,
+        two_sided: false,
+        textures: MaterialTextures::default(),
+    };
+    let mut texture = |t: &Option<S<String>>, k: &str, srgb: bool| -> Result<Option<TextureRef>, SceneError> {
+        let Some(t) = t else { return Ok(None) };
+        if t.get_ref().trim().is_empty() {
+            return Err(ctx.err(t.span(), key(k), "is empty: name an image file"));
+        }
+        let index = textures.get(&base.join(t.get_ref())).map_err(|e| ctx.err(t.span(), key(k), e.to_string()))?;
+        Ok(Some(TextureRef { texture: index, wrap: Wrap::Repeat, srgb }))
+    };
+    out.textures.base_color = texture(&f.texture, "texture", true)?;
+    out.textures.alpha = texture(&f.alpha_texture, "alpha_texture", false)?;
+    out.textures.alpha_cutoff = 0.5;
+    // A texture alone gives the colour: `albedo` (or `base_color`) then defaults to white.
+    let textured = out.textures.base_color.is_some();
     match kind {
         "diffuse" => {
-            out.scattering =
-                Scattering::Diffuse { albedo: ctx.color(required(ctx, &f.albedo, m, key("albedo"))?, &key("albedo"))? }
+            let albedo = match (&f.albedo, textured) {
+                (None, true) => Vec3::ONE,
+                _ => ctx.color(required(ctx, &f.albedo, m, key("albedo"))?, &key("albedo"))?,
+            };
+            out.scattering = Scattering::Diffuse { albedo }
         }
         "emissive" => {
             out.emission = Some(ctx.color(required(ctx, &f.radiance, m, key("radiance"))?, &key("radiance"))?);
@@ -354,6 +394,7 @@ fn material(ctx: &Ctx, name: &str, m: &S<MaterialFile>) -> Result<Material, Scen
                     ConductorFresnel::Complex { eta: bounded(eta, "eta")?, k: bounded(k, "k")? }
                 }
                 (None, None, Some(c)) => ConductorFresnel::BaseColor(ctx.color(c, &key("base_color"))?),
+                (None, None, None) if textured => ConductorFresnel::BaseColor(Vec3::ONE),
                 _ => {
                     return Err(ctx.err(
                         m.span(),
@@ -388,6 +429,7 @@ struct ObjectEnv<'a> {
 struct Built {
     /// The scene's materials, then each OBJ file's MTL materials, appended once per file.
     materials: Vec<Material>,
+    textures: TextureCache,
     meshes: Vec<SceneMesh>,
     /// The mesh already made for an OBJ or PLY file or a built-in shape.
     known: HashMap<MeshKey, KnownMesh>,
@@ -512,8 +554,11 @@ fn shared_file_mesh<'a>(
         Entry::Occupied(e) => Ok(e.into_mut()),
         Entry::Vacant(e) => {
             let ply = path.extension().is_some_and(|x| x.eq_ignore_ascii_case("ply"));
-            let (mesh, needs_material) =
-                if ply { ply_mesh(ctx, key, rel, &path)? } else { obj_mesh(ctx, key, rel, &path, &mut out.materials)? };
+            let (mesh, needs_material) = if ply {
+                ply_mesh(ctx, key, rel, &path)?
+            } else {
+                obj_mesh(ctx, key, rel, &path, &mut out.materials, &mut out.textures)?
+            };
             out.meshes.push(mesh);
             Ok(e.insert(KnownMesh { index: out.meshes.len() - 1, needs_material }))
         }
@@ -605,12 +650,22 @@ fn obj_mesh(
     rel: &S<String>,
     path: &Path,
     materials: &mut Vec<Material>,
+    textures: &mut TextureCache,
 ) -> Result<(SceneMesh, Option<String>), SceneError> {
     let obj = read_obj(path, true).map_err(|e| ctx.err(rel.span(), key, e.to_string()))?;
     let mtl_base = materials.len() as u32;
     let stem = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
+    let mut mtl_texts = None;
     for m in &obj.materials {
-        materials.push(from_mtl(&format!("{stem}/{}", m.name), m));
+        let mut material = from_mtl(&format!("{stem}/{}", m.name), m);
+        if m.diffuse_texture.is_some() || m.dissolve_texture.is_some() {
+            let texts = mtl_texts.get_or_insert_with(|| {
+                obj.mtl_files.iter().map(|f| (f.clone(), std::fs::read(f).unwrap_or_default())).collect::<Vec<_>>()
+            });
+            material.textures = mtl_textures(texts, m, textures)
+                .map_err(|e| ctx.err(rel.span(), key, format!("{}: {e}", path.display())))?;
+        }
+        materials.push(material);
     }
     let mut needs_material =
         obj.mtl_error.as_ref().map(|e| format!("{}: cannot load its MTL materials: {e}", path.display()));
@@ -665,7 +720,9 @@ fn missing_material(path: &Path, obj: &ObjFile, model: &str) -> String {
 /// conductor with base colour `Ks` and GGX α = sqrt(2 / (Ns + 2)); otherwise diffuse `Kd`.
 fn from_mtl(name: &str, m: &tobj::Material) -> Material {
     let v = |a: Option<[f32; 3]>| a.map(Vec3::from).filter(|c| c.is_finite()).map(|c| c.max(Vec3::ZERO));
-    let (kd, ks, ke) = (v(m.diffuse).unwrap_or(Vec3::ZERO), v(m.specular).unwrap_or(Vec3::ZERO), v(m.emissive));
+    // `map_Kd` multiplies `Kd` (the MTL specification), which defaults to white beside a map.
+    let kd_default = if m.diffuse_texture.is_some() { Vec3::ONE } else { Vec3::ZERO };
+    let (kd, ks, ke) = (v(m.diffuse).unwrap_or(kd_default), v(m.specular).unwrap_or(Vec3::ZERO), v(m.emissive));
     let roughness = m.shininess.filter(|s| s.is_finite() && *s >= 0.0).map_or(1.0, |ns| (2.0 / (ns + 2.0)).sqrt());
     let glass = m.dissolve.is_some_and(|d| d < 1.0) || matches!(m.illumination_model, Some(4 | 6 | 7 | 9));
     let emission = ke.filter(|e| e.max_element() > 0.0);
@@ -679,7 +736,82 @@ fn from_mtl(name: &str, m: &tobj::Material) -> Material {
     } else {
         Scattering::Diffuse { albedo: kd }
     };
-    Material { name: name.to_owned(), scattering, emission, two_sided: false }
+    Material { name: name.to_owned(), scattering, emission, two_sided: false, textures: MaterialTextures::default() }
+}
+
+/// The textures of MTL material `m` (`map_Kd`, `map_d`), loaded into `cache`, with paths
+/// relative to the MTL file that defines it (`texts`: each MTL file the OBJ file named, and its
+/// bytes). An error names that file, the statement's line and the texture.
+fn mtl_textures(
+    texts: &[(PathBuf, Vec<u8>)],
+    m: &tobj::Material,
+    cache: &mut TextureCache,
+) -> Result<MaterialTextures, String> {
+    let mut out = MaterialTextures { alpha_cutoff: 0.5, ..Default::default() };
+    for (statement, value, srgb) in [("map_Kd", &m.diffuse_texture, true), ("map_d", &m.dissolve_texture, false)] {
+        let Some(value) = value else { continue };
+        // The last MTL file defining the material wins, as in tobj.
+        let (mtl, line) = texts
+            .iter()
+            .rev()
+            .find_map(|(f, text)| mtl_line(text, &m.name, statement).map(|l| (f.as_path(), l)))
+            .unwrap_or((texts.first().map_or(Path::new("?"), |(f, _)| f.as_path()), 0));
+        let at = format!("{}:{line}: `{statement}`", mtl.display());
+        let (file, wrap) = texture_statement(value).ok_or_else(|| format!("{at}: names no file"))?;
+        let path = mtl.parent().unwrap_or(Path::new(".")).join(file);
+        let texture = cache.get(&path).map_err(|e| format!("{at}: {e}"))?;
+        let r = Some(TextureRef { texture, wrap, srgb });
+        if srgb { out.base_color = r } else { out.alpha = r }
+    }
+    Ok(out)
+}
+
+/// The line of statement `key` in material `name`'s block of an MTL file's `text`.
+fn mtl_line(text: &[u8], name: &str, key: &str) -> Option<usize> {
+    let mut current = None;
+    for (i, line) in text.split(|&b| b == b'\n').enumerate() {
+        let line = String::from_utf8_lossy(line);
+        let line = line.trim();
+        let (first, rest) = line.split_once(char::is_whitespace).unwrap_or((line, ""));
+        if first == "newmtl" {
+            current = Some(rest.trim().to_owned());
+        } else if first == key && current.as_deref() == Some(name) {
+            return Some(i + 1);
+        }
+    }
+    None
+}
+
+/// A texture statement's file name and wrap, after its options (`-clamp on` clamps; `-bm`,
+/// `-o`, `-s`, `-t`, `-mm`, `-blendu` and the rest are read past and not used).
+fn texture_statement(value: &str) -> Option<(&str, Wrap)> {
+    let mut rest = value.trim();
+    let mut wrap = Wrap::Repeat;
+    while rest.starts_with('-') {
+        let (option, after) = rest.split_once(char::is_whitespace).unwrap_or((rest, ""));
+        let mut after = after.trim_start();
+        let mut take = |n: usize, numeric: bool| -> Option<&str> {
+            let mut first = None;
+            for k in 0..n {
+                let (word, more) = after.split_once(char::is_whitespace).unwrap_or((after, ""));
+                // `-o`, `-s` and `-t` take one to three numbers.
+                if word.is_empty() || (numeric && k > 0 && word.parse::<f32>().is_err()) {
+                    break;
+                }
+                first.get_or_insert(word);
+                after = more.trim_start();
+            }
+            first
+        };
+        match option {
+            "-clamp" => wrap = if take(1, false) == Some("on") { Wrap::Clamp } else { Wrap::Repeat },
+            "-o" | "-s" | "-t" => drop(take(3, true)),
+            "-mm" => drop(take(2, true)),
+            _ => drop(take(1, false)),
+        }
+        rest = after;
+    }
+    (!rest.is_empty()).then_some((rest, wrap))
 }
 
 fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError> {

@@ -18,6 +18,7 @@ use glam::{Mat4, Vec3};
 
 use crate::geometry::{Triangle, TriangleMesh};
 use crate::render::environment::EnvironmentMap;
+use crate::render::texture::{Texture, TextureRef};
 
 /// A pinhole or thin-lens camera.
 #[derive(Clone, Debug, PartialEq)]
@@ -104,6 +105,19 @@ pub struct Material {
     pub emission: Option<Vec3>,
     /// Whether the back face emits too (default: front only).
     pub two_sided: bool,
+    pub textures: MaterialTextures,
+}
+
+/// A material's image textures ([`Scene::textures`]), looked up at the hit's texture
+/// coordinates.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MaterialTextures {
+    /// Multiplies the diffuse albedo, or a conductor's base colour (`map_Kd`).
+    pub base_color: Option<TextureRef>,
+    /// A cut-out mask (`map_d`): where its coverage is below `alpha_cutoff` the surface is not
+    /// there, for every ray.
+    pub alpha: Option<TextureRef>,
+    pub alpha_cutoff: f32,
 }
 
 /// A mesh with one material per triangle (indices into [`Scene::materials`]). Objects naming the
@@ -150,6 +164,8 @@ pub struct Scene {
     /// Light from infinitely far away, or `None` for black.
     pub environment: Option<Environment>,
     pub materials: Vec<Material>,
+    /// The image textures materials use, each file loaded once.
+    pub textures: Vec<Arc<Texture>>,
     pub meshes: Vec<SceneMesh>,
     pub objects: Vec<Object>,
     /// The `[animation]` table: the frame clock. Present whenever an object is animated.
@@ -247,6 +263,13 @@ impl Scene {
         text("materials", format!("{:?}", self.materials));
         text("objects", format!("{:?}", self.objects));
         text("animation", format!("{:?}", self.animation));
+        for t in &self.textures {
+            h.update(b"texture");
+            h.update(format!("{}x{} {:?} {}", t.width, t.height, t.format, t.has_alpha).as_bytes());
+            let bytes = bytemuck::cast_slice::<_, u8>(&t.texels);
+            h.update((bytes.len() as u64).to_le_bytes());
+            h.update(bytes);
+        }
         if let Some(m) = self.environment.as_ref().and_then(|e| e.map.as_ref()) {
             let bytes = bytemuck::cast_slice::<_, u8>(&m.texels);
             h.update(b"environment map");
@@ -291,6 +314,26 @@ impl Scene {
                 let n = |k: usize| (normal_matrix * m.normals[t[k] as usize]).normalize_or_zero();
                 out.push([n(0), n(b), n(c)]);
             }
+        }
+        out
+    }
+
+    /// The texture coordinates of [`Scene::world_triangles_at`]'s triangles, in the same order
+    /// and vertex order; zero where a mesh has none. Empty where no material has a texture or
+    /// no mesh has coordinates: nothing would read them.
+    pub fn world_uvs_at(&self, time: f32) -> Vec<[glam::Vec2; 3]> {
+        if self.textures.is_empty() || self.meshes.iter().all(|m| m.mesh.uvs.is_empty()) {
+            return Vec::new();
+        }
+        let mut out = Vec::new();
+        for o in &self.objects {
+            let m = &self.meshes[o.mesh].mesh;
+            if m.uvs.is_empty() {
+                out.extend(std::iter::repeat_n([glam::Vec2::ZERO; 3], m.indices.len()));
+                continue;
+            }
+            let [b, c] = placed_order(&o.world_from_object_at(time));
+            out.extend(m.indices.iter().map(|t| [m.uvs[t[0] as usize], m.uvs[t[b] as usize], m.uvs[t[c] as usize]]));
         }
         out
     }

@@ -1,0 +1,328 @@
+//! Image textures: loading (PNG, JPEG, TGA, BMP through `image`; EXR; Radiance HDR), and
+//! bilinear lookups with repeat, clamp or mirror wrapping.
+//!
+//! A texture keeps one stored form for both devices: 8-bit RGBA packed in one `u32` a texel
+//! (images of 8 or 16 bits a channel), or f32 RGBA in four (EXR and HDR files). The GPU gets the
+//! same words ([`gpu_texture_data`]) and `shaders/trace.wgsl` reads them as [`Texture::sample`]
+//! does, so the devices agree. 8-bit colour is decoded from sRGB at lookup time when the use
+//! asks for it (a base colour), and read as is for data (an alpha mask): one file may be both,
+//! and is loaded once ([`TextureCache`]).
+//!
+//! **Coordinates.** `(u, v)` as OBJ's `vt` gives them: `v` up from the image's bottom row.
+//! Texel centres sit at half-integers; a lookup interpolates the four nearest, each wrapped
+//! ([`Wrap`]) on its own, so a repeating texture is seamless across its edges. Colours are
+//! decoded before they are interpolated.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::{Vec2, Vec4};
+
+/// How a texture's coordinates outside [0, 1] map into it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Wrap {
+    /// Tiles the plane (OBJ's and glTF's default).
+    Repeat = 0,
+    /// Holds the edge texels (MTL `-clamp on`, glTF `CLAMP_TO_EDGE`).
+    Clamp = 1,
+    /// Tiles with every other copy mirrored (glTF `MIRRORED_REPEAT`).
+    Mirror = 2,
+}
+
+/// A use of a texture: which one ([`crate::scene::Scene::textures`]), wrapped how, and
+/// whether its 8-bit colour is sRGB-encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TextureRef {
+    pub texture: u32,
+    pub wrap: Wrap,
+    pub srgb: bool,
+}
+
+/// The texels' stored form.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TexelFormat {
+    /// `r | g << 8 | b << 16 | a << 24`, one word a texel.
+    Rgba8,
+    /// f32 RGBA as bits, four words a texel.
+    Rgba32F,
+}
+
+/// An image texture, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Texture {
+    pub source: PathBuf,
+    pub width: u32,
+    pub height: u32,
+    pub format: TexelFormat,
+    pub texels: Vec<u32>,
+    /// Whether the file had an alpha channel: masks read it, else its first channel.
+    pub has_alpha: bool,
+}
+
+/// Why a texture cannot be used; each names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum TextureError {
+    #[error("{}: cannot read: {error}", path.display())]
+    Read { path: PathBuf, error: String },
+    #[error("{}: {message}", path.display())]
+    Invalid { path: PathBuf, message: String },
+    #[error(transparent)]
+    Memory(#[from] crate::memory::OutOfMemory),
+}
+
+/// Texels at most in one texture: 2^28 (16384²).
+const MAX_TEXELS: u64 = 1 << 28;
+
+impl Texture {
+    /// Reads an image file: PNG, JPEG, TGA or BMP (8-bit RGBA; 16-bit images are rounded to 8),
+    /// or EXR or Radiance HDR (f32, linear). Its size is read first and checked against the
+    /// memory available.
+    pub fn load(path: &Path) -> Result<Self, TextureError> {
+        let read = |error: String| TextureError::Read { path: path.to_owned(), error };
+        let invalid = |message: String| TextureError::Invalid { path: path.to_owned(), message };
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        let float = matches!(ext.as_deref(), Some("exr" | "hdr"));
+        if !matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "tga" | "bmp" | "exr" | "hdr")) {
+            return Err(invalid("is not a supported image: give a .png, .jpg, .tga, .bmp, .exr or .hdr file".into()));
+        }
+        let (width, height) = if ext.as_deref() == Some("exr") {
+            let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| read(chain(&e)))?;
+            let size = meta.headers.first().ok_or_else(|| invalid("has no image layer".into()))?.layer_size;
+            (size.width() as u32, size.height() as u32)
+        } else {
+            reader(path)?.into_dimensions().map_err(|e| read(chain(&e)))?
+        };
+        let count = u64::from(width) * u64::from(height);
+        if count == 0 || count > MAX_TEXELS {
+            return Err(invalid(format!("is {width}x{height}: a texture must have 1 to 2^28 texels")));
+        }
+        // The stored texels, and the decoder's RGBA copy beside them while it converts.
+        let bytes = count as f64 * if float { 16.0 + 16.0 } else { 4.0 + 16.0 };
+        crate::memory::check_fits(&format!("{}: a texture of {width}x{height}", path.display()), bytes)?;
+        let (format, texels, has_alpha) = if ext.as_deref() == Some("exr") {
+            let image = crate::image_io::read_exr(path).map_err(|e| read(chain(&e)))?;
+            (TexelFormat::Rgba32F, float_texels(image.pixels.iter().map(|p| [p[0], p[1], p[2], 1.0])), false)
+        } else {
+            let image = reader(path)?.decode().map_err(|e| read(chain(&e)))?;
+            let has_alpha = image.color().has_alpha();
+            if float {
+                let rgb = image.into_rgb32f();
+                (TexelFormat::Rgba32F, float_texels(rgb.pixels().map(|p| [p[0], p[1], p[2], 1.0])), false)
+            } else {
+                let rgba = image.into_rgba8();
+                (TexelFormat::Rgba8, rgba.pixels().map(|p| u32::from_le_bytes(p.0)).collect(), has_alpha)
+            }
+        };
+        if format == TexelFormat::Rgba32F
+            && let Some(i) = texels.iter().position(|&w| !f32::from_bits(w).is_finite())
+        {
+            let (x, y) = ((i / 4) % width as usize, (i / 4) / width as usize);
+            return Err(invalid(format!("texel ({x}, {y}) is not finite")));
+        }
+        Ok(Self { source: path.to_owned(), width, height, format, texels, has_alpha })
+    }
+
+    /// Bytes the texels take.
+    pub fn bytes(&self) -> usize {
+        self.texels.len() * 4
+    }
+
+    /// The texel at column `x`, row `y` (row 0 at the top), RGB decoded from sRGB if `srgb`.
+    fn texel(&self, x: u32, y: u32, srgb: bool) -> Vec4 {
+        let i = (y * self.width + x) as usize;
+        match self.format {
+            TexelFormat::Rgba8 => {
+                let [r, g, b, a] = self.texels[i].to_le_bytes();
+                let c = |v: u8| if srgb { crate::image_io::srgb_decode(v) } else { f32::from(v) / 255.0 };
+                Vec4::new(c(r), c(g), c(b), f32::from(a) / 255.0)
+            }
+            TexelFormat::Rgba32F => {
+                let w = &self.texels[4 * i..4 * i + 4];
+                Vec4::new(f32::from_bits(w[0]), f32::from_bits(w[1]), f32::from_bits(w[2]), f32::from_bits(w[3]))
+            }
+        }
+    }
+
+    /// The bilinear lookup at `uv` (module docs).
+    pub fn sample(&self, uv: Vec2, wrap: Wrap, srgb: bool) -> Vec4 {
+        // Wrapped in f32 first, so that huge coordinates do not overflow the integer index.
+        let (x, y) = (uv.x * self.width as f32 - 0.5, (1.0 - uv.y) * self.height as f32 - 0.5);
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (c0, c1) = (wrap_index(x0, self.width, wrap), wrap_index(x0 + 1.0, self.width, wrap));
+        let (r0, r1) = (wrap_index(y0, self.height, wrap), wrap_index(y0 + 1.0, self.height, wrap));
+        let top = self.texel(c0, r0, srgb) * (1.0 - fx) + self.texel(c1, r0, srgb) * fx;
+        let bottom = self.texel(c0, r1, srgb) * (1.0 - fx) + self.texel(c1, r1, srgb) * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+
+    /// Coverage at `uv` for a cut-out: the alpha channel where the file has one, else its first
+    /// channel (a grey mask).
+    pub fn coverage(&self, uv: Vec2, wrap: Wrap) -> f32 {
+        let t = self.sample(uv, wrap, false);
+        if self.has_alpha { t.w } else { t.x }
+    }
+}
+
+/// Index `i` (an integer-valued f32) wrapped into `0..n`.
+fn wrap_index(i: f32, n: u32, wrap: Wrap) -> u32 {
+    let nf = n as f32;
+    let k = match wrap {
+        Wrap::Clamp => i.clamp(0.0, nf - 1.0),
+        Wrap::Repeat => i.rem_euclid(nf),
+        Wrap::Mirror => {
+            let m = i.rem_euclid(2.0 * nf);
+            if m >= nf { 2.0 * nf - 1.0 - m } else { m }
+        }
+    };
+    // rem_euclid of a tiny negative can round up to `n`.
+    (k as u32).min(n - 1)
+}
+
+fn float_texels(pixels: impl Iterator<Item = [f32; 4]>) -> Vec<u32> {
+    pixels.flat_map(|p| p.map(f32::to_bits)).collect()
+}
+
+fn reader(path: &Path) -> Result<image::io::Reader<std::io::BufReader<std::fs::File>>, TextureError> {
+    let read = |error: String| TextureError::Read { path: path.to_owned(), error };
+    let mut r = image::io::Reader::open(path)
+        .map_err(|e| read(e.to_string()))?
+        .with_guessed_format()
+        .map_err(|e| read(e.to_string()))?;
+    // The decoder's own allocations are bounded too (its default is 512 MiB).
+    let mut limits = image::io::Limits::default();
+    limits.max_alloc = Some(crate::memory::available_bytes().unwrap_or(u64::MAX).min(1 << 34));
+    r.limits(limits);
+    Ok(r)
+}
+
+fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut source = e.source();
+    while let Some(inner) = source {
+        s.push_str(": ");
+        s.push_str(&inner.to_string());
+        source = inner.source();
+    }
+    s
+}
+
+/// Textures loaded once each, however many materials name them.
+#[derive(Default)]
+pub struct TextureCache {
+    pub textures: Vec<Arc<Texture>>,
+    by_path: HashMap<PathBuf, u32>,
+}
+
+impl TextureCache {
+    /// The index of the texture at `path`, loaded the first time it is asked for.
+    pub fn get(&mut self, path: &Path) -> Result<u32, TextureError> {
+        let key = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_owned());
+        if let Some(&i) = self.by_path.get(&key) {
+            return Ok(i);
+        }
+        let texture = Texture::load(path)?;
+        self.textures.push(Arc::new(texture));
+        let i = self.textures.len() as u32 - 1;
+        self.by_path.insert(key, i);
+        Ok(i)
+    }
+}
+
+/// [`TextureRef`] packed for the GPU: the texture's index in the low 24 bits, the wrap in the
+/// next two, sRGB in bit 26; [`crate::bvh::INVALID_INDEX`] for none.
+pub fn gpu_texture_ref(r: Option<TextureRef>) -> u32 {
+    r.map_or(crate::bvh::INVALID_INDEX, |r| r.texture | (r.wrap as u32) << 24 | u32::from(r.srgb) << 26)
+}
+
+/// Every texture as `shaders/trace.wgsl` reads them, one array of words: the 256 values of
+/// [`crate::image_io::srgb_decode`] as f32 bits (so both devices decode alike), four header
+/// words a texture (offset of its texels in the array, width, height, flags: bit 0 f32 texels,
+/// bit 1 an alpha channel), then the texels.
+pub fn gpu_texture_data(textures: &[Arc<Texture>]) -> Vec<u32> {
+    let mut data =
+        Vec::with_capacity(256 + 4 * textures.len() + textures.iter().map(|t| t.texels.len()).sum::<usize>());
+    data.extend((0..=255u8).map(|c| crate::image_io::srgb_decode(c).to_bits()));
+    let mut offset = 256 + 4 * textures.len() as u32;
+    for t in textures {
+        let flags = u32::from(t.format == TexelFormat::Rgba32F) | u32::from(t.has_alpha) << 1;
+        data.extend([offset, t.width, t.height, flags]);
+        offset += t.texels.len() as u32;
+    }
+    for t in textures {
+        data.extend(&t.texels);
+    }
+    data
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn texture(width: u32, height: u32, f: impl Fn(u32, u32) -> [u8; 4]) -> Texture {
+        let texels = (0..height)
+            .flat_map(|y| (0..width).map(move |x| (x, y)))
+            .map(|(x, y)| u32::from_le_bytes(f(x, y)))
+            .collect();
+        Texture { source: "t".into(), width, height, format: TexelFormat::Rgba8, texels, has_alpha: true }
+    }
+
+    #[test]
+    fn texel_centres_are_exact_and_v_is_up() {
+        let t = texture(4, 2, |x, y| [(x * 60) as u8, (y * 200) as u8, 7, 255]);
+        // Column 1, bottom row (row 1): v = 0.25 is the bottom row's centre.
+        let s = t.sample(Vec2::new(1.5 / 4.0, 0.25), Wrap::Clamp, false);
+        assert!((s.x - 60.0 / 255.0).abs() < 1e-6 && (s.y - 200.0 / 255.0).abs() < 1e-6, "{s}");
+        // Halfway between columns 1 and 2.
+        let s = t.sample(Vec2::new(0.5, 0.75), Wrap::Clamp, false);
+        assert!((s.x - 90.0 / 255.0).abs() < 1e-6 && s.y.abs() < 1e-6, "{s}");
+    }
+
+    #[test]
+    fn wraps_repeat_clamp_and_mirror() {
+        assert_eq!([-1.0, 0.0, 3.0, 4.0, 9.0].map(|i| wrap_index(i, 4, Wrap::Repeat)), [3, 0, 3, 0, 1]);
+        assert_eq!([-1.0, 0.0, 3.0, 4.0, 9.0].map(|i| wrap_index(i, 4, Wrap::Clamp)), [0, 0, 3, 3, 3]);
+        assert_eq!([-1.0, 0.0, 3.0, 4.0, 9.0].map(|i| wrap_index(i, 4, Wrap::Mirror)), [0, 0, 3, 3, 1]);
+        assert_eq!(wrap_index(-1e-30, 4, Wrap::Repeat), 3);
+        // A repeating texture is seamless: at u = 0 the left and right edge texels mix evenly.
+        let t = texture(4, 1, |x, _| {
+            [
+                if x == 0 {
+                    200
+                } else if x == 3 {
+                    100
+                } else {
+                    0
+                },
+                0,
+                0,
+                255,
+            ]
+        });
+        let s = t.sample(Vec2::new(0.0, 0.5), Wrap::Repeat, false);
+        assert!((s.x - 150.0 / 255.0).abs() < 1e-6, "{s}");
+        let far = t.sample(Vec2::new(1e6, 0.5), Wrap::Repeat, false);
+        assert!(far.is_finite());
+    }
+
+    #[test]
+    fn srgb_decodes_colour_not_alpha() {
+        let t = texture(1, 1, |_, _| [128, 128, 128, 128]);
+        let s = t.sample(Vec2::splat(0.5), Wrap::Repeat, true);
+        assert!((s.x - crate::image_io::srgb_decode(128)).abs() < 1e-7, "{s}");
+        assert!((s.w - 128.0 / 255.0).abs() < 1e-7, "{s}");
+        assert!((t.coverage(Vec2::splat(0.5), Wrap::Repeat) - 128.0 / 255.0).abs() < 1e-7);
+    }
+
+    #[test]
+    fn gpu_data_has_headers_then_texels() {
+        let (a, b) = (Arc::new(texture(2, 1, |x, _| [x as u8, 0, 0, 0])), Arc::new(texture(1, 1, |_, _| [9, 0, 0, 0])));
+        let data = gpu_texture_data(&[a, b]);
+        assert_eq!(f32::from_bits(data[255]), 1.0);
+        assert_eq!(&data[256..264], &[264, 2, 1, 2, 266, 1, 1, 2]);
+        assert_eq!(data.len(), 267);
+        let r = TextureRef { texture: 5, wrap: Wrap::Mirror, srgb: true };
+        assert_eq!(gpu_texture_ref(Some(r)), 5 | 2 << 24 | 1 << 26);
+    }
+}

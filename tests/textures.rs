@@ -1,0 +1,218 @@
+//! Image textures: a base colour texture seen where it should be on both devices, cut-out masks
+//! that let camera and shadow rays through on both devices (flat and instanced on the CPU), and
+//! bad texture files.
+
+use std::path::{Path, PathBuf};
+
+use arbor::device::{BuilderChoice, Device, Renderer};
+use arbor::render::film::Film;
+use arbor::render::texture::{Texture, Wrap};
+use arbor::scene::{RenderSettings, Scene};
+use glam::Vec2;
+
+use crate::render_accuracy::devices;
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("arbor-textures-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn render(device: Device, scene: &Scene, spp: u32, max_depth: u32) -> Film {
+    let settings = RenderSettings { spp, max_depth, seed: 2, time: None, clamp: None };
+    let choice = BuilderChoice::Fixed("lbvh".parse().unwrap());
+    let mut r = Renderer::new(device, scene, &choice, &settings, 1, 0.0).unwrap();
+    let film = r.render(&settings, &|_| {}).unwrap().film;
+    assert_eq!(film.non_finite_count(), 0);
+    film
+}
+
+/// An RGBA PNG of `width` x `height` from `f(x, y)`, row 0 at the top.
+fn write_png(path: &Path, width: u32, height: u32, f: impl Fn(u32, u32) -> [u8; 4]) {
+    let bytes: Vec<u8> = (0..height).flat_map(|y| (0..width).map(move |x| (x, y))).flat_map(|(x, y)| f(x, y)).collect();
+    image::RgbaImage::from_raw(width, height, bytes).unwrap().save(path).unwrap();
+}
+
+/// A unit quad from (-1, -1) to (1, 1) in the z = 0 plane, facing +z, with texture coordinates
+/// (0, 0) at its bottom left and (1, 1) at its top right, and material `m` from `m.mtl`.
+const QUAD_OBJ: &str = "mtllib m.mtl\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n\
+                        vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3 4/4\n";
+
+/// A diffuse quad whose albedo is a 4 x 4 texture of distinct colours, facing the camera head
+/// on under a white furnace (radiance 1, no lights): each sample is exactly the albedo at its
+/// texture coordinates, so each pixel's mean is the texture at the pixel centre, up to the
+/// bilinear slope across the pixel (clamped at the edges, where a repeating texture would blend
+/// its top and bottom rows steeply). This checks the orientation (v up, row 0 at the top), the
+/// sRGB decoding, the filtering and `-clamp on`, on both devices.
+#[test]
+fn a_base_colour_texture_is_seen_where_it_is() {
+    let dir = temp_dir("base-colour");
+    write_png(&dir.join("colours.png"), 4, 4, |x, y| [(40 + 60 * x) as u8, (30 + 70 * y) as u8, 200, 255]);
+    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
+    std::fs::write(dir.join("m.mtl"), "newmtl m\nKd 1 1 1\nmap_Kd -clamp on colours.png\n").unwrap();
+    let text = "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [32, 32]\n\
+                [environment]\nradiance = [1, 1, 1]\n[[objects]]\nmesh = \"quad.obj\"\n";
+    std::fs::write(dir.join("scene.toml"), text).unwrap();
+    let scene = Scene::load(dir.join("scene.toml")).unwrap();
+    assert_eq!(scene.textures.len(), 1);
+    let texture = Texture::load(&dir.join("colours.png")).unwrap();
+    // The camera's half-height at the quad: tan(20°) · 3.
+    let half = (20f32.to_radians()).tan() * 3.0;
+    for device in devices("a_base_colour_texture_is_seen_where_it_is") {
+        let mean = render(device, &scene, 16, 2).mean();
+        let mut on_quad = 0;
+        for (i, p) in mean.pixels.iter().enumerate() {
+            let (px, py) = ((i % 32) as f32 + 0.5, (i / 32) as f32 + 0.5);
+            let (x, y) = ((px / 16.0 - 1.0) * half, (1.0 - py / 16.0) * half);
+            if x.abs() > 0.95 || y.abs() > 0.95 {
+                if x.abs() > 1.05 || y.abs() > 1.05 {
+                    assert!((p[0] - 1.0).abs() < 1e-5, "{} pixel {i}: background {p:?}", device.name());
+                }
+                continue;
+            }
+            on_quad += 1;
+            let want = texture.sample(Vec2::new((x + 1.0) / 2.0, (y + 1.0) / 2.0), Wrap::Clamp, true);
+            for c in 0..3 {
+                assert!(
+                    (p[c] - want[c]).abs() < 0.02,
+                    "{} pixel {i} channel {c}: {} against the texture's {}",
+                    device.name(),
+                    p[c],
+                    want[c]
+                );
+            }
+        }
+        assert!(on_quad > 300, "{on_quad} pixels on the quad");
+    }
+}
+
+/// A quad whose mask (`map_d`) cuts out its left half. Seen head on under the furnace, the cut
+/// half shows the background exactly and the rest the albedo (camera rays: closest hit). Held
+/// over a floor under a lamp, it shadows the floor under its right half only (shadow rays: any
+/// hit). On both devices, and on the CPU through the instanced path too (an animated scene).
+#[test]
+fn cut_out_texels_let_camera_and_shadow_rays_through() {
+    let dir = temp_dir("cut-out");
+    write_png(&dir.join("mask.png"), 8, 2, |x, _| [255, 255, 255, if x < 4 { 0 } else { 255 }]);
+    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
+    std::fs::write(dir.join("m.mtl"), "newmtl m\nKd 0.5 0.5 0.5\nmap_d mask.png\n").unwrap();
+    let seen = "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 30\nresolution = [24, 24]\n\
+                [environment]\nradiance = [1, 1, 1]\n[[objects]]\nmesh = \"quad.obj\"\n";
+    std::fs::write(dir.join("seen.toml"), seen).unwrap();
+    let scene = Scene::load(dir.join("seen.toml")).unwrap();
+    for device in devices("cut_out_texels_let_camera_and_shadow_rays_through") {
+        let mean = render(device, &scene, 8, 2).mean();
+        for y in 2..22 {
+            let (left, right) = (mean.pixels[y * 24 + 6][0], mean.pixels[y * 24 + 17][0]);
+            assert!((left - 1.0).abs() < 1e-5, "{}: row {y}: the cut-out half shows {left}", device.name());
+            assert!((right - 0.5).abs() < 1e-5, "{}: row {y}: the opaque half shows {right}", device.name());
+        }
+    }
+    // The quad laid flat at y = 1 over a floor, a lamp above it; the camera looks at the floor
+    // from below the quad.
+    let shadow = |animated: bool| {
+        let keys = if animated {
+            "[[objects.keyframes]]\ntime = 0\ntranslate = [0, 1, 0]\nrotate = [-90, 0, 0]\n\
+             [[objects.keyframes]]\ntime = 1\ntranslate = [0, 1, 0]\nrotate = [-90, 0, 0]\n[animation]\nfps = 1\nframes = [0, 1]\n"
+        } else {
+            "translate = [0, 1, 0]\nrotate = [-90, 0, 0]\n"
+        };
+        format!(
+            "[camera]\nposition = [0, 0.6, 3]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [32, 24]\n\
+             [materials.floor]\ntype = \"diffuse\"\nalbedo = [0.8, 0.8, 0.8]\n\
+             [materials.lamp]\ntype = \"emissive\"\nradiance = [20, 20, 20]\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"floor\"\nrotate = [-90, 0, 0]\nscale = 3\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [0, 2, 0]\nrotate = [90, 0, 0]\nscale = 0.3\n\
+             [[objects]]\nmesh = \"quad.obj\"\n{keys}"
+        )
+    };
+    let floor = |mean: &arbor::image_io::Image| {
+        // The floor just left and right of the centre, below the horizon of the view.
+        let side = |x0: usize| {
+            let mut s = 0.0;
+            for y in 16..22 {
+                for x in x0..x0 + 4 {
+                    s += mean.pixels[y * 32 + x][0];
+                }
+            }
+            s / 24.0
+        };
+        (side(9), side(19))
+    };
+    std::fs::write(dir.join("shadow.toml"), shadow(false)).unwrap();
+    std::fs::write(dir.join("animated.toml"), shadow(true)).unwrap();
+    let mut cases: Vec<(Device, &str)> =
+        devices("cut_out_texels_let_camera_and_shadow_rays_through").into_iter().map(|d| (d, "shadow.toml")).collect();
+    cases.push((Device::Cpu, "animated.toml"));
+    for (device, file) in cases {
+        let scene = Scene::load(dir.join(file)).unwrap();
+        let (lit, shaded) = floor(&render(device, &scene, 64, 2).mean());
+        assert!(
+            lit > 4.0 * shaded && lit > 0.1,
+            "{} {file}: the floor under the cut-out half is {lit}, under the opaque half {shaded}",
+            device.name()
+        );
+    }
+}
+
+fn load_err(dir: &Path, scene: &str) -> String {
+    std::fs::write(dir.join("scene.toml"), scene).unwrap();
+    match Scene::load(dir.join("scene.toml")) {
+        Ok(_) => panic!("loaded:\n{scene}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+/// A texture that is missing, not an image, cut short or of an unsupported kind: an error naming
+/// the scene's line and key, the MTL file with its line and statement, and the texture; no
+/// panic.
+#[test]
+fn bad_textures_name_where_they_are_used() {
+    let dir = temp_dir("errors");
+    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
+    write_png(&dir.join("ok.png"), 4, 4, |_, _| [1, 2, 3, 4]);
+    let png = std::fs::read(dir.join("ok.png")).unwrap();
+    std::fs::write(dir.join("cut.png"), &png[..png.len() / 2]).unwrap();
+    std::fs::write(dir.join("text.png"), "not an image").unwrap();
+    std::fs::write(dir.join("t.gif"), "GIF89a").unwrap();
+    let scene = "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\
+                 [[objects]]\nmesh = \"quad.obj\"\n";
+    let cases: &[(&str, &[&str])] = &[
+        ("newmtl m\nKd 1 1 1\nmap_Kd missing.png\n", &["m.mtl:3: `map_Kd`", "missing.png", "cannot read"]),
+        ("newmtl m\n\nmap_d -clamp on cut.png\n", &["m.mtl:3: `map_d`", "cut.png"]),
+        ("newmtl m\nmap_Kd text.png\n", &["m.mtl:2: `map_Kd`", "text.png"]),
+        ("newmtl m\nmap_Kd t.gif\n", &["m.mtl:2: `map_Kd`", "t.gif", "not a supported image"]),
+        ("newmtl m\nmap_Kd -bm 1 -o 0 0\n", &["m.mtl:2: `map_Kd`", "names no file"]),
+    ];
+    let scene_path = dir.join("scene.toml").display().to_string();
+    for (mtl, words) in cases {
+        std::fs::write(dir.join("m.mtl"), mtl).unwrap();
+        let e = load_err(&dir, scene);
+        assert!(e.starts_with(&format!("{scene_path}:7: objects[0].mesh: ")), "{mtl}: {e}");
+        for w in *words {
+            assert!(e.contains(w), "{mtl}: want `{w}` in: {e}");
+        }
+    }
+    // Options before the name are read past; a name with spaces is kept whole.
+    std::fs::copy(dir.join("ok.png"), dir.join("a b.png")).unwrap();
+    std::fs::write(dir.join("m.mtl"), "newmtl m\nmap_Kd -s 2 2 1 -clamp on a b.png\n").unwrap();
+    std::fs::write(dir.join("scene.toml"), scene).unwrap();
+    let loaded = Scene::load(dir.join("scene.toml")).unwrap();
+    let r = loaded.materials.last().unwrap().textures.base_color.unwrap();
+    assert_eq!((r.wrap, r.srgb, loaded.textures.len()), (Wrap::Clamp, true, 1));
+    // A TOML material's texture.
+    let toml_material = |t: &str| {
+        format!(
+            "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\
+             [materials.m]\ntype = \"diffuse\"\ntexture = \"{t}\"\n[[objects]]\nshape = \"quad\"\nmaterial = \"m\"\n"
+        )
+    };
+    let e = load_err(&dir, &toml_material("missing.png"));
+    assert!(e.starts_with(&format!("{scene_path}:8: materials.m.texture: ")) && e.contains("missing.png"), "{e}");
+    let e = load_err(&dir, &toml_material(""));
+    assert!(e.contains("materials.m.texture: is empty"), "{e}");
+    std::fs::write(dir.join("scene.toml"), toml_material("ok.png")).unwrap();
+    let loaded = Scene::load(dir.join("scene.toml")).unwrap();
+    assert!(loaded.materials[0].textures.base_color.is_some());
+}
