@@ -143,8 +143,18 @@ pub struct GltfCameraNode {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum GltfProjection {
     /// `yfov` in radians, in (0, π); `aspect_ratio` as given (Arbor takes the image's).
-    Perspective { yfov: f32, aspect_ratio: Option<f32>, znear: f32, zfar: Option<f32> },
-    Orthographic { xmag: f32, ymag: f32, znear: f32, zfar: f32 },
+    Perspective {
+        yfov: f32,
+        aspect_ratio: Option<f32>,
+        znear: f32,
+        zfar: Option<f32>,
+    },
+    Orthographic {
+        xmag: f32,
+        ymag: f32,
+        znear: f32,
+        zfar: f32,
+    },
 }
 
 /// The triangles of one glTF mesh (all its triangle primitives, appended), and each triangle's
@@ -389,7 +399,12 @@ impl GltfFile {
                 }
                 let aspect_ratio = p.aspect_ratio.map(|a| finite(a, "perspective.aspectRatio")).transpose()?;
                 let zfar = p.zfar.map(|z| finite(z, "perspective.zfar")).transpose()?;
-                Ok(GltfProjection::Perspective { yfov, aspect_ratio, znear: finite(p.znear, "perspective.znear")?, zfar })
+                Ok(GltfProjection::Perspective {
+                    yfov,
+                    aspect_ratio,
+                    znear: finite(p.znear, "perspective.znear")?,
+                    zfar,
+                })
             }
             Checked::Valid(json::camera::Type::Orthographic) => {
                 let o = c.orthographic.as_ref().ok_or_else(|| {
@@ -458,7 +473,8 @@ impl GltfFile {
                         })?
                     };
                     if (data.len() as u64) < declared {
-                        let what = if uri.starts_with("data:") { "its data URI".to_owned() } else { format!("`{uri}`") };
+                        let what =
+                            if uri.starts_with("data:") { "its data URI".to_owned() } else { format!("`{uri}`") };
                         return Err(short(what, data.len()));
                     }
                     data.truncate(declared as usize);
@@ -479,9 +495,10 @@ impl GltfFile {
 
     /// The file a relative URI names (section 2.8: RFC 3986 URIs, relative to the glTF file).
     fn uri_path(&self, uri: &str) -> Result<PathBuf, String> {
-        if let Some((scheme, _)) = uri.split_once(':').filter(|(s, _)| {
-            s.len() > 1 && s.chars().all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c))
-        }) {
+        if let Some((scheme, _)) = uri
+            .split_once(':')
+            .filter(|(s, _)| s.len() > 1 && s.chars().all(|c| c.is_ascii_alphanumeric() || "+-.".contains(c)))
+        {
             return Err(format!("`{scheme}:` URIs are not read: only data URIs and paths relative to the glTF file"));
         }
         let decoded = percent_decode(uri).ok_or_else(|| format!("`{uri}` is not a valid percent-encoded URI"))?;
@@ -573,7 +590,8 @@ impl GltfFile {
         let mut out: Vec<[f32; N]> = match a.buffer_view {
             Some(view) => {
                 let stride = self.stride(view.value(), elem, &at)?;
-                let bytes = self.view_bytes(view.value(), a.byte_offset.map_or(0, |o| o.0), count, elem, stride, &at)?;
+                let bytes =
+                    self.view_bytes(view.value(), a.byte_offset.map_or(0, |o| o.0), count, elem, stride, &at)?;
                 // Bounded by the view's length: count <= length / stride + 1.
                 let mut out = Vec::with_capacity(count as usize);
                 if count > 0 {
@@ -621,7 +639,8 @@ impl GltfFile {
         let mut out = match a.buffer_view {
             Some(view) => {
                 let stride = self.stride(view.value(), size, &at)?;
-                let bytes = self.view_bytes(view.value(), a.byte_offset.map_or(0, |o| o.0), count, size, stride, &at)?;
+                let bytes =
+                    self.view_bytes(view.value(), a.byte_offset.map_or(0, |o| o.0), count, size, stride, &at)?;
                 let mut out = Vec::with_capacity(count as usize);
                 if count > 0 {
                     let chunks = bytes.chunks(stride as usize).take(count as usize);
@@ -730,14 +749,10 @@ impl GltfFile {
             ));
         }
         let size = component_size(ty);
-        let bytes = self.view_bytes(
-            sparse.indices.buffer_view.value(),
-            sparse.indices.byte_offset.0,
-            n,
-            size,
-            size,
-            &|| format!("{} indices", at()),
-        )?;
+        let bytes =
+            self.view_bytes(sparse.indices.buffer_view.value(), sparse.indices.byte_offset.0, n, size, size, &|| {
+                format!("{} indices", at())
+            })?;
         let mut out = Vec::with_capacity(n as usize);
         for (k, b) in bytes.chunks(size as usize).take(n as usize).enumerate() {
             let i = match ty {
@@ -746,7 +761,10 @@ impl GltfFile {
                 _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
             };
             if u64::from(i) >= count {
-                return Err(self.fail(format!("{} indices", at()), format!("index {k} is {i}, past the accessor's {count} elements (accessor {index})")));
+                return Err(self.fail(
+                    format!("{} indices", at()),
+                    format!("index {k} is {i}, past the accessor's {count} elements (accessor {index})"),
+                ));
             }
             if let Some(&prev) = out.last().filter(|&&p| p >= i) {
                 return Err(self.fail(
@@ -859,10 +877,9 @@ impl GltfFile {
             Mode::Triangles => {
                 if indices.len() % 3 != 0 {
                     let what = if prim.indices.is_some() { "indices" } else { "vertices (no indices)" };
-                    return Err(self.fail(
-                        place,
-                        format!("is TRIANGLES with {} {what}, not a multiple of 3", indices.len()),
-                    ));
+                    return Err(
+                        self.fail(place, format!("is TRIANGLES with {} {what}, not a multiple of 3", indices.len()))
+                    );
                 }
                 indices.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect()
             }
@@ -885,18 +902,19 @@ impl GltfFile {
     /// Fills `instances` and `cameras` from the scene's trees.
     fn traverse(&mut self) -> Result<(), GltfError> {
         let root = &self.root;
-        let (roots, from): (Vec<usize>, String) = match root.scene.map(|s| s.value()).or((!root.scenes.is_empty()).then_some(0)) {
-            Some(s) => (root.scenes[s].nodes.iter().map(|n| n.value()).collect(), format!("scenes[{s}].nodes")),
-            None => {
-                let mut child = vec![false; root.nodes.len()];
-                for n in &root.nodes {
-                    for c in n.children.iter().flatten() {
-                        child[c.value()] = true;
+        let (roots, from): (Vec<usize>, String) =
+            match root.scene.map(|s| s.value()).or((!root.scenes.is_empty()).then_some(0)) {
+                Some(s) => (root.scenes[s].nodes.iter().map(|n| n.value()).collect(), format!("scenes[{s}].nodes")),
+                None => {
+                    let mut child = vec![false; root.nodes.len()];
+                    for n in &root.nodes {
+                        for c in n.children.iter().flatten() {
+                            child[c.value()] = true;
+                        }
                     }
+                    ((0..root.nodes.len()).filter(|&i| !child[i]).collect(), "the root nodes".into())
                 }
-                ((0..root.nodes.len()).filter(|&i| !child[i]).collect(), "the root nodes".into())
-            }
-        };
+            };
         let mut reached = vec![false; root.nodes.len()];
         // Depth first, by hand: a chain of nodes as deep as the file is long must not overflow
         // the call stack.
@@ -973,7 +991,7 @@ impl GltfFile {
         }
         let q = Quat::from_array(r);
         // Exporters write unit quaternions to a few digits; a zero one is no rotation at all.
-        if !(q.length_squared() > 1e-12) {
+        if q.length_squared() <= 1e-12 || !q.is_finite() {
             return Err(self.fail(at("rotation"), format!("{r:?} is not a rotation (zero length)")));
         }
         Ok(Mat4::from_scale_rotation_translation(Vec3::from(s), q.normalize(), Vec3::from(t)))
@@ -1149,7 +1167,10 @@ fn split_glb(bytes: &[u8]) -> Result<(std::ops::Range<usize>, Option<std::ops::R
     }
     let length = length as usize;
     if length > bytes.len() {
-        return Err((8, format!("the header gives the file's length as {length} bytes, but it has {} (truncated?)", bytes.len())));
+        return Err((
+            8,
+            format!("the header gives the file's length as {length} bytes, but it has {} (truncated?)", bytes.len()),
+        ));
     }
     let (mut at, mut json, mut bin) = (12, None, None);
     while at < length {
@@ -1161,7 +1182,9 @@ fn split_glb(bytes: &[u8]) -> Result<(std::ops::Range<usize>, Option<std::ops::R
         if end > length {
             return Err((
                 at,
-                format!("a chunk of {chunk_length} bytes from byte {start} runs past the end of the file at byte {length}"),
+                format!(
+                    "a chunk of {chunk_length} bytes from byte {start} runs past the end of the file at byte {length}"
+                ),
             ));
         }
         match kind {
@@ -1190,7 +1213,8 @@ fn decode_data_uri(data: &str) -> Result<Vec<u8>, String> {
     }
     let engine = base64::engine::GeneralPurpose::new(
         &base64::alphabet::STANDARD,
-        base64::engine::GeneralPurposeConfig::new().with_decode_padding_mode(base64::engine::DecodePaddingMode::Indifferent),
+        base64::engine::GeneralPurposeConfig::new()
+            .with_decode_padding_mode(base64::engine::DecodePaddingMode::Indifferent),
     );
     engine.decode(payload.trim_end()).map_err(|e| format!("bad base64 in the data URI: {e}"))
 }
@@ -1218,7 +1242,7 @@ fn percent_decode(uri: &str) -> Option<String> {
 /// every enumerated value is known, every required extension is one this reader knows
 /// (`gltf-json`'s validation), as a place and a message. Unknown attribute names (which glTF
 /// allows for application data, `_NAME`) are dropped first; a missing `min`/`max` of POSITION,
-/// which nothing here reads, is not an error.
+/// which nothing here reads, is not an error, nor is an accessor without a buffer view.
 fn check_document(root: &mut json::Root) -> Result<(), (String, String)> {
     for (m, mesh) in root.meshes.iter_mut().enumerate() {
         for (p, prim) in mesh.primitives.iter_mut().enumerate() {
@@ -1238,8 +1262,14 @@ fn check_document(root: &mut json::Root) -> Result<(), (String, String)> {
     let mut errors = Vec::new();
     root.validate(root, json::Path::new, &mut |path, error| errors.push((path().to_string(), error)));
     errors.retain(|(path, error)| {
+        use json::validation::Error::{Invalid, Missing};
         let min_max = path.contains("[\"POSITION\"]") && (path.ends_with(".min") || path.ends_with(".max"));
-        !(min_max && matches!(error, json::validation::Error::Missing | json::validation::Error::Invalid))
+        // An accessor without a buffer view is zeros (3.6.2.1); gltf-json wants one unless sparse.
+        let no_view = path
+            .strip_prefix("accessors[")
+            .and_then(|p| p.strip_suffix("].bufferView"))
+            .is_some_and(|i| i.bytes().all(|b| b.is_ascii_digit()));
+        !((min_max && matches!(error, Missing | Invalid)) || (no_view && matches!(error, Missing)))
     });
     let Some((path, error)) = errors.first() else { return Ok(()) };
     // gltf-json writes object keys as `["POSITION"]`; the rest of these errors, as `.POSITION`.
@@ -1333,7 +1363,10 @@ mod tests {
         let m = GltfMaterial::default();
         assert_eq!((m.base_color_factor, m.metallic_factor, m.roughness_factor), (Vec4::ONE, 1.0, 1.0));
         let arbor = m.to_arbor("d".into());
-        assert_eq!(arbor.scattering, Scattering::Conductor { roughness: 1.0, fresnel: ConductorFresnel::BaseColor(Vec3::ONE) });
+        assert_eq!(
+            arbor.scattering,
+            Scattering::Conductor { roughness: 1.0, fresnel: ConductorFresnel::BaseColor(Vec3::ONE) }
+        );
         assert_eq!((arbor.emission, arbor.two_sided), (None, false));
     }
 }

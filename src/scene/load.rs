@@ -171,17 +171,7 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
         object(&ctx, i, o, &env, &mut out)?;
     }
     let Built { materials, meshes, objects, gltf_materials, .. } = out;
-    Ok(Scene {
-        path: file.clone(),
-        camera,
-        render,
-        environment,
-        materials,
-        meshes,
-        objects,
-        animation,
-        gltf_materials,
-    })
+    Ok(Scene { path: file.clone(), camera, render, environment, materials, meshes, objects, animation, gltf_materials })
 }
 
 fn animation(ctx: &Ctx, f: &SceneFile) -> Result<Option<AnimationSettings>, SceneError> {
@@ -255,11 +245,10 @@ fn file_camera(
     gltf: &mut GltfFiles,
 ) -> Result<(Vec3, Vec3, Vec3, f32), SceneError> {
     let c = f.camera.get_ref();
-    let given = [("position", c.position.as_ref().map(|v| v.span())), ("look_at", c.look_at.as_ref().map(|v| v.span()))];
-    let given = given.into_iter().chain([
-        ("up", c.up.as_ref().map(|v| v.span())),
-        ("fov", c.fov.as_ref().map(|v| v.span())),
-    ]);
+    let given =
+        [("position", c.position.as_ref().map(|v| v.span())), ("look_at", c.look_at.as_ref().map(|v| v.span()))];
+    let given =
+        given.into_iter().chain([("up", c.up.as_ref().map(|v| v.span())), ("fov", c.fov.as_ref().map(|v| v.span()))]);
     for (k, span) in given {
         if let Some(span) = span {
             return Err(ctx.err(
@@ -283,7 +272,8 @@ fn file_camera(
     let (node, span, key) = match &c.name {
         Some(name) => {
             let n = name.get_ref();
-            let found = file.cameras.iter().find(|k| k.node_name.as_ref() == Some(n) || k.camera_name.as_ref() == Some(n));
+            let found =
+                file.cameras.iter().find(|k| k.node_name.as_ref() == Some(n) || k.camera_name.as_ref() == Some(n));
             let node = found.ok_or_else(|| {
                 let known: Vec<String> = file.cameras.iter().map(label).collect();
                 let known = if known.is_empty() { "none".to_owned() } else { known.join(", ") };
@@ -330,7 +320,11 @@ fn file_camera(
         && (look_at - position).length_squared() >= f32::MIN_POSITIVE
         && forward.cross(up).length_squared() > 1e-12;
     if !ok {
-        return Err(ctx.err(span, key, format!("{what}: its world matrix gives no usable view (too large or too small a scale)")));
+        return Err(ctx.err(
+            span,
+            key,
+            format!("{what}: its world matrix gives no usable view (too large or too small a scale)"),
+        ));
     }
     let fov = yfov.to_degrees();
     if !(fov > 0.0 && fov < 180.0) {
