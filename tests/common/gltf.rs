@@ -2,7 +2,6 @@
 //! one buffer written as a base64 `data:` URI, as a `.bin` file beside it, or as a GLB's BIN
 //! chunk.
 
-use base64::Engine as _;
 use serde_json::{Value, json};
 
 pub const BYTE: u32 = 5120;
@@ -121,7 +120,7 @@ impl Doc {
 
     /// The `.gltf` text with the buffer as a base64 data URI.
     pub fn gltf_embedded(&self) -> Vec<u8> {
-        let data = base64::engine::general_purpose::STANDARD.encode(&self.bin);
+        let data = base64(&self.bin);
         self.with_buffer(Some(format!("data:application/octet-stream;base64,{data}")))
     }
 
@@ -166,4 +165,23 @@ pub fn triangle_doc() -> Doc {
     let i = d.indices(&[0, 1, 2], UNSIGNED_SHORT);
     d.mesh(&[("POSITION", p), ("NORMAL", n), ("TEXCOORD_0", t)], Some(i), None);
     d
+}
+
+/// `bytes` in base64 (RFC 4648, standard alphabet, padded), written here rather than with the
+/// crate the reader uses, so that the two check each other.
+pub fn base64(bytes: &[u8]) -> String {
+    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for chunk in bytes.chunks(3) {
+        let b = [chunk[0], chunk.get(1).copied().unwrap_or(0), chunk.get(2).copied().unwrap_or(0)];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(ALPHABET[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
 }
