@@ -50,10 +50,10 @@ use crate::common::gltf::{Doc, UNSIGNED_BYTE, UNSIGNED_SHORT, triangle_doc};
 
 use arbor::scene::{Animation, Scattering, Scene, SceneError};
 use glam::Vec3;
-use serde_json::{Value, json};
 use proptest::prelude::*;
 use proptest::sample::{Index, select};
 use proptest::test_runner::Config;
+use serde_json::{Value, json};
 
 /// `cases` unless `PROPTEST_CASES` says otherwise (the `proptest!` macro reads it over this).
 fn config(cases: u32) -> Config {
@@ -951,8 +951,7 @@ fn gltf_doc() -> Doc {
     let p = d.floats(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0], "VEC3");
     let si = d.view(&[1u8], None);
     let sv = d.view(&[2f32, 0.0, 0.0].iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>(), None);
-    d.json["accessors"][p]["sparse"] =
-        json!({ "count": 1, "indices": { "bufferView": si, "componentType": UNSIGNED_BYTE }, "values": { "bufferView": sv } });
+    d.json["accessors"][p]["sparse"] = json!({ "count": 1, "indices": { "bufferView": si, "componentType": UNSIGNED_BYTE }, "values": { "bufferView": sv } });
     let strip = d.indices(&[0, 1, 2, 3], UNSIGNED_SHORT);
     d.mesh(&[("POSITION", p)], Some(strip), Some(5));
     d.json["meshes"][1]["primitives"][0]["material"] = json!(0);
@@ -963,7 +962,8 @@ fn gltf_doc() -> Doc {
         json!({ "pbrMetallicRoughness": { "baseColorFactor": [0.5, 0.5, 0.5, 1], "baseColorTexture": { "index": 0 } },
                 "emissiveFactor": [0.1, 0.1, 0.1] }),
     );
-    let a = d.node(json!({ "mesh": 0, "translation": [0, 1, 0], "rotation": [0, 0, 0.6, 0.8], "scale": [1, 2, 1] }), false);
+    let a =
+        d.node(json!({ "mesh": 0, "translation": [0, 1, 0], "rotation": [0, 0, 0.6, 0.8], "scale": [1, 2, 1] }), false);
     let b = d.node(json!({ "mesh": 0, "matrix": [-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 3, 0, 0, 1] }), false);
     d.node(json!({ "children": [a, b], "translation": [0, 0, -2] }), true);
     d.node(json!({ "mesh": 1 }), true);

@@ -10,11 +10,11 @@ fn root() -> PathBuf {
 
 #[path = "../../tests/common/tools.rs"]
 mod common;
-#[path = "../../tests/common/ply.rs"]
-mod ply;
 #[allow(dead_code)]
 #[path = "../../tests/common/gltf.rs"]
 mod gltf;
+#[path = "../../tests/common/ply.rs"]
+mod ply;
 
 fn bench() -> Command {
     Command::new(env!("CARGO_BIN_EXE_bvh-bench"))
@@ -155,7 +155,11 @@ fn gltf_files_as_input() {
     std::fs::write(&glb, d.glb()).unwrap();
     let out = bench().arg(&glb).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && stderr.contains("t.GLB: meshes[0].primitives[0].attributes.POSITION: accessor 0: reads past"), "{stderr}");
+    assert!(
+        !out.status.success()
+            && stderr.contains("t.GLB: meshes[0].primitives[0].attributes.POSITION: accessor 0: reads past"),
+        "{stderr}"
+    );
 }
 
 #[test]
