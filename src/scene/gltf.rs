@@ -75,8 +75,9 @@ use crate::geometry::TriangleMesh;
 pub const DEFAULT_MATERIAL: u32 = u32::MAX;
 
 /// Most elements of an accessor without a buffer view (all zeros, perhaps made sparse): its
-/// size is not bounded by any file, so by this, and by the memory available.
-const MAX_UNBACKED_ELEMENTS: u64 = 1 << 28;
+/// size is not bounded by any file, so by this (6.7 · 10^7, 800 MB of positions), and by the
+/// memory available.
+const MAX_UNBACKED_ELEMENTS: u64 = 1 << 26;
 
 /// Why a glTF file cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -1350,8 +1351,11 @@ mod tests {
         assert_eq!(split_glb(&glb).unwrap(), (20..24, Some(32..36)));
         assert_eq!(split_glb(&glb[..30]).unwrap_err().0, 8, "truncated");
         let mut long = glb.clone();
-        long[28..32].copy_from_slice(&5u32.to_le_bytes());
+        long[24..28].copy_from_slice(&5u32.to_le_bytes());
         assert_eq!(split_glb(&long).unwrap_err().0, 24, "a chunk past the end");
+        let mut unknown = glb.clone();
+        unknown[28..32].copy_from_slice(b"XTRA");
+        assert_eq!(split_glb(&unknown).unwrap(), (20..24, None), "unknown chunks are skipped");
         let mut v1 = glb.clone();
         v1[4] = 1;
         assert_eq!(split_glb(&v1).unwrap_err().0, 4);

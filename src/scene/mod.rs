@@ -106,11 +106,13 @@ pub struct Material {
 }
 
 /// A mesh with one material per triangle (indices into [`Scene::materials`]). Objects naming the
-/// same OBJ or PLY file or the same built-in shape share one; a built-in shape's `material_ids` hold the
-/// first such object's material, and every object using it overrides them.
+/// same OBJ or PLY file or the same built-in shape share one, and the objects a glTF file's nodes
+/// make share one per glTF mesh; a built-in shape's `material_ids` hold the first such object's
+/// material, and every object using it overrides them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneMesh {
-    /// Where it came from: the OBJ or PLY path, or the built-in shape's name.
+    /// Where it came from: the OBJ or PLY path, the glTF path and mesh (`car.glb#meshes[2]`), or
+    /// the built-in shape's name.
     pub source: String,
     pub mesh: TriangleMesh,
     pub material_ids: Vec<u32>,
