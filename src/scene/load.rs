@@ -758,6 +758,8 @@ fn gltf_parts(
         );
         return Err(ctx.err(rel.span(), key, msg));
     }
+    // Its buffers are not needed again: objects naming the file again take these parts.
+    out.gltf_files.0.remove(&id);
     out.gltf_parts.insert(id, parts.clone());
     Ok(parts)
 }
