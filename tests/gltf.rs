@@ -2,10 +2,11 @@
 //! matrix node and a mirroring node under a translated parent) places the right world
 //! triangles, identically from a `.gltf` with a data URI, a `.gltf` with a `.bin` file and a
 //! `.glb`; normals and texture coordinates (v flipped) come through; strips, fans and every
-//! index type give the documented triangles; sparse accessors apply; materials map as
-//! documented and keep their full description; a camera comes from the file; scatter and
-//! keyframes move a file's nodes as one; and every kind of bad file is an error that names the
-//! scene file, line and key, the glTF file, and the place in it.
+//! index type give the documented triangles; interleaved, normalized, sparse and unbacked
+//! accessors are read, unknown attributes ignored; materials map as documented and keep their
+//! full description; a camera comes from the file; scatter and keyframes move a file's nodes as
+//! one; and every kind of bad file is an error that names the scene file, line and key, the glTF
+//! file, and the place in it.
 
 use crate::common::gltf::{BYTE, Doc, FLOAT, UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, triangle_doc};
 
@@ -193,9 +194,13 @@ fn interleaved_normalized_and_sparse_accessors_are_read() {
         json!({ "componentType": FLOAT, "count": 3, "type": "VEC3",
                 "sparse": { "count": 1, "indices": { "bufferView": si, "componentType": UNSIGNED_BYTE }, "values": { "bufferView": sv } } }),
     );
-    d.mesh(&[("POSITION", p), ("TEXCOORD_0", t)], None, None);
+    // No buffer view and not sparse: zeros (glTF 3.6.2.1), which gltf-json alone would refuse.
+    let plain_zeros = d.push("accessors", json!({ "componentType": FLOAT, "count": 3, "type": "VEC3" }));
+    // An application's own attribute (`_NAME`) is ignored.
+    d.mesh(&[("POSITION", p), ("TEXCOORD_0", t), ("_BATCHID", t)], None, None);
     d.mesh(&[("POSITION", sparse)], None, None);
     d.mesh(&[("POSITION", zeros)], None, None);
+    d.mesh(&[("POSITION", plain_zeros)], None, None);
     std::fs::write(dir.join("a.gltf"), d.gltf_embedded()).unwrap();
     let file = GltfFile::open(dir.join("a.gltf")).unwrap_or_else(|e| panic!("{e}"));
     let m = file.mesh(0).unwrap().mesh;
@@ -203,6 +208,7 @@ fn interleaved_normalized_and_sparse_accessors_are_read() {
     assert_eq!(m.uvs, vec![Vec2::new(0.0, 0.0), Vec2::new(1.0, 1.0), Vec2::new(0.0, 1.0)], "u16 / 65535, v' = 1 - v");
     assert_eq!(file.mesh(1).unwrap().mesh.positions, vec![Vec3::ZERO, Vec3::X, Vec3::new(0.0, 2.0, 0.0)]);
     assert_eq!(file.mesh(2).unwrap().mesh.positions, vec![Vec3::ZERO, Vec3::ZERO, Vec3::new(0.0, 2.0, 0.0)]);
+    assert_eq!(file.mesh(3).unwrap().mesh.positions, vec![Vec3::ZERO; 3]);
 }
 
 #[test]
