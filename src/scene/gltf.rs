@@ -55,6 +55,13 @@
 //! attribute names it does not know are ignored rather than refused; bytes after the GLB's
 //! declared length are ignored.
 //!
+//! Why only the crate's JSON schema and checks: its `import` feature would read buffers and
+//! decode images with `image` (every codec), sizes unchecked; its GLB splitter subtracts the
+//! header's length from 12 unchecked (an overflow panic under overflow checks); its check of a
+//! primitive's `POSITION` indexes the accessor list before knowing the index exists (checked
+//! here first); and its wrapper types unwrap a camera's projection object by the camera's
+//! `type`. So the raw document (`gltf::json::Root`) is read here, after its validation.
+//!
 //! Errors ([`GltfError`]) name the file, then the place: a byte offset in the GLB container, a
 //! line and column in the JSON, or the JSON path of the object at fault
 //! (`meshes[2].primitives[0].attributes.POSITION`) with the accessor, view or buffer index.
