@@ -16,6 +16,12 @@
 //!   bytes mutated: truncated, changed, inserted, four bytes set to a huge count, -1, NaN or
 //!   infinity, a number of the header or an ASCII body replaced (wrong counts and list counts);
 //!   and valid meshes, which must load to the same mesh from each encoding;
+//! - random bytes as a `.glb` file (some after a valid GLB header), and a valid glTF document
+//!   (a hierarchy sharing a mesh, a strip, a sparse accessor, a textured material, a camera)
+//!   mutated as JSON (a value anywhere replaced by null, -1, 0, huge or fractional numbers, a
+//!   string, an empty array or object; a key removed) and then as bytes (as PLY files are),
+//!   written as `.gltf` with a data URI or as `.glb`, named by an object and by the camera's
+//!   `from`;
 //! - every `scenes/*.toml`, mutated: lines deleted, duplicated, swapped; numbers replaced (nan,
 //!   inf, -1, 0, 1e30, 4294967296, a string, an array); keys and table names replaced; the file
 //!   truncated; random bytes inserted;
@@ -40,11 +46,14 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use crate::common::gltf::{Doc, UNSIGNED_BYTE, UNSIGNED_SHORT, triangle_doc};
+
 use arbor::scene::{Animation, Scattering, Scene, SceneError};
 use glam::Vec3;
 use proptest::prelude::*;
 use proptest::sample::{Index, select};
 use proptest::test_runner::Config;
+use serde_json::{Value, json};
 
 /// `cases` unless `PROPTEST_CASES` says otherwise (the `proptest!` macro reads it over this).
 fn config(cases: u32) -> Config {
@@ -918,6 +927,158 @@ proptest! {
             loaded.push(bits(&mesh));
         }
         prop_assert!(loaded[0] == loaded[1] && loaded[1] == loaded[2], "{elements:?}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// (2c) Random glTF files
+
+/// The scene naming `file`, with or without an object material, its camera from the file or not.
+fn gltf_scene(file: &str, material: bool, camera_from_file: bool) -> String {
+    let scene = obj_scene(material).replace("m.obj", file);
+    if !camera_from_file {
+        return scene;
+    }
+    let (camera, rest) = scene.split_once("\n\n").unwrap();
+    let resolution = camera.lines().find(|l| l.starts_with("resolution")).unwrap();
+    format!("[camera]\nfrom = \"{file}\"\n{resolution}\n\n{rest}")
+}
+
+/// A valid document touching most of the reader: a parent over a TRS node and a matrix node
+/// sharing the triangle, a strip over a sparse accessor, a textured material, a camera.
+fn gltf_doc() -> Doc {
+    let mut d = triangle_doc();
+    let p = d.floats(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0], "VEC3");
+    let si = d.view(&[1u8], None);
+    let sv = d.view(&[2f32, 0.0, 0.0].iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>(), None);
+    d.json["accessors"][p]["sparse"] = json!({ "count": 1, "indices": { "bufferView": si, "componentType": UNSIGNED_BYTE }, "values": { "bufferView": sv } });
+    let strip = d.indices(&[0, 1, 2, 3], UNSIGNED_SHORT);
+    d.mesh(&[("POSITION", p)], Some(strip), Some(5));
+    d.json["meshes"][1]["primitives"][0]["material"] = json!(0);
+    // A 1 x 1 PNG as a data URI: the texture loads.
+    let mut png = Vec::new();
+    image::RgbaImage::from_raw(1, 1, vec![200, 100, 50, 255])
+        .unwrap()
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageOutputFormat::Png)
+        .unwrap();
+    d.push("images", json!({ "uri": format!("data:image/png;base64,{}", crate::common::gltf::base64(&png)) }));
+    d.push("textures", json!({ "source": 0 }));
+    d.push(
+        "materials",
+        json!({ "pbrMetallicRoughness": { "baseColorFactor": [0.5, 0.5, 0.5, 1], "baseColorTexture": { "index": 0 } },
+                "emissiveFactor": [0.1, 0.1, 0.1] }),
+    );
+    let a =
+        d.node(json!({ "mesh": 0, "translation": [0, 1, 0], "rotation": [0, 0, 0.6, 0.8], "scale": [1, 2, 1] }), false);
+    let b = d.node(json!({ "mesh": 0, "matrix": [-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 3, 0, 0, 1] }), false);
+    d.node(json!({ "children": [a, b], "translation": [0, 0, -2] }), true);
+    d.node(json!({ "mesh": 1 }), true);
+    d.push("cameras", json!({ "type": "perspective", "perspective": { "yfov": 0.7, "znear": 0.1 } }));
+    d.node(json!({ "camera": 0, "translation": [0, 0, 5] }), true);
+    d
+}
+
+/// Values a JSON mutation puts in place of another.
+fn json_values() -> Vec<Value> {
+    vec![
+        json!(null),
+        json!(-1),
+        json!(0),
+        json!(1),
+        json!(3),
+        json!(4294967296u64),
+        json!(1e12),
+        json!(1.5),
+        json!(1e38),
+        json!("x"),
+        json!([]),
+        json!({}),
+        json!([0, 0]),
+    ]
+}
+
+/// Every JSON pointer below `v` (`/meshes/0/primitives/0/mode`).
+fn pointers(v: &Value, at: &str, out: &mut Vec<String>) {
+    match v {
+        Value::Object(m) => {
+            for (k, child) in m {
+                let p = format!("{at}/{k}");
+                out.push(p.clone());
+                pointers(child, &p, out);
+            }
+        }
+        Value::Array(a) => {
+            for (i, child) in a.iter().enumerate() {
+                let p = format!("{at}/{i}");
+                out.push(p.clone());
+                pointers(child, &p, out);
+            }
+        }
+        _ => {}
+    }
+}
+
+/// Replaces the value at a pointer chosen by `at` by `json_values()[value]`, or removes it
+/// (an object's key; an array element is replaced by null instead, keeping indices).
+fn mutate_json(v: &mut Value, at: &Index, value: usize, remove: bool) {
+    let mut all = Vec::new();
+    pointers(v, "", &mut all);
+    if all.is_empty() {
+        return;
+    }
+    let p = &all[at.index(all.len())];
+    let (parent, key) = p.rsplit_once('/').unwrap();
+    let replacement = json_values()[value].clone();
+    match v.pointer_mut(parent) {
+        Some(Value::Object(m)) if remove => {
+            m.remove(key);
+        }
+        Some(target) => {
+            if let Some(slot) = target.pointer_mut(&format!("/{key}")) {
+                *slot = if remove { Value::Null } else { replacement };
+            }
+        }
+        None => {}
+    }
+}
+
+fn random_glb() -> impl Strategy<Value = Vec<u8>> {
+    prop_oneof![
+        prop::collection::vec(any::<u8>(), 0..300),
+        prop::collection::vec(any::<u8>(), 0..300).prop_map(|b| [b"glTF\x02\0\0\0".as_slice(), &b].concat()),
+    ]
+}
+
+proptest! {
+    #![proptest_config(config(500))]
+
+    #[test]
+    fn random_bytes_as_a_glb_file(bytes in random_glb(), material in any::<bool>(), camera in any::<bool>()) {
+        let scene = gltf_scene("m.glb", material, camera);
+        check(&[("scene.toml", scene.as_bytes()), ("m.glb", &bytes)], &["m.glb"])?;
+    }
+
+    /// A valid document changed as JSON, then as bytes: whatever goes wrong is the glTF file's
+    /// fault, and the error names it; unchanged, it loads.
+    #[test]
+    fn mutated_gltf_files(
+        changes in prop::collection::vec((any::<Index>(), 0..json_values().len(), any::<bool>()), 0..4),
+        bytes in prop::collection::vec(ply_mutation(), 0..3),
+        glb in any::<bool>(),
+        material in any::<bool>(),
+        camera in any::<bool>(),
+    ) {
+        let mut doc = gltf_doc();
+        for (at, value, remove) in &changes {
+            mutate_json(&mut doc.json, at, *value, *remove);
+        }
+        let (name, mut data) = if glb { ("m.glb", doc.glb()) } else { ("m.gltf", doc.gltf_embedded()) };
+        for m in &bytes {
+            m.apply(&mut data);
+        }
+        let scene = gltf_scene(name, material, camera);
+        let failed = check(&[("scene.toml", scene.as_bytes()), (name, &data)], &[name])?;
+        prop_assert!(!changes.is_empty() || !bytes.is_empty() || failed.is_none(), "the valid document failed");
     }
 }
 

@@ -16,6 +16,7 @@ mod watertight;
 // Scenes: the loader and animation.
 mod animation;
 mod fuzz_loader;
+mod gltf;
 mod scene_load;
 
 // Rendering: exact answers, the independent reference, golden images, numerical stress.

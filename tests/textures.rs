@@ -216,3 +216,66 @@ fn bad_textures_name_where_they_are_used() {
     let loaded = Scene::load(dir.join("scene.toml")).unwrap();
     assert!(loaded.materials[0].textures.base_color.is_some());
 }
+
+/// A glTF quad whose base colour texture's alpha cuts out its left half (`alphaMode` MASK): from
+/// a PNG file beside a `.gltf`, and embedded in a `.glb`'s buffer. Both load the texture (one
+/// each, and with the mask), and render the cut half as the background and the rest as the
+/// base colour times the texture, on both devices.
+#[test]
+fn gltf_base_colour_textures_and_masks() {
+    use crate::common::gltf::{Doc, UNSIGNED_SHORT};
+    use serde_json::json;
+    let dir = temp_dir("gltf");
+    write_png(&dir.join("mask.png"), 8, 2, |x, _| [255, 255, 255, if x < 4 { 0 } else { 255 }]);
+    let png = std::fs::read(dir.join("mask.png")).unwrap();
+    let quad = |embedded: bool| {
+        let mut d = Doc::new();
+        let p = d.floats(&[-1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 1.0, 0.0], "VEC3");
+        // glTF's texture coordinates start at the image's top left.
+        let t = d.floats(&[0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0], "VEC2");
+        let i = d.indices(&[0, 1, 2, 0, 2, 3], UNSIGNED_SHORT);
+        d.mesh(&[("POSITION", p), ("TEXCOORD_0", t)], Some(i), None);
+        d.json["meshes"][0]["primitives"][0]["material"] = json!(0);
+        d.node(json!({ "mesh": 0 }), true);
+        let image = if embedded {
+            let view = d.view(&png, None);
+            json!({ "bufferView": view, "mimeType": "image/png" })
+        } else {
+            json!({ "uri": "mask.png" })
+        };
+        d.push("images", image);
+        d.push("samplers", json!({ "wrapS": 33071, "wrapT": 33071 }));
+        d.push("textures", json!({ "source": 0, "sampler": 0 }));
+        d.push(
+            "materials",
+            json!({
+                "pbrMetallicRoughness": { "baseColorFactor": [0.5, 0.5, 0.5, 1], "metallicFactor": 0,
+                                          "baseColorTexture": { "index": 0 } },
+                "alphaMode": "MASK",
+            }),
+        );
+        d
+    };
+    std::fs::write(dir.join("quad.gltf"), quad(false).gltf_embedded()).unwrap();
+    std::fs::write(dir.join("quad.glb"), quad(true).glb()).unwrap();
+    for file in ["quad.gltf", "quad.glb"] {
+        let text = format!(
+            "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 30\nresolution = [24, 24]\n\
+             [environment]\nradiance = [1, 1, 1]\n[[objects]]\nmesh = \"{file}\"\n"
+        );
+        std::fs::write(dir.join("scene.toml"), text).unwrap();
+        let scene = Scene::load(dir.join("scene.toml")).unwrap();
+        let m = scene.materials.last().unwrap();
+        assert_eq!(scene.textures.len(), 1, "{file}");
+        assert!(m.textures.base_color.is_some_and(|r| r.srgb && r.wrap == Wrap::Clamp), "{file}: {:?}", m.textures);
+        assert!(m.textures.alpha.is_some() && m.textures.alpha_cutoff == 0.5, "{file}: {:?}", m.textures);
+        for device in devices("gltf_base_colour_textures_and_masks") {
+            let mean = render(device, &scene, 8, 2).mean();
+            for y in 2..22 {
+                let (left, right) = (mean.pixels[y * 24 + 6][0], mean.pixels[y * 24 + 17][0]);
+                assert!((left - 1.0).abs() < 1e-5, "{} {file}: row {y}: the cut-out half shows {left}", device.name());
+                assert!((right - 0.5).abs() < 1e-5, "{} {file}: row {y}: the opaque half shows {right}", device.name());
+            }
+        }
+    }
+}

@@ -10,6 +10,9 @@ fn root() -> PathBuf {
 
 #[path = "../../tests/common/tools.rs"]
 mod common;
+#[allow(dead_code)]
+#[path = "../../tests/common/gltf.rs"]
+mod gltf;
 #[path = "../../tests/common/ply.rs"]
 mod ply;
 
@@ -123,6 +126,40 @@ fn ply_meshes_as_input() {
     let out = bench().arg(&broken).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && stderr.contains("broken.ply:5: unknown type `real`"), "{stderr}");
+}
+
+/// A `.glb` or `.gltf` input is every mesh node's triangles in the file's world space; its errors
+/// name the file and the place in it.
+#[test]
+fn gltf_files_as_input() {
+    let dir = temp_dir("gltf");
+    let mut d = gltf::triangle_doc();
+    // Two nodes placing the one-triangle mesh: two triangles.
+    d.node(serde_json::json!({ "mesh": 0 }), true);
+    d.node(serde_json::json!({ "mesh": 0, "translation": [2, 0, 0] }), true);
+    let (glb, embedded, json) = (dir.join("t.GLB"), dir.join("t.gltf"), dir.join("r.json"));
+    std::fs::write(&glb, d.glb()).unwrap();
+    std::fs::write(&embedded, d.gltf_embedded()).unwrap();
+    for input in [&glb, &embedded] {
+        let out = bench()
+            .arg(input)
+            .args(["--builders", "lbvh", "--runs", "1", "--resolution", "16", "--json"])
+            .arg(&json)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(report["triangles"], 2, "{}", input.display());
+    }
+    d.json["accessors"][0]["count"] = serde_json::json!(40);
+    std::fs::write(&glb, d.glb()).unwrap();
+    let out = bench().arg(&glb).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && stderr.contains("t.GLB: meshes[0].primitives[0].attributes.POSITION: accessor 0: reads past"),
+        "{stderr}"
+    );
 }
 
 #[test]

@@ -123,6 +123,28 @@ impl Texture {
         Ok(Self { source: path.to_owned(), width, height, format, texels, has_alpha })
     }
 
+    /// Decodes an image held in memory (a glTF file's embedded PNG or JPEG), 8-bit; `name`
+    /// stands for its path in messages.
+    pub fn from_bytes(bytes: &[u8], name: &Path) -> Result<Self, TextureError> {
+        let read = |error: String| TextureError::Read { path: name.to_owned(), error };
+        let format = image::guess_format(bytes).map_err(|e| read(chain(&e)))?;
+        let mut r = image::io::Reader::with_format(std::io::Cursor::new(bytes), format);
+        r.limits(decoder_limits());
+        let (width, height) = image::io::Reader::with_format(std::io::Cursor::new(bytes), format)
+            .into_dimensions()
+            .map_err(|e| read(chain(&e)))?;
+        let count = u64::from(width) * u64::from(height);
+        if count == 0 || count > MAX_TEXELS {
+            let message = format!("is {width}x{height}: a texture must have 1 to 2^28 texels");
+            return Err(TextureError::Invalid { path: name.to_owned(), message });
+        }
+        crate::memory::check_fits(&format!("{}: a texture of {width}x{height}", name.display()), count as f64 * 20.0)?;
+        let image = r.decode().map_err(|e| read(chain(&e)))?;
+        let has_alpha = image.color().has_alpha();
+        let texels = image.into_rgba8().pixels().map(|p| u32::from_le_bytes(p.0)).collect();
+        Ok(Self { source: name.to_owned(), width, height, format: TexelFormat::Rgba8, texels, has_alpha })
+    }
+
     /// Bytes the texels take.
     pub fn bytes(&self) -> usize {
         self.texels.len() * 4
@@ -190,11 +212,15 @@ fn reader(path: &Path) -> Result<image::io::Reader<std::io::BufReader<std::fs::F
         .map_err(|e| read(e.to_string()))?
         .with_guessed_format()
         .map_err(|e| read(e.to_string()))?;
-    // The decoder's own allocations are bounded too (its default is 512 MiB).
+    r.limits(decoder_limits());
+    Ok(r)
+}
+
+/// The decoder's own allocations are bounded too (its default is 512 MiB).
+fn decoder_limits() -> image::io::Limits {
     let mut limits = image::io::Limits::default();
     limits.max_alloc = Some(crate::memory::available_bytes().unwrap_or(u64::MAX).min(1 << 34));
-    r.limits(limits);
-    Ok(r)
+    limits
 }
 
 fn chain(e: &dyn std::error::Error) -> String {
@@ -223,10 +249,28 @@ impl TextureCache {
             return Ok(i);
         }
         let texture = Texture::load(path)?;
+        Ok(self.insert(key, texture))
+    }
+
+    /// The index of an image held in memory, decoded the first time `key` (the file holding
+    /// it and where in it) is asked for.
+    pub fn get_embedded(
+        &mut self,
+        key: PathBuf,
+        bytes: impl FnOnce() -> Result<Vec<u8>, String>,
+    ) -> Result<u32, String> {
+        if let Some(&i) = self.by_path.get(&key) {
+            return Ok(i);
+        }
+        let texture = Texture::from_bytes(&bytes()?, &key).map_err(|e| e.to_string())?;
+        Ok(self.insert(key, texture))
+    }
+
+    fn insert(&mut self, key: PathBuf, texture: Texture) -> u32 {
         self.textures.push(Arc::new(texture));
         let i = self.textures.len() as u32 - 1;
         self.by_path.insert(key, i);
-        Ok(i)
+        i
     }
 }
 

@@ -138,6 +138,7 @@ impl Scene {
             meshes: self.meshes.clone(),
             objects,
             animation: None,
+            gltf_materials: self.gltf_materials.clone(),
         }
     }
 }

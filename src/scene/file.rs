@@ -34,16 +34,22 @@ pub(super) struct SceneFile {
     pub animation: Option<S<AnimationFile>>,
 }
 
+/// `position`, `look_at` and `fov` are required unless `from` names a glTF file to take the
+/// camera from (checked when building, at the table's line).
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct CameraFile {
-    #[serde(deserialize_with = "exact")]
-    pub position: S<[f32; 3]>,
-    #[serde(deserialize_with = "exact")]
-    pub look_at: S<[f32; 3]>,
+    #[serde(default, deserialize_with = "exact_opt")]
+    pub position: Option<S<[f32; 3]>>,
+    #[serde(default, deserialize_with = "exact_opt")]
+    pub look_at: Option<S<[f32; 3]>>,
     #[serde(default, deserialize_with = "exact_opt")]
     pub up: Option<S<[f32; 3]>>,
-    pub fov: S<f32>,
+    pub fov: Option<S<f32>>,
+    /// A glTF file (relative to the scene) whose camera node this is.
+    pub from: Option<S<String>>,
+    /// Which camera node of `from`: a node's or a camera's name.
+    pub name: Option<S<String>>,
     #[serde(deserialize_with = "exact")]
     pub resolution: S<[u32; 2]>,
     pub aperture: Option<S<f32>>,

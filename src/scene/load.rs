@@ -1,6 +1,7 @@
-//! Turning a parsed scene file into a checked [`Scene`]: value checks, materials (from the TOML
-//! and from MTL files), meshes (one per OBJ or PLY file or built-in shape, shared by the objects
-//! naming it), transforms, keyframes and scattered instances. Every error names file, line and key.
+//! Turning a parsed scene file into a checked [`Scene`]: value checks, materials (from the TOML,
+//! from MTL files and from glTF files), meshes (one per OBJ or PLY file or built-in shape, one per
+//! glTF mesh, shared by the objects naming it), transforms, cameras (from the TOML or a glTF
+//! file), keyframes and scattered instances. Every error names file, line and key.
 //!
 //! Scattered instances draw from a local SplitMix64 (Steele, Lea and Flood 2014, "Fast splittable
 //! pseudorandom number generators"), not the renderer's PCG32 streams: a scene's layout must not
@@ -11,14 +12,19 @@ use std::collections::hash_map::Entry;
 use std::f32::consts::TAU;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 use std::sync::Arc;
 
 use glam::{EulerRot, Mat4, Quat, Vec3};
 
 use super::file::{EnvironmentFile, KeyframeFile, MaterialFile, ObjectFile, S, ScaleFile, ScatterFile, SceneFile};
+use super::gltf::{
+    AlphaMode, DEFAULT_MATERIAL, GltfCameraNode, GltfError, GltfFile, GltfImageSource, GltfMaterial, GltfProjection,
+    WrapMode,
+};
 use super::{
     Animation, AnimationSettings, Camera, ConductorFresnel, Environment, Keyframe, Material, MaterialTextures, Object,
-    RenderSettings, Scattering, Scene, SceneError, SceneMesh,
+    RenderSettings, Scattering, Scene, SceneError, SceneGltfMaterial, SceneMesh,
 };
 use crate::geometry::obj::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
@@ -141,7 +147,9 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
         }
         ctx.err(span, if key == "." { "scene".into() } else { key }, message)
     })?;
-    let camera = camera(&ctx, &parsed)?;
+    let base = file.parent().unwrap_or(Path::new("."));
+    let mut gltf_files = GltfFiles::default();
+    let camera = camera(&ctx, &parsed, base, &mut gltf_files)?;
     let render = render(&ctx, &parsed)?;
     let environment = parsed.environment.as_ref().map(|e| environment(&ctx, e, &file)).transpose()?;
     let base = file.parent().unwrap_or(Path::new("."));
@@ -161,13 +169,27 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
         known: HashMap::new(),
         objects: Vec::new(),
         procedural_triangles: 0,
+        gltf_files,
+        gltf_parts: HashMap::new(),
+        gltf_materials: Vec::new(),
     };
     for (i, o) in parsed.objects.iter().enumerate() {
         object(&ctx, i, o, &env, &mut out)?;
     }
-    let Built { materials, textures, meshes, objects, .. } = out;
+    let Built { materials, textures, meshes, objects, gltf_materials, .. } = out;
     let textures = textures.textures;
-    Ok(Scene { path: file.clone(), camera, render, environment, materials, textures, meshes, objects, animation })
+    Ok(Scene {
+        path: file.clone(),
+        camera,
+        render,
+        environment,
+        materials,
+        textures,
+        meshes,
+        objects,
+        animation,
+        gltf_materials,
+    })
 }
 
 fn animation(ctx: &Ctx, f: &SceneFile) -> Result<Option<AnimationSettings>, SceneError> {
@@ -189,46 +211,19 @@ fn animation(ctx: &Ctx, f: &SceneFile) -> Result<Option<AnimationSettings>, Scen
     Ok(Some(AnimationSettings { fps, frames: start..end }))
 }
 
-fn camera(ctx: &Ctx, f: &SceneFile) -> Result<Camera, SceneError> {
+fn camera(ctx: &Ctx, f: &SceneFile, base: &Path, gltf: &mut GltfFiles) -> Result<Camera, SceneError> {
     let c = f.camera.get_ref();
-    let position = ctx.vec3(&c.position, "camera.position")?;
-    let look_at = ctx.vec3(&c.look_at, "camera.look_at")?;
-    let up = match &c.up {
-        Some(up) => ctx.vec3(up, "camera.up")?,
-        None => Vec3::Y,
+    let (position, look_at, up, fov, from_file) = match &c.from {
+        Some(from) => {
+            let (position, look_at, up, fov) = file_camera(ctx, f, from, base, gltf)?;
+            (position, look_at, up, fov, true)
+        }
+        None => {
+            let (position, look_at, up, fov) = toml_camera(ctx, f)?;
+            (position, look_at, up, fov, false)
+        }
     };
     let view = look_at - position;
-    if view == Vec3::ZERO {
-        return Err(ctx.err(c.look_at.span(), "camera.look_at", "equals camera.position"));
-    }
-    // The camera normalizes the view direction in f32: its squared length must not underflow.
-    if view.length_squared() < f32::MIN_POSITIVE {
-        let distance = view.as_dvec3().length();
-        return Err(ctx.err(
-            c.look_at.span(),
-            "camera.look_at",
-            format!(
-                "is {distance:.2e} from camera.position, too close for f32 (at least {:.1e}): scale the scene up",
-                f32::MIN_POSITIVE.sqrt()
-            ),
-        ));
-    }
-    // The camera normalizes both: their squared lengths must be finite.
-    if !view.length_squared().is_finite() {
-        return Err(ctx.err(
-            c.look_at.span(),
-            "camera.look_at",
-            "is too far from camera.position (the distance overflows)",
-        ));
-    }
-    if let Some(u) = c.up.as_ref().filter(|_| !up.length_squared().is_finite()) {
-        return Err(ctx.err(u.span(), "camera.up", format!("{up} is too long (its length overflows)")));
-    }
-    if view.cross(up).length_squared() <= 1e-12 * view.length_squared() * up.length_squared() {
-        let span = c.up.as_ref().map_or(c.look_at.span(), |u| u.span());
-        return Err(ctx.err(span, "camera.up", "is zero or parallel to the view direction"));
-    }
-    let fov = ctx.number(&c.fov, "camera.fov", |x| x > 0.0 && x < 180.0, "in (0, 180) degrees")?;
     let [width, height] = *c.resolution.get_ref();
     if !(1..=MAX_RESOLUTION).contains(&width) || !(1..=MAX_RESOLUTION).contains(&height) {
         return Err(ctx.err(
@@ -243,10 +238,168 @@ fn camera(ctx: &Ctx, f: &SceneFile) -> Result<Camera, SceneError> {
     };
     let focus_distance = match &c.focus_distance {
         Some(d) => ctx.number(d, "camera.focus_distance", |x| x > 0.0, "a distance > 0")?,
+        // A glTF camera has no distance in focus, and the look-at point made for it is not one.
+        None if from_file && aperture > 0.0 => {
+            let span = c.aperture.as_ref().map_or(f.camera.span(), |a| a.span());
+            return Err(ctx.err(
+                span,
+                "camera.focus_distance",
+                "a thin lens (aperture > 0) on a camera from a glTF file needs `focus_distance`: the file has none",
+            ));
+        }
         None => view.length(),
     };
     let resolution_line = ctx.line(c.resolution.span());
     Ok(Camera { position, look_at, up, fov_y_degrees: fov, width, height, aperture, focus_distance, resolution_line })
+}
+
+/// The camera node of the glTF file `from` names (`name`, or the first in traversal order), as
+/// position, look-at point, up and vertical field of view in degrees.
+fn file_camera(
+    ctx: &Ctx,
+    f: &SceneFile,
+    from: &S<String>,
+    base: &Path,
+    gltf: &mut GltfFiles,
+) -> Result<(Vec3, Vec3, Vec3, f32), SceneError> {
+    let c = f.camera.get_ref();
+    let given =
+        [("position", c.position.as_ref().map(|v| v.span())), ("look_at", c.look_at.as_ref().map(|v| v.span()))];
+    let given =
+        given.into_iter().chain([("up", c.up.as_ref().map(|v| v.span())), ("fov", c.fov.as_ref().map(|v| v.span()))]);
+    for (k, span) in given {
+        if let Some(span) = span {
+            return Err(ctx.err(
+                span,
+                format!("camera.{k}"),
+                "is not given with `camera.from`: the camera's placement and field of view come from the file",
+            ));
+        }
+    }
+    if from.get_ref().trim().is_empty() {
+        return Err(ctx.err(from.span(), "camera.from", "is empty: name a glTF file (.gltf or .glb)"));
+    }
+    let path = base.join(from.get_ref());
+    let file = gltf.open(&path).map_err(|e| ctx.err(from.span(), "camera.from", e.to_string()))?;
+    let shown = path.display();
+    let label = |k: &GltfCameraNode| match (&k.node_name, &k.camera_name) {
+        (Some(n), _) => format!("nodes[{}] ({n:?})", k.node),
+        (None, Some(c)) => format!("nodes[{}] (camera {c:?})", k.node),
+        (None, None) => format!("nodes[{}]", k.node),
+    };
+    let (node, span, key) = match &c.name {
+        Some(name) => {
+            let n = name.get_ref();
+            let found =
+                file.cameras.iter().find(|k| k.node_name.as_ref() == Some(n) || k.camera_name.as_ref() == Some(n));
+            let node = found.ok_or_else(|| {
+                let known: Vec<String> = file.cameras.iter().map(label).collect();
+                let known = if known.is_empty() { "none".to_owned() } else { known.join(", ") };
+                ctx.err(
+                    name.span(),
+                    "camera.name",
+                    format!("{shown}: no camera node or camera is named `{n}` (camera nodes in its scene: {known})"),
+                )
+            })?;
+            (node, name.span(), "camera.name")
+        }
+        None => {
+            let node = file.cameras.first().ok_or_else(|| {
+                ctx.err(from.span(), "camera.from", format!("{shown}: its scene has no node with a camera"))
+            })?;
+            (node, from.span(), "camera.from")
+        }
+    };
+    let what = format!("{shown}: {}", label(node));
+    let yfov = match file.projection(node.camera).map_err(|e| ctx.err(span.clone(), key, e.to_string()))? {
+        GltfProjection::Perspective { yfov, .. } => yfov,
+        GltfProjection::Orthographic { .. } => {
+            return Err(ctx.err(
+                span,
+                key,
+                format!("{what}: cameras[{}] is orthographic; Arbor renders perspective cameras only", node.camera),
+            ));
+        }
+    };
+    let w = node.world_from_camera;
+    if !invertible(&w) {
+        return Err(ctx.err(span, key, format!("{what}: its world matrix is singular")));
+    }
+    // glTF cameras look down their node's -Z, with +Y up (3.10.1).
+    let position = w.transform_point3(Vec3::ZERO);
+    let forward = w.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
+    let up = w.transform_vector3(Vec3::Y).normalize_or_zero();
+    // The look-at point at least as far as the camera is from the origin: the view direction
+    // is rebuilt from their difference, which then keeps f32's relative precision.
+    let look_at = position + forward * position.length().max(1.0);
+    let ok = position.is_finite()
+        && look_at.is_finite()
+        && forward != Vec3::ZERO
+        && (look_at - position).length_squared() >= f32::MIN_POSITIVE
+        && forward.cross(up).length_squared() > 1e-12;
+    if !ok {
+        return Err(ctx.err(
+            span,
+            key,
+            format!("{what}: its world matrix gives no usable view (too large or too small a scale)"),
+        ));
+    }
+    let fov = yfov.to_degrees();
+    if !(fov > 0.0 && fov < 180.0) {
+        return Err(ctx.err(span, key, format!("{what}: yfov {yfov} is not in (0, 180) degrees")));
+    }
+    Ok((position, look_at, up, fov))
+}
+
+/// The `[camera]` table's own position, look-at point, up and field of view.
+fn toml_camera(ctx: &Ctx, f: &SceneFile) -> Result<(Vec3, Vec3, Vec3, f32), SceneError> {
+    let c = f.camera.get_ref();
+    if let Some(n) = &c.name {
+        return Err(ctx.err(n.span(), "camera.name", "names a camera of a glTF file: give `from` too"));
+    }
+    let missing = |k: &str| ctx.err(f.camera.span(), "camera", format!("missing field `{k}`"));
+    let position_s = c.position.as_ref().ok_or_else(|| missing("position"))?;
+    let look_at_s = c.look_at.as_ref().ok_or_else(|| missing("look_at"))?;
+    let fov_s = c.fov.as_ref().ok_or_else(|| missing("fov"))?;
+    let position = ctx.vec3(position_s, "camera.position")?;
+    let look_at = ctx.vec3(look_at_s, "camera.look_at")?;
+    let up = match &c.up {
+        Some(up) => ctx.vec3(up, "camera.up")?,
+        None => Vec3::Y,
+    };
+    let view = look_at - position;
+    if view == Vec3::ZERO {
+        return Err(ctx.err(look_at_s.span(), "camera.look_at", "equals camera.position"));
+    }
+    // The camera normalizes the view direction in f32: its squared length must not underflow.
+    if view.length_squared() < f32::MIN_POSITIVE {
+        let distance = view.as_dvec3().length();
+        return Err(ctx.err(
+            look_at_s.span(),
+            "camera.look_at",
+            format!(
+                "is {distance:.2e} from camera.position, too close for f32 (at least {:.1e}): scale the scene up",
+                f32::MIN_POSITIVE.sqrt()
+            ),
+        ));
+    }
+    // The camera normalizes both: their squared lengths must be finite.
+    if !view.length_squared().is_finite() {
+        return Err(ctx.err(
+            look_at_s.span(),
+            "camera.look_at",
+            "is too far from camera.position (the distance overflows)",
+        ));
+    }
+    if let Some(u) = c.up.as_ref().filter(|_| !up.length_squared().is_finite()) {
+        return Err(ctx.err(u.span(), "camera.up", format!("{up} is too long (its length overflows)")));
+    }
+    if view.cross(up).length_squared() <= 1e-12 * view.length_squared() * up.length_squared() {
+        let span = c.up.as_ref().map_or(look_at_s.span(), |u| u.span());
+        return Err(ctx.err(span, "camera.up", "is zero or parallel to the view direction"));
+    }
+    let fov = ctx.number(fov_s, "camera.fov", |x| x > 0.0 && x < 180.0, "in (0, 180) degrees")?;
+    Ok((position, look_at, up, fov))
 }
 
 fn render(ctx: &Ctx, f: &SceneFile) -> Result<RenderSettings, SceneError> {
@@ -436,6 +589,34 @@ struct Built {
     objects: Vec<Object>,
     /// Triangles of the procedural shapes made so far.
     procedural_triangles: u64,
+    gltf_files: GltfFiles,
+    /// Per glTF file (canonical path), the objects it makes: each mesh node's scene mesh and
+    /// world matrix.
+    gltf_parts: HashMap<PathBuf, Vec<(usize, Option<Mat4>)>>,
+    /// The description of every glTF material appended to `materials`.
+    gltf_materials: Vec<SceneGltfMaterial>,
+}
+
+/// The glTF files opened so far, by canonical path: the camera and the objects naming one file
+/// read it once.
+#[derive(Default)]
+struct GltfFiles(HashMap<PathBuf, Rc<GltfFile>>);
+
+impl GltfFiles {
+    fn open(&mut self, path: &Path) -> Result<Rc<GltfFile>, GltfError> {
+        let id = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_owned());
+        if let Some(f) = self.0.get(&id) {
+            return Ok(f.clone());
+        }
+        let file = Rc::new(GltfFile::open(path)?);
+        self.0.insert(id, file.clone());
+        Ok(file)
+    }
+}
+
+/// Whether `mesh` names a glTF file: extension `.gltf` or `.glb`, in any case.
+fn is_gltf(mesh: &str) -> bool {
+    Path::new(mesh).extension().is_some_and(|x| x.eq_ignore_ascii_case("gltf") || x.eq_ignore_ascii_case("glb"))
 }
 
 /// What makes two objects' meshes the same.
@@ -471,10 +652,10 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
         })?),
         None => None,
     };
-    let mesh = match (&f.mesh, &f.shape) {
+    let parts: Vec<(usize, Option<Mat4>)> = match (&f.mesh, &f.shape) {
         (Some(path), None) => {
             if path.get_ref().trim().is_empty() {
-                return Err(ctx.err(path.span(), key("mesh"), "is empty: name an OBJ or PLY file"));
+                return Err(ctx.err(path.span(), key("mesh"), "is empty: name an OBJ, PLY or glTF file"));
             }
             if let Some(s) = &f.subdivisions {
                 return Err(ctx.err(s.span(), key("subdivisions"), "only a built-in sphere takes subdivisions"));
@@ -485,11 +666,15 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
             if let Some(s) = &f.seed {
                 return Err(ctx.err(s.span(), key("seed"), "only a procedural shape takes `seed`"));
             }
-            let known = shared_file_mesh(ctx, &key("mesh"), path, env.base, out)?;
-            if let (None, Some(why)) = (material, &known.needs_material) {
-                return Err(ctx.err(path.span(), key("mesh"), why.clone()));
+            if is_gltf(path.get_ref()) {
+                gltf_parts(ctx, &key("mesh"), path, env.base, out)?
+            } else {
+                let known = shared_file_mesh(ctx, &key("mesh"), path, env.base, out)?;
+                if let (None, Some(why)) = (material, &known.needs_material) {
+                    return Err(ctx.err(path.span(), key("mesh"), why.clone()));
+                }
+                vec![(known.index, None)]
             }
-            known.index
         }
         (None, Some(shape)) => {
             let m = material.ok_or_else(|| ctx.err(o.span(), key("material"), "a built-in shape needs a material"))?;
@@ -514,27 +699,161 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
                 meshes.push(shape_mesh(spec, m));
                 KnownMesh { index: meshes.len() - 1, needs_material: None }
             });
-            known.index
+            vec![(known.index, None)]
         }
         (Some(p), Some(_)) => return Err(ctx.err(p.span(), key("mesh"), "give either `mesh` or `shape`, not both")),
         (None, None) => {
-            return Err(ctx.err(o.span(), key("mesh"), "an object needs `mesh` (an OBJ or PLY file) or `shape`"));
+            return Err(ctx.err(o.span(), key("mesh"), "an object needs `mesh` (an OBJ, PLY or glTF file) or `shape`"));
         }
     };
     let world_from_object = transform(ctx, index, f)?;
-    let animation = match (&f.keyframes, &f.scatter) {
+    // One object per part: a glTF file's mesh nodes, each placed by the object's transform
+    // after its own world matrix; one part, placed by the object alone, otherwise.
+    let mut placed = Vec::with_capacity(parts.len());
+    for (mesh, node) in parts {
+        let world_from_object = node.map_or(world_from_object, |n| world_from_object * n);
+        if !world_from_object.is_finite() {
+            let span = f.mesh.as_ref().map_or(o.span(), |m| m.span());
+            let msg = "a node of the file, placed by the object's transform, overflows: scale the object down";
+            return Err(ctx.err(span, key("mesh"), msg));
+        }
+        placed.push(Object { mesh, world_from_object, material, animation: None });
+    }
+    match (&f.keyframes, &f.scatter) {
         (Some(_), Some(s)) => {
             return Err(ctx.err(s.span(), key("scatter"), "give either `keyframes` or `scatter`, not both"));
         }
-        (Some(k), None) => Some(keyframes(ctx, index, k, env.clock)?),
-        (None, Some(s)) => {
-            let placed = Object { mesh, world_from_object, material, animation: None };
-            return scatter(ctx, index, s, env.clock, &placed, &mut out.objects);
+        (Some(k), None) => {
+            // Applied in world space after each part's placement: the parts move as one.
+            let animation = keyframes(ctx, index, k, env.clock)?;
+            placed.iter_mut().for_each(|o| o.animation = Some(animation.clone()));
         }
-        (None, None) => None,
-    };
-    out.objects.push(Object { mesh, world_from_object, material, animation });
+        (None, Some(s)) => return scatter(ctx, index, s, env.clock, &placed, &mut out.objects),
+        (None, None) => {}
+    }
+    let total = out.objects.len() as u64 + placed.len() as u64;
+    if total > MAX_OBJECTS {
+        let span = f.mesh.as_ref().map_or(o.span(), |m| m.span());
+        let msg = format!("its {} mesh nodes make {total} objects in the scene, more than {MAX_OBJECTS}", placed.len());
+        return Err(ctx.err(span, key("mesh"), msg));
+    }
+    out.objects.extend(placed);
     Ok(())
+}
+
+/// The textures of glTF material `index` that Arbor applies: the base colour texture (sRGB)
+/// and, with `alphaMode` MASK, its alpha as a cut-out at `alphaCutoff` (the factor's alpha folded
+/// into the cutoff). Only `TEXCOORD_0` is kept, so a texture reading another set is left out; the
+/// wrap is the sampler's `wrapS`.
+fn gltf_textures(
+    file: &GltfFile,
+    index: usize,
+    m: &GltfMaterial,
+    cache: &mut TextureCache,
+) -> Result<MaterialTextures, String> {
+    let mut out = MaterialTextures::default();
+    let Some(t) = m.base_color_texture.as_ref().filter(|t| t.tex_coord == 0) else { return Ok(out) };
+    let place = format!("materials[{index}].pbrMetallicRoughness.baseColorTexture");
+    let texture = match file.embedded_image(t) {
+        None => {
+            let GltfImageSource::File { path, .. } = &t.source else { unreachable!("only files are not embedded") };
+            cache.get(path).map_err(|e| format!("{place}: {e}"))?
+        }
+        Some(bytes) => {
+            let key = PathBuf::from(format!("{}#images[{}]", file.path.display(), t.image));
+            cache
+                .get_embedded(key, || bytes.map(|(b, _)| b).map_err(|e| e.to_string()))
+                .map_err(|e| format!("{place}: {e}"))?
+        }
+    };
+    let wrap = match t.sampler.wrap_s {
+        WrapMode::Repeat => Wrap::Repeat,
+        WrapMode::ClampToEdge => Wrap::Clamp,
+        WrapMode::MirroredRepeat => Wrap::Mirror,
+    };
+    out.base_color = Some(TextureRef { texture, wrap, srgb: true });
+    // A texture without an alpha channel has alpha 1 (3.9.2), so only the factor would cut.
+    if m.alpha_mode == AlphaMode::Mask && cache.textures[texture as usize].has_alpha {
+        out.alpha = Some(TextureRef { texture, wrap, srgb: false });
+        out.alpha_cutoff = m.alpha_cutoff / m.base_color_factor.w.max(1e-6);
+    }
+    Ok(out)
+}
+
+/// The objects the glTF file `rel` makes, as (scene mesh, the node's world matrix), the file
+/// read the first time: its materials appended (with the default material where a primitive has
+/// none), and one scene mesh per glTF mesh that a node places, shared by every node placing it.
+fn gltf_parts(
+    ctx: &Ctx,
+    key: &str,
+    rel: &S<String>,
+    base: &Path,
+    out: &mut Built,
+) -> Result<Vec<(usize, Option<Mat4>)>, SceneError> {
+    let path = base.join(rel.get_ref());
+    let id = std::fs::canonicalize(&path).unwrap_or_else(|_| path.clone());
+    if let Some(parts) = out.gltf_parts.get(&id) {
+        return Ok(parts.clone());
+    }
+    let err = |e: GltfError| ctx.err(rel.span(), key, e.to_string());
+    let file = out.gltf_files.open(&path).map_err(err)?;
+    let stem = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
+    let add_material = |out: &mut Built, name: String, m: &GltfMaterial| {
+        let id = out.materials.len() as u32;
+        out.materials.push(m.to_arbor(format!("{stem}/{name}")));
+        out.gltf_materials.push(SceneGltfMaterial { material: id, file: path.clone(), description: m.clone() });
+        id
+    };
+    let first = out.materials.len() as u32;
+    for (i, m) in file.materials.iter().enumerate() {
+        let id = add_material(out, m.name.clone().unwrap_or_else(|| i.to_string()), m);
+        let textures = gltf_textures(&file, i, m, &mut out.textures)
+            .map_err(|e| ctx.err(rel.span(), key, format!("{}: {e}", path.display())))?;
+        out.materials[id as usize].textures = textures;
+    }
+    let mut default = None;
+    let mut scene_mesh: HashMap<usize, Option<usize>> = HashMap::new();
+    let mut parts = Vec::with_capacity(file.instances.len());
+    for inst in &file.instances {
+        let index = match scene_mesh.get(&inst.mesh) {
+            Some(&i) => i,
+            None => {
+                let m = file.mesh(inst.mesh).map_err(err)?;
+                let made = if m.mesh.indices.is_empty() {
+                    None
+                } else {
+                    let mut material_ids = m.material_ids;
+                    for id in &mut material_ids {
+                        *id = if *id == DEFAULT_MATERIAL {
+                            match default {
+                                Some(d) => d,
+                                None => *default.insert(add_material(out, "default".into(), &GltfMaterial::default())),
+                            }
+                        } else {
+                            first + *id
+                        };
+                    }
+                    let source = format!("{}#meshes[{}]", path.display(), inst.mesh);
+                    out.meshes.push(SceneMesh { source, mesh: m.mesh, material_ids });
+                    Some(out.meshes.len() - 1)
+                };
+                scene_mesh.insert(inst.mesh, made);
+                made
+            }
+        };
+        parts.extend(index.map(|i| (i, Some(inst.world_from_object))));
+    }
+    if parts.is_empty() {
+        let msg = format!(
+            "{}: its scene has no triangles (no node places a mesh with triangle primitives; points and lines are not drawn)",
+            path.display()
+        );
+        return Err(ctx.err(rel.span(), key, msg));
+    }
+    // Its buffers are not needed again: objects naming the file again take these parts.
+    out.gltf_files.0.remove(&id);
+    out.gltf_parts.insert(id, parts.clone());
+    Ok(parts)
 }
 
 /// The mesh of the file `rel` names, loaded the first time: a PLY file where its extension is
@@ -655,6 +974,8 @@ fn obj_mesh(
     let obj = read_obj(path, true).map_err(|e| ctx.err(rel.span(), key, e.to_string()))?;
     let mtl_base = materials.len() as u32;
     let stem = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
+    let mut needs_material =
+        obj.mtl_error.as_ref().map(|e| format!("{}: cannot load its MTL materials: {e}", path.display()));
     let mut mtl_texts = None;
     for m in &obj.materials {
         let mut material = from_mtl(&format!("{stem}/{}", m.name), m);
@@ -662,13 +983,15 @@ fn obj_mesh(
             let texts = mtl_texts.get_or_insert_with(|| {
                 obj.mtl_files.iter().map(|f| (f.clone(), std::fs::read(f).unwrap_or_default())).collect::<Vec<_>>()
             });
-            material.textures = mtl_textures(texts, m, textures)
-                .map_err(|e| ctx.err(rel.span(), key, format!("{}: {e}", path.display())))?;
+            // A texture that cannot be used breaks its material as a broken MTL file does: an
+            // error only where an object uses the file's own materials.
+            match mtl_textures(texts, m, textures) {
+                Ok(t) => material.textures = t,
+                Err(e) => drop(needs_material.get_or_insert_with(|| format!("{}: {e}", path.display()))),
+            }
         }
         materials.push(material);
     }
-    let mut needs_material =
-        obj.mtl_error.as_ref().map(|e| format!("{}: cannot load its MTL materials: {e}", path.display()));
     let mut mesh = TriangleMesh::default();
     let mut material_ids = Vec::new();
     // tobj ends with an object of no faces when the file's last object has none.
@@ -850,7 +1173,7 @@ fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError
 /// orthogonal columns), so that a tiny object or a huge one is judged as its shape, not its
 /// size. Below 10^-6 the columns are within rounding of being dependent (f32 keeps 7 digits):
 /// the mesh would be flattened.
-fn invertible(m: &Mat4) -> bool {
+pub(super) fn invertible(m: &Mat4) -> bool {
     let m3 = glam::Mat3::from_mat4(*m);
     let det = f64::from(m3.determinant());
     let bound: f64 = [m3.x_axis, m3.y_axis, m3.z_axis].iter().map(|c| f64::from(c.length())).product();
@@ -973,14 +1296,15 @@ fn keyframes(ctx: &Ctx, index: usize, list: &S<Vec<S<KeyframeFile>>>, clock: boo
     Ok(Animation::Keyframes(keys))
 }
 
-/// An object's `[objects.scatter]`: `count` copies of `placed` at seeded random points of the box
-/// [min, max], each turned by a random angle about y, `round(moving · count)` of them orbiting.
+/// An object's `[objects.scatter]`: `count` copies of `placed` (the object's parts: one, or a glTF
+/// file's mesh nodes, which move as one) at seeded random points of the box [min, max], each
+/// turned by a random angle about y, `round(moving · count)` of them orbiting.
 fn scatter(
     ctx: &Ctx,
     index: usize,
     s: &S<ScatterFile>,
     clock: bool,
-    placed: &Object,
+    placed: &[Object],
     objects: &mut Vec<Object>,
 ) -> Result<(), SceneError> {
     let f = s.get_ref();
@@ -1023,13 +1347,13 @@ fn scatter(
     }
     // Radius 0: nothing moves, so no instance carries an animation.
     let mut left = if radius > 0.0 { (f64::from(moving) * count as f64).round() as u64 } else { 0 };
-    let total = objects.len() as u64 + count;
+    let total = objects.len() as u64 + count * placed.len() as u64;
     if total > MAX_OBJECTS {
         let msg = format!("{count} instances make {total} objects in the scene, more than {MAX_OBJECTS}");
         return Err(ctx.err(count_s.span(), key("count"), msg));
     }
     let mut rng = SplitMix64(seed);
-    objects.reserve(count as usize);
+    objects.reserve((count * placed.len() as u64) as usize);
     for i in 0..count {
         let u = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
         // Clamped: min + (max - min) · u can round one ulp past max.
@@ -1040,17 +1364,20 @@ fn scatter(
         // count moves, and every subset of that size is equally likely.
         let moves = rng.below(count - i) < left;
         left -= u64::from(moves);
-        let world_from_object = Mat4::from_translation(at) * Mat4::from_rotation_y(yaw) * placed.world_from_object;
-        if !world_from_object.is_finite() {
-            let msg = format!("instance {i} at {at}, after the object's own placement, overflows");
-            return Err(ctx.err(min_s.span(), key("min"), msg));
+        let instance = Mat4::from_translation(at) * Mat4::from_rotation_y(yaw);
+        for part in placed {
+            let world_from_object = instance * part.world_from_object;
+            if !world_from_object.is_finite() {
+                let msg = format!("instance {i} at {at}, after the object's own placement, overflows");
+                return Err(ctx.err(min_s.span(), key("min"), msg));
+            }
+            objects.push(Object {
+                mesh: part.mesh,
+                world_from_object,
+                material: part.material,
+                animation: moves.then_some(Animation::Orbit { radius, period, phase }),
+            });
         }
-        objects.push(Object {
-            mesh: placed.mesh,
-            world_from_object,
-            material: placed.material,
-            animation: moves.then_some(Animation::Orbit { radius, period, phase }),
-        });
     }
     Ok(())
 }

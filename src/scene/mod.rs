@@ -1,12 +1,13 @@
 //! Scenes: the TOML scene format (documented in `docs/scene-format.md`) and its loader.
 //!
-//! [`Scene::load`] reads a scene file and the OBJ/MTL and PLY meshes it names, checks every value, and
+//! [`Scene::load`] reads a scene file and the OBJ/MTL, PLY and glTF files it names ([`gltf`]), checks every value, and
 //! returns plain data: a camera, render settings, materials by index, meshes and the objects
 //! placing them, some of them animated ([`Animation`]). Any error names the scene file, the line
 //! and the key at fault ([`SceneError`]); nothing panics on bad input.
 
 mod animation;
 mod file;
+pub mod gltf;
 mod load;
 
 pub use animation::{Animation, AnimationSettings, Keyframe};
@@ -121,11 +122,13 @@ pub struct MaterialTextures {
 }
 
 /// A mesh with one material per triangle (indices into [`Scene::materials`]). Objects naming the
-/// same OBJ or PLY file or the same built-in shape share one; a built-in shape's `material_ids` hold the
-/// first such object's material, and every object using it overrides them.
+/// same OBJ or PLY file or the same built-in shape share one, and the objects a glTF file's nodes
+/// make share one per glTF mesh; a built-in shape's `material_ids` hold the first such object's
+/// material, and every object using it overrides them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneMesh {
-    /// Where it came from: the OBJ or PLY path, or the built-in shape's name.
+    /// Where it came from: the OBJ or PLY path, the glTF path and mesh (`car.glb#meshes[2]`), or
+    /// the built-in shape's name.
     pub source: String,
     pub mesh: TriangleMesh,
     pub material_ids: Vec<u32>,
@@ -170,6 +173,21 @@ pub struct Scene {
     pub objects: Vec<Object>,
     /// The `[animation]` table: the frame clock. Present whenever an object is animated.
     pub animation: Option<AnimationSettings>,
+    /// Every material read from a glTF file, as the file describes it, beside the Arbor
+    /// material standing in for it (textures are not rendered yet). Not part of
+    /// [`Scene::content_hash`] while nothing renders from it.
+    pub gltf_materials: Vec<SceneGltfMaterial>,
+}
+
+/// A glTF material of a scene: the full description ([`gltf::GltfMaterial`]), the file it came
+/// from (texture URIs and buffer views are relative to it), and the Arbor material
+/// approximating it ([`gltf::GltfMaterial::to_arbor`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneGltfMaterial {
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    pub file: PathBuf,
+    pub description: gltf::GltfMaterial,
 }
 
 /// What went wrong loading a scene. Each names the file, and where it can the line and key.

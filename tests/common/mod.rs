@@ -1,8 +1,9 @@
 //! Helpers shared by the integration tests: seeded random geometry and rays, the shared test
-//! meshes, and PLY files ([`ply`]).
+//! meshes, and PLY and glTF files ([`ply`], [`gltf`]).
 #![allow(dead_code)]
 
 pub mod analytic;
+pub mod gltf;
 pub mod ply;
 mod tools;
 

@@ -33,8 +33,8 @@ use std::path::PathBuf;
 #[derive(Parser, Debug)]
 #[command(name = "bvh-bench", version)]
 pub(crate) struct Args {
-    /// Mesh (.obj, or .ply in any case) or scene (.toml) to build over. Optional with --procedural, except for
-    /// `subdivided`.
+    /// Mesh (.obj; .ply, .gltf or .glb in any case) or scene (.toml) to build over. Optional with
+    /// --procedural, except for `subdivided`.
     pub(crate) input: Option<PathBuf>,
     /// Make a mesh instead: hairball:N, city:N, or subdivided:N (the input mesh split until it
     /// has at least N triangles). N may use k/M suffixes (e.g. city:2M).

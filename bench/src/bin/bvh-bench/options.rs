@@ -122,7 +122,7 @@ pub(crate) fn check_mode_options(args: &Args) -> Result<()> {
         bail!("--gpu writes a table and --json only (no --csv or --plot)");
     }
     if let Some(path) = &args.converge {
-        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj") || e.eq_ignore_ascii_case("ply")) {
+        if path.extension().is_some_and(|e| ["obj", "ply", "gltf", "glb"].iter().any(|m| e.eq_ignore_ascii_case(m))) {
             bail!("--converge {}: renders a scene (.toml), not a mesh", path.display());
         }
     }
@@ -164,14 +164,21 @@ pub(crate) fn load_any_input(args: &Args) -> Result<(String, TriangleMesh)> {
             Some((path.file_name().map_or(path.display().to_string(), |n| n.to_string_lossy().into_owned()), mesh))
         }
         Some(path) => {
-            let ply = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("ply"));
-            let mesh = if ply { TriangleMesh::load_ply(path)? } else { TriangleMesh::load_obj(path)? };
+            let is = |x: &str| path.extension().is_some_and(|e| e.eq_ignore_ascii_case(x));
+            let mesh = if is("ply") {
+                TriangleMesh::load_ply(path)?
+            } else if is("gltf") || is("glb") {
+                // Every mesh node's triangles in the file's world space, as a scene naming it places them.
+                arbor::scene::gltf::GltfFile::open(path)?.world_mesh()?
+            } else {
+                TriangleMesh::load_obj(path)?
+            };
             Some((path.file_name().map_or(path.display().to_string(), |n| n.to_string_lossy().into_owned()), mesh))
         }
         None => None,
     };
     let Some(spec) = &args.procedural else {
-        return input.context("give a mesh (.obj or .ply) or --procedural KIND:N");
+        return input.context("give a mesh (.obj, .ply, .gltf or .glb) or --procedural KIND:N");
     };
     let (kind, count) = spec.split_once(':').context("--procedural: expected KIND:N, e.g. city:1M")?;
     let n = parse_count(count).with_context(|| format!("--procedural: bad triangle count `{count}`"))?;
