@@ -5,7 +5,7 @@
 
 use std::f32::consts::TAU;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use super::TriangleMesh;
 
@@ -41,7 +41,8 @@ impl TriangleMesh {
         Self { positions, indices, ..Default::default() }
     }
 
-    /// The built-in quad: the square [-1, 1]² in the xy plane, facing +z.
+    /// The built-in quad: the square [-1, 1]² in the xy plane, facing +z, with texture
+    /// coordinates from (0, 0) at its bottom left to (1, 1) at its top right.
     pub fn quad() -> Self {
         Self {
             positions: vec![
@@ -51,6 +52,8 @@ impl TriangleMesh {
                 Vec3::new(-1.0, 1.0, 0.0),
             ],
             indices: vec![[0, 1, 2], [0, 2, 3]],
+            // The whole texture once over the quad, upright when the quad faces the viewer.
+            uvs: vec![Vec2::new(0.0, 0.0), Vec2::new(1.0, 0.0), Vec2::new(1.0, 1.0), Vec2::new(0.0, 1.0)],
             ..Default::default()
         }
     }
