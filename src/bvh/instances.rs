@@ -12,6 +12,7 @@
 
 use glam::{Affine3A, Vec3};
 
+use super::traverse::Reject;
 use super::dynamic::{DynamicBvh, DynamicConfig, UpdateStats};
 use super::{Bvh, MeshBvh};
 use crate::geometry::{Aabb, Ray};
@@ -177,7 +178,7 @@ impl TwoLevel {
             let inst = &self.instances[i as usize];
             let local = to_object(inst, ray);
             self.meshes[inst.mesh as usize]
-                .closest_hit_filtered(&local, t_limit, &|prim, u, v| reject(i, prim, u, v))
+                .closest_hit_filtered(&local, t_limit, &Reject(|prim, u, v| reject(i, prim, u, v)))
                 .map(|h| (h.t, (h.prim_id, h.u, h.v)))
         })
         .map(|(instance, t, (prim_id, u, v))| InstanceHit { t, instance, prim_id, u, v })
@@ -191,7 +192,7 @@ impl TwoLevel {
             && bvh.any_hit(ray, t_max, |_, i, t_limit| {
                 let inst = &self.instances[i as usize];
                 self.meshes[inst.mesh as usize]
-                    .any_hit_filtered(&to_object(inst, ray), t_limit, &|prim, u, v| reject(i, prim, u, v))
+                    .any_hit_filtered(&to_object(inst, ray), t_limit, &Reject(|prim, u, v| reject(i, prim, u, v)))
             })
     }
 

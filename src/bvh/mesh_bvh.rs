@@ -12,6 +12,7 @@
 use rayon::prelude::*;
 
 use super::simd::{TraceLayout, Tracing};
+use super::traverse::{HitFilter, Skip};
 use super::wide_mesh::WideMesh;
 use super::{Bvh, Hit, INVALID_INDEX, SahCosts};
 use crate::geometry::{Ray, Triangle, WatertightRay};
@@ -130,27 +131,33 @@ impl MeshBvh {
     }
 
     fn binary_closest(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
-        self.binary_closest_filtered(ray, t_max, &|prim, _, _| prim == skip)
+        self.binary_closest_filtered(ray, t_max, &Skip(skip))
     }
 
-    fn binary_closest_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> Option<Hit> {
+    fn binary_closest_filtered<R: HitFilter>(&self, ray: &Ray, t_max: f32, reject: &R) -> Option<Hit> {
         let wr = WatertightRay::new(ray);
         self.bvh
             .closest_hit(ray, t_max, |pos, prim, t_limit| {
+                if !R::USES_UV && reject.reject(prim, 0.0, 0.0) {
+                    return None;
+                }
                 let h = self.triangles[pos as usize].intersect(&wr, t_limit)?;
-                (!reject(prim, h.u, h.v)).then_some((h.t, (h.u, h.v)))
+                (!(R::USES_UV && reject.reject(prim, h.u, h.v))).then_some((h.t, (h.u, h.v)))
             })
             .map(Hit::from_traversal)
     }
 
     fn binary_any(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
-        self.binary_any_filtered(ray, t_max, &|prim, _, _| prim == skip)
+        self.binary_any_filtered(ray, t_max, &Skip(skip))
     }
 
-    fn binary_any_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
+    fn binary_any_filtered<R: HitFilter>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
         let wr = WatertightRay::new(ray);
         self.bvh.any_hit(ray, t_max, |pos, prim, t_limit| {
-            self.triangles[pos as usize].intersect(&wr, t_limit).is_some_and(|h| !reject(prim, h.u, h.v))
+            if !R::USES_UV {
+                return !reject.reject(prim, 0.0, 0.0) && self.triangles[pos as usize].intersect(&wr, t_limit).is_some();
+            }
+            self.triangles[pos as usize].intersect(&wr, t_limit).is_some_and(|h| !reject.reject(prim, h.u, h.v))
         })
     }
 
@@ -174,7 +181,7 @@ impl MeshBvh {
     /// [`MeshBvh::closest_hit`] leaving out every hit `(prim, u, v)` that `reject` refuses: the
     /// skipped triangle, cut-out texels.
     #[inline]
-    pub fn closest_hit_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> Option<Hit> {
+    pub fn closest_hit_filtered<R: HitFilter>(&self, ray: &Ray, t_max: f32, reject: &R) -> Option<Hit> {
         match &self.wide {
             Wide::Eight(w) => w.closest_hit_filtered(ray, t_max, reject),
             Wide::Four(w) => w.closest_hit_filtered(ray, t_max, reject),
@@ -184,7 +191,7 @@ impl MeshBvh {
 
     /// [`MeshBvh::any_hit`] counting only hits `(prim, u, v)` that `reject` does not refuse.
     #[inline]
-    pub fn any_hit_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
+    pub fn any_hit_filtered<R: HitFilter>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
         match &self.wide {
             Wide::Eight(w) => w.any_hit_filtered(ray, t_max, reject),
             Wide::Four(w) => w.any_hit_filtered(ray, t_max, reject),

@@ -23,7 +23,9 @@ pub use mesh_bvh::MeshBvh;
 pub use node::{Bvh, BvhNode, INVALID_INDEX, NodePair, Nodes, PAD_INDEX};
 pub use sah::{CollapseConfig, SahCosts, collapse_leaves, sah_cost, sah_cost_with};
 pub use simd::{SimdPath, TraceLayout, Tracing};
-pub use traverse::{CULL_ABS_ULPS, CULL_SCALE, Hit, brute_force_any, brute_force_closest, hit_point_and_normal};
+pub use traverse::{
+    CULL_ABS_ULPS, CULL_SCALE, Hit, HitFilter, Reject, Skip, brute_force_any, brute_force_closest, hit_point_and_normal,
+};
 pub use validate::{BvhStats, ValidationError, validate};
 
 use std::sync::atomic::AtomicU32;

@@ -66,6 +66,40 @@ pub struct Hit {
     pub v: f32,
 }
 
+/// What a mesh traversal leaves out ([`super::MeshBvh::closest_hit_filtered`]): the primitive a
+/// spawned ray leaves ([`Skip`]), or every hit a predicate refuses ([`Reject`]: cut-out texels).
+pub trait HitFilter {
+    /// Whether [`HitFilter::reject`] reads the barycentrics. Where it does not, a shadow ray's
+    /// test need not compute them, and a skipped primitive is not intersected at all.
+    const USES_UV: bool;
+    /// Whether the hit on primitive `prim` at barycentrics `(u, v)` does not count.
+    fn reject(&self, prim: u32, u: f32, v: f32) -> bool;
+}
+
+/// Leaves out one primitive ([`super::INVALID_INDEX`]: none).
+#[derive(Clone, Copy, Debug)]
+pub struct Skip(pub u32);
+
+impl HitFilter for Skip {
+    const USES_UV: bool = false;
+    #[inline(always)]
+    fn reject(&self, prim: u32, _: f32, _: f32) -> bool {
+        prim == self.0
+    }
+}
+
+/// Leaves out every hit `(prim, u, v)` for which the function holds.
+#[derive(Clone, Copy, Debug)]
+pub struct Reject<F>(pub F);
+
+impl<F: Fn(u32, f32, f32) -> bool> HitFilter for Reject<F> {
+    const USES_UV: bool = true;
+    #[inline(always)]
+    fn reject(&self, prim: u32, u: f32, v: f32) -> bool {
+        (self.0)(prim, u, v)
+    }
+}
+
 /// A traversal stack of `SIZE` entries in place, spilling to the heap only for unusually deep
 /// trees, so that no traversal allocates in the common case. Shared by the binary and the wide
 /// traversal.

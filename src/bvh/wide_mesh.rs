@@ -25,7 +25,7 @@ use rayon::prelude::*;
 use crate::geometry::{Aabb, Ray, Triangle, WatertightRay};
 
 use super::simd::{BoxRay, Kernel, PacketRay, Scalar, SimdPath, TrianglePacket};
-use super::traverse::{Stack, cull_limit, cull_slack};
+use super::traverse::{HitFilter, Skip, Stack, cull_limit, cull_slack};
 use super::wide::{
     Entry, WideNode, WideValidationError, collapse, far_to_near, nodes_bounds, nodes_sah, validate_nodes,
 };
@@ -186,13 +186,13 @@ impl<const N: usize> WideMesh<N> {
     /// ([`INVALID_INDEX`] for none); ties go to the lowest primitive id.
     #[inline]
     pub fn closest_hit(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
-        self.closest_hit_filtered(ray, t_max, &|prim, _, _| prim == skip)
+        self.closest_hit_filtered(ray, t_max, &Skip(skip))
     }
 
     /// [`WideMesh::closest_hit`] leaving out every hit `(prim, u, v)` that `reject` refuses
     /// (the skipped primitive, cut-out texels): the nearest hit it keeps.
     #[inline]
-    pub fn closest_hit_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
+    pub fn closest_hit_filtered<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         match self.simd {
             // SAFETY: `simd` is a path this CPU has (checked in `from_binary`).
             #[cfg(target_arch = "x86_64")]
@@ -211,12 +211,12 @@ impl<const N: usize> WideMesh<N> {
     /// Whether any triangle but `skip` is hit with `0 < t <= t_max`; stops at the first found.
     #[inline]
     pub fn any_hit(&self, ray: &Ray, t_max: f32, skip: u32) -> bool {
-        self.any_hit_filtered(ray, t_max, &|prim, _, _| prim == skip)
+        self.any_hit_filtered(ray, t_max, &Skip(skip))
     }
 
     /// [`WideMesh::any_hit`] counting only hits `(prim, u, v)` that `reject` does not refuse.
     #[inline]
-    pub fn any_hit_filtered<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
+    pub fn any_hit_filtered<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         match self.simd {
             // SAFETY: `simd` is a path this CPU has (checked in `from_binary`).
             #[cfg(target_arch = "x86_64")]
@@ -234,7 +234,7 @@ impl<const N: usize> WideMesh<N> {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn closest_avx2<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
+    unsafe fn closest_avx2<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
         unsafe { self.closest::<super::simd::Avx2, R>(ray, t_max, skip) }
@@ -242,7 +242,7 @@ impl<const N: usize> WideMesh<N> {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "sse4.1")]
-    unsafe fn closest_sse4<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
+    unsafe fn closest_sse4<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
         unsafe { self.closest::<super::simd::Sse4, R>(ray, t_max, skip) }
@@ -250,7 +250,7 @@ impl<const N: usize> WideMesh<N> {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn any_avx2<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
+    unsafe fn any_avx2<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
         unsafe { self.any::<super::simd::Avx2, R>(ray, t_max, skip) }
@@ -258,7 +258,7 @@ impl<const N: usize> WideMesh<N> {
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "sse4.1")]
-    unsafe fn any_sse4<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
+    unsafe fn any_sse4<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
         unsafe { self.any::<super::simd::Sse4, R>(ray, t_max, skip) }
@@ -266,7 +266,7 @@ impl<const N: usize> WideMesh<N> {
 
     #[cfg(target_arch = "aarch64")]
     #[target_feature(enable = "neon")]
-    unsafe fn closest_neon<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
+    unsafe fn closest_neon<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
         unsafe { self.closest::<super::simd::Neon, R>(ray, t_max, skip) }
@@ -274,7 +274,7 @@ impl<const N: usize> WideMesh<N> {
 
     #[cfg(target_arch = "aarch64")]
     #[target_feature(enable = "neon")]
-    unsafe fn any_neon<R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
+    unsafe fn any_neon<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
         unsafe { self.any::<super::simd::Neon, R>(ray, t_max, skip) }
@@ -283,7 +283,7 @@ impl<const N: usize> WideMesh<N> {
     /// # Safety
     /// The CPU has `K`'s instruction set.
     #[inline(always)]
-    unsafe fn closest<K: Kernel, R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
+    unsafe fn closest<K: Kernel, R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         if self.nodes.is_empty() {
             return None;
         }
@@ -315,6 +315,9 @@ impl<const N: usize> WideMesh<N> {
                         let i = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
                         let prim = p.prim[i];
+                        if !R::USES_UV && skip.reject(prim, 0.0, 0.0) {
+                            continue;
+                        }
                         let t_limit = best.map_or(t_max, |b| b.t);
                         let h = if hits.accept & (1 << i) != 0 {
                             // Known hit, at most the limit the kernel was given; a nearer hit
@@ -327,7 +330,7 @@ impl<const N: usize> WideMesh<N> {
                             let Some(h) = p.triangle(i).intersect(&pr.wr, t_limit) else { continue };
                             Hit { t: h.t, prim_id: prim, u: h.u, v: h.v }
                         };
-                        if skip(prim, h.u, h.v) {
+                        if R::USES_UV && skip.reject(prim, h.u, h.v) {
                             continue;
                         }
                         if best.is_none_or(|b| h.t < b.t || (h.t == b.t && prim < b.prim_id)) {
@@ -368,7 +371,7 @@ impl<const N: usize> WideMesh<N> {
     /// # Safety
     /// The CPU has `K`'s instruction set.
     #[inline(always)]
-    unsafe fn any<K: Kernel, R: Fn(u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
+    unsafe fn any<K: Kernel, R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         if self.nodes.is_empty() {
             return false;
         }
@@ -390,13 +393,22 @@ impl<const N: usize> WideMesh<N> {
                     while lanes != 0 {
                         let i = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
+                        if !R::USES_UV {
+                            // The barycentrics unread, the kernel's are left uncomputed.
+                            if !skip.reject(p.prim[i], 0.0, 0.0)
+                                && (hits.accept & (1 << i) != 0 || p.triangle(i).intersect(&pr.wr, t_max).is_some())
+                            {
+                                return true;
+                            }
+                            continue;
+                        }
                         let (u, v) = if hits.accept & (1 << i) != 0 {
                             (hits.u[i], hits.v[i])
                         } else {
                             let Some(h) = p.triangle(i).intersect(&pr.wr, t_max) else { continue };
                             (h.u, h.v)
                         };
-                        if !skip(p.prim[i], u, v) {
+                        if !skip.reject(p.prim[i], u, v) {
                             return true;
                         }
                     }

@@ -21,7 +21,7 @@ use super::material::RenderMaterial;
 use super::texture::{Texture, TextureRef};
 use crate::bvh::dynamic::UpdateStats;
 use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
-use crate::bvh::{INVALID_INDEX, MeshBvh};
+use crate::bvh::{INVALID_INDEX, MeshBvh, Reject};
 use crate::geometry::{Ray, Triangle};
 use crate::scene::Scene;
 
@@ -335,7 +335,7 @@ impl Geometry {
                 None => f.mesh.any_hit_skipping(ray, t_max, skip_prim(from)),
                 Some(c) => {
                     let skip = skip_prim(from);
-                    f.mesh.any_hit_filtered(ray, t_max, &|prim, u, v| prim == skip || f.cut(c, prim, u, v))
+                    f.mesh.any_hit_filtered(ray, t_max, &Reject(|prim, u, v| prim == skip || f.cut(c, prim, u, v)))
                 }
             },
             Geometry::Instanced(g) => match &g.cutouts {
@@ -376,7 +376,7 @@ impl Flat {
             None => self.mesh.closest_hit_skipping(ray, f32::INFINITY, skip),
             Some(c) => self
                 .mesh
-                .closest_hit_filtered(ray, f32::INFINITY, &|prim, u, v| prim == skip || self.cut(c, prim, u, v)),
+                .closest_hit_filtered(ray, f32::INFINITY, &Reject(|prim, u, v| prim == skip || self.cut(c, prim, u, v))),
         }
     }
 

@@ -81,7 +81,7 @@ impl RenderScene {
             if depth == max_depth {
                 break;
             }
-            let Some(bsdf) = material.bsdf_at(&self.textures, hit.uv()) else { break };
+            let Some(bsdf) = material.bsdf_at(&self.textures, || hit.uv()) else { break };
             let dielectric = matches!(bsdf, Bsdf::Dielectric { .. });
             if !dielectric && !front {
                 break; // one-sided reflector seen from the back

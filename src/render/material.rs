@@ -45,12 +45,13 @@ impl RenderMaterial {
         }
     }
 
-    /// The BSDF at a hit with texture coordinates `uv`: the base colour texture applied.
+    /// The BSDF at a hit with texture coordinates `uv()` (computed only for a textured
+    /// material): the base colour texture applied.
     #[inline]
-    pub fn bsdf_at(&self, textures: &[Arc<Texture>], uv: Vec2) -> Option<Bsdf> {
+    pub fn bsdf_at(&self, textures: &[Arc<Texture>], uv: impl FnOnce() -> Vec2) -> Option<Bsdf> {
         let bsdf = self.bsdf?;
         let Some(r) = self.base_color else { return Some(bsdf) };
-        let c = textures[r.texture as usize].sample(uv, r.wrap, r.srgb).truncate();
+        let c = textures[r.texture as usize].sample(uv(), r.wrap, r.srgb).truncate();
         Some(match bsdf {
             Bsdf::Diffuse { albedo } => Bsdf::Diffuse { albedo: albedo * c },
             Bsdf::Conductor { alpha, fresnel: BsdfFresnel::Schlick { f0 } } => {
