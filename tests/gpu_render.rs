@@ -190,6 +190,7 @@ fn specialized_and_general_variants_agree() {
         Features {
             dielectric: false,
             conductor: false,
+            coated: false,
             environment: true,
             lights: false,
             thin_lens: false,
