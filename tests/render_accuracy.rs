@@ -142,6 +142,7 @@ pub(crate) fn coated_furnace(metallic: f32, roughness: f32) -> Scene {
 ///   rest: the mean over that disc is within 5σ + 2e-3 of 1;
 /// - a rough mixture (metallic 0.5, roughness 0.5) loses energy (single scattering) but stays
 ///   above 0.85 on that disc.
+///
 /// The disc means are printed (`--nocapture`).
 #[test]
 fn furnace_coated_sphere_keeps_at_most_its_energy() {

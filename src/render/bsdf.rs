@@ -799,6 +799,7 @@ mod tests {
     ///   match `REFERENCE`, an independent f64 quadrature of `E_spec(wo) + 1 - F(cos θo)` (textbook
     ///   Λ form of GGX and Smith, 1000 × 2000 and 2000 × 4000 cells agreeing to 1e-5), within
     ///   5σ + 5e-4.
+    ///
     /// Measured albedos are printed (`--nocapture`).
     #[test]
     fn coated_white_furnace() {
