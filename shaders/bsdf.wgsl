@@ -476,6 +476,83 @@ fn rough_dielectric_sample(alpha: f32, ior: f32, wo: vec3<f32>, u: vec2<f32>, u_
     return BsdfSample(wi, vec3<f32>(g2_over_g1(alpha, wo, wi) * radiance_scale), pdf, false, true);
 }
 
+// ---- Coated (Bsdf::Coated): one GGX lobe with Schlick F0 = mix(coat F0, base, metallic), and
+// (1 - metallic) base / (1 - F_avg) under the coat's (1 - F(cos o)) (1 - F(cos i)).
+
+struct Coated {
+    // The specular lobe as a Schlick conductor: albedo = its F0, alpha clamped to SMOOTH_ALPHA.
+    specular: GpuMaterial,
+    coat_f0: f32,
+    diffuse: vec3<f32>,
+}
+
+fn schlick(f0: f32, cos_theta: f32) -> f32 {
+    let x = 1.0 - clamp(cos_theta, 0.0, 1.0);
+    let x2 = x * x;
+    return f0 + (1.0 - f0) * (x2 * x2 * x);
+}
+
+fn coated_new(mat: GpuMaterial) -> Coated {
+    let r = (mat.ior - 1.0) / (mat.ior + 1.0);
+    let coat_f0 = r * r;
+    let coat_average = coat_f0 + (1.0 - coat_f0) / 21.0;
+    let metallic = mat.k.x;
+    var specular = mat;
+    specular.kind = MAT_CONDUCTOR;
+    specular.flags = 0u;
+    specular.alpha = max(mat.alpha, SMOOTH_ALPHA);
+    specular.albedo = mix(vec3<f32>(coat_f0), mat.albedo, metallic);
+    return Coated(specular, coat_f0, (1.0 - metallic) * mat.albedo / (1.0 - coat_average));
+}
+
+fn coated_diffuse_eval(c: Coated, wo: vec3<f32>, wi: vec3<f32>) -> vec3<f32> {
+    if !same_side(wo, wi) {
+        return vec3<f32>(0.0);
+    }
+    let through = (1.0 - schlick(c.coat_f0, abs(wo.z))) * (1.0 - schlick(c.coat_f0, abs(wi.z)));
+    return c.diffuse * (through * FRAC_1_PI);
+}
+
+fn coated_specular_probability(c: Coated, wo: vec3<f32>) -> f32 {
+    let fs = conductor_fresnel(c.specular, abs(wo.z));
+    let specular = fs.x + fs.y + fs.z;
+    let diffuse = (c.diffuse.x + c.diffuse.y + c.diffuse.z) * (1.0 - schlick(c.coat_f0, abs(wo.z)));
+    if specular + diffuse > 0.0 {
+        return specular / (specular + diffuse);
+    }
+    return 1.0;
+}
+
+fn coated_eval(c: Coated, wo: vec3<f32>, wi: vec3<f32>) -> vec3<f32> {
+    return conductor_eval(c.specular, wo, wi) + coated_diffuse_eval(c, wo, wi);
+}
+
+fn coated_pdf(c: Coated, wo: vec3<f32>, wi: vec3<f32>) -> f32 {
+    if !same_side(wo, wi) {
+        return 0.0;
+    }
+    let p = coated_specular_probability(c, wo);
+    return p * conductor_pdf(c.specular.alpha, wo, wi) + (1.0 - p) * abs(wi.z) * FRAC_1_PI;
+}
+
+fn coated_sample(c: Coated, wo: vec3<f32>, u: vec2<f32>, u_lobe: f32) -> BsdfSample {
+    var s: BsdfSample;
+    if u_lobe < coated_specular_probability(c, wo) {
+        s = conductor_sample(c.specular, wo, u);
+    } else {
+        s = diffuse_sample(vec3<f32>(1.0), wo, u);
+    }
+    if !s.ok {
+        return no_sample();
+    }
+    let wi = s.wi;
+    let pdf = coated_pdf(c, wo, wi);
+    if pdf <= 0.0 {
+        return no_sample();
+    }
+    return BsdfSample(wi, coated_eval(c, wo, wi) * (abs(wi.z) / pdf), pdf, false, true);
+}
+
 // Bsdf::eval: f(wo, wi) without the cosine.
 fn bsdf_eval(mat: GpuMaterial, wo: vec3<f32>, wi: vec3<f32>) -> vec3<f32> {
     if mat_is_delta(mat) || wo.z == 0.0 || wi.z == 0.0 {
@@ -489,6 +566,9 @@ fn bsdf_eval(mat: GpuMaterial, wo: vec3<f32>, wi: vec3<f32>) -> vec3<f32> {
     }
     if HAS_DIELECTRIC && mat.kind == MAT_DIELECTRIC {
         return vec3<f32>(dielectric_eval(mat.alpha, mat.ior, wo, wi));
+    }
+    if HAS_COATED && mat.kind == MAT_COATED {
+        return coated_eval(coated_new(mat), wo, wi);
     }
     return vec3<f32>(0.0);
 }
@@ -506,6 +586,9 @@ fn bsdf_pdf(mat: GpuMaterial, wo: vec3<f32>, wi: vec3<f32>) -> f32 {
     }
     if HAS_DIELECTRIC && mat.kind == MAT_DIELECTRIC {
         return dielectric_pdf(mat.alpha, mat.ior, wo, wi);
+    }
+    if HAS_COATED && mat.kind == MAT_COATED {
+        return coated_pdf(coated_new(mat), wo, wi);
     }
     return 0.0;
 }
@@ -530,6 +613,9 @@ fn bsdf_sample(mat: GpuMaterial, wo: vec3<f32>, u: vec2<f32>, u_lobe: f32) -> Bs
             return smooth_dielectric_sample(mat.ior, wo, u_lobe);
         }
         return rough_dielectric_sample(mat.alpha, mat.ior, wo, u, u_lobe);
+    }
+    if HAS_COATED && mat.kind == MAT_COATED {
+        return coated_sample(coated_new(mat), wo, u, u_lobe);
     }
     return no_sample();
 }

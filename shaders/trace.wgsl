@@ -874,8 +874,9 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         let front = dot(ng, wo_world) > 0.0;
         var mat = materials[tri.material];
         if HAS_TEXTURES && mat.base_color_tex != INVALID_INDEX {
-            // RenderMaterial::bsdf_at: the albedo or Schlick F0 times the texture.
-            if mat.kind == MAT_DIFFUSE || (mat.kind == MAT_CONDUCTOR && (mat.flags & MAT_COMPLEX_FRESNEL) == 0u) {
+            // RenderMaterial::bsdf_at: the albedo, Schlick F0 or base colour times the texture.
+            if mat.kind == MAT_DIFFUSE || mat.kind == MAT_COATED
+                || (mat.kind == MAT_CONDUCTOR && (mat.flags & MAT_COMPLEX_FRESNEL) == 0u) {
                 mat.albedo *= tex_sample(mat.base_color_tex, triangle_uv(hit.index, hit.u, hit.v)).xyz;
             }
         }

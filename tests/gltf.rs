@@ -13,7 +13,7 @@ use crate::common::gltf::{BYTE, Doc, FLOAT, UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNE
 use std::path::{Path, PathBuf};
 
 use arbor::scene::gltf::{GltfFile, GltfImageSource, WrapMode};
-use arbor::scene::{Animation, ConductorFresnel, Scattering, Scene};
+use arbor::scene::{Animation, Scattering, Scene};
 use glam::{Vec2, Vec3};
 use serde_json::json;
 
@@ -245,17 +245,21 @@ fn materials_map_as_documented_and_keep_their_description() {
     let ids = &scene.meshes[0].material_ids;
     assert_eq!(ids, &[0, 1, 2]);
     let paint = &scene.materials[0];
-    assert_eq!(paint.scattering, Scattering::Diffuse { albedo: Vec3::new(0.2, 0.4, 0.6) });
+    assert_eq!(
+        paint.scattering,
+        Scattering::Coated { base_color: Vec3::new(0.2, 0.4, 0.6), metallic: 0.2, alpha: 1.0, ior: 1.5 },
+        "the coated metallic-roughness material of the factors; roughnessFactor defaults to 1"
+    );
     assert_eq!(paint.emission, Some(Vec3::new(4.0, 2.0, 0.0)), "emissiveFactor × emissiveStrength");
     assert!(paint.two_sided, "doubleSided emits from both sides");
     assert_eq!(
         scene.materials[1].scattering,
-        Scattering::Conductor { roughness: 0.25, fresnel: ConductorFresnel::BaseColor(Vec3::new(0.9, 0.8, 0.3)) },
-        "metallic >= 0.5: a conductor of GGX α = roughness²"
+        Scattering::Coated { base_color: Vec3::new(0.9, 0.8, 0.3), metallic: 0.9, alpha: 0.25, ior: 1.5 },
+        "GGX α = roughnessFactor²"
     );
     assert_eq!(
         scene.materials[2].scattering,
-        Scattering::Conductor { roughness: 1.0, fresnel: ConductorFresnel::BaseColor(Vec3::ONE) },
+        Scattering::Coated { base_color: Vec3::ONE, metallic: 1.0, alpha: 1.0, ior: 1.5 },
         "the spec's default material"
     );
     assert_eq!((scene.materials[1].emission, scene.materials[1].two_sided), (None, false));

@@ -163,6 +163,16 @@ fn gpu_matches_cpu_on_the_showcase() {
     gpu_matches_cpu("showcase", Scene::load(scene_path("showcase.toml")).unwrap(), 64, None);
 }
 
+/// The coated metallic-roughness material in the white furnace: a smooth coat over a white
+/// base, a rough half metal, and a rough metal.
+#[test]
+fn gpu_matches_cpu_on_coated_furnace_spheres() {
+    for (metallic, roughness) in [(0.0, 0.0), (0.5, 0.5), (1.0, 0.3)] {
+        let scene = crate::render_accuracy::coated_furnace(metallic, roughness);
+        gpu_matches_cpu(&format!("coated furnace, metallic {metallic}, roughness {roughness}"), scene, 64, None);
+    }
+}
+
 #[test]
 fn gpu_matches_cpu_on_the_cornell_box() {
     gpu_matches_cpu("cornell-box", Scene::load(scene_path("cornell-box.toml")).unwrap(), 64, None);
@@ -190,6 +200,7 @@ fn specialized_and_general_variants_agree() {
         Features {
             dielectric: false,
             conductor: false,
+            coated: false,
             environment: true,
             lights: false,
             thin_lens: false,

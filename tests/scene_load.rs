@@ -77,11 +77,13 @@ fn mtl_materials_map_as_documented() {
     let dir = temp_dir("mtl");
     std::fs::write(
         dir.join("m.mtl"),
-        "newmtl lamp\nKd 0.5 0.5 0.5\nKe 4 3 2\n\nnewmtl gold\nKd 0 0 0\nKs 1 0.8 0.3\nNs 98\n\nnewmtl glass\nKd 0 0 0\nNi 1.33\nd 0.2\n\nnewmtl paint\nKd 0.2 0.4 0.6\n",
+        "newmtl lamp\nKd 0.5 0.5 0.5\nKe 4 3 2\n\nnewmtl gold\nKd 0 0 0\nKs 1 0.8 0.3\nNs 98\n\nnewmtl glass\nKd 0 0 0\nNi 1.33\nd 0.2\n\nnewmtl paint\nKd 0.2 0.4 0.6\n\n\
+         newmtl plastic\nKd 0.8 0.1 0.1\nKs 0.5 0.5 0.5\nNs 48\n\nnewmtl pbr\nKd 0.9 0.6 0.2\nKs 0.5 0.5 0.5\nNs 48\nPr 0.5\nPm 1\n\n\
+         newmtl rough\nKd 0.3 0.3 0.3\nPr 2\nPm x\n",
     )
     .unwrap();
     let mut obj = String::from("mtllib m.mtl\n");
-    for (k, name) in ["lamp", "gold", "glass", "paint"].iter().enumerate() {
+    for (k, name) in ["lamp", "gold", "glass", "paint", "plastic", "pbr", "rough"].iter().enumerate() {
         let z = k as f32;
         obj += &format!(
             "o {name}\nusemtl {name}\nv 0 0 {z}\nv 1 0 {z}\nv 0 1 {z}\nf {} {} {}\n",
@@ -109,8 +111,23 @@ fn mtl_materials_map_as_documented() {
     }
     assert_eq!(by_triangle[2].scattering, Scattering::Dielectric { ior: 1.33, roughness: 0.0 });
     assert_eq!(by_triangle[3].scattering, Scattering::Diffuse { albedo: Vec3::new(0.2, 0.4, 0.6) });
+    // Kd and Ks: a coated plastic, GGX α = sqrt(2 / (Ns + 2)) = 0.2 as for the conductor.
+    assert_eq!(
+        by_triangle[4].scattering,
+        Scattering::Coated { base_color: Vec3::new(0.8, 0.1, 0.1), metallic: 0.0, alpha: 0.2, ior: 1.5 }
+    );
+    // The PBR extension: Pm the metallic, Pr the perceptual roughness (α = Pr²) over Ns.
+    assert_eq!(
+        by_triangle[5].scattering,
+        Scattering::Coated { base_color: Vec3::new(0.9, 0.6, 0.2), metallic: 1.0, alpha: 0.25, ior: 1.5 }
+    );
+    // Pr out of range is clamped, an unreadable Pm ignored; Pr alone makes it coated.
+    assert_eq!(
+        by_triangle[6].scattering,
+        Scattering::Coated { base_color: Vec3::splat(0.3), metallic: 0.0, alpha: 1.0, ior: 1.5 }
+    );
     let (tris, mats) = scene.world_triangles();
-    assert_eq!((tris.len(), mats.len()), (4, 4));
+    assert_eq!((tris.len(), mats.len()), (7, 7));
 }
 
 /// `BASE` plus an `[animation]` clock of 24 fps.
@@ -432,6 +449,26 @@ fn procedural_shapes_are_seeded_and_shared() {
     assert_ne!(a.meshes[0].mesh.positions, other.meshes[0].mesh.positions, "another seed, another city");
 }
 
+/// The metallic-roughness type: perceptual roughness squared to GGX α, metallic and ior
+/// defaulting to 0 and 1.5.
+#[test]
+fn metallic_roughness_materials_load() {
+    let text = format!(
+        "{BASE}\n[materials.gold]\ntype = \"metallic-roughness\"\nbase_color = [1, 0.8, 0.3]\nmetallic = 1\nroughness = 0.5\n\
+         \n[materials.plastic]\ntype = \"metallic-roughness\"\nbase_color = [0.2, 0.4, 0.6]\nior = 1.4\n"
+    );
+    let scene = Scene::parse(&text, "s.toml").unwrap_or_else(|e| panic!("{e}"));
+    let by_name = |n: &str| &scene.materials.iter().find(|m| m.name == n).unwrap().scattering;
+    assert_eq!(
+        by_name("gold"),
+        &Scattering::Coated { base_color: Vec3::new(1.0, 0.8, 0.3), metallic: 1.0, alpha: 0.25, ior: 1.5 }
+    );
+    assert_eq!(
+        by_name("plastic"),
+        &Scattering::Coated { base_color: Vec3::new(0.2, 0.4, 0.6), metallic: 0.0, alpha: 0.0, ior: 1.4 }
+    );
+}
+
 #[test]
 fn the_documented_animation_example_loads() {
     let doc = std::fs::read_to_string(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/scene-format.md")).unwrap();
@@ -587,6 +624,42 @@ fn bad_scenes() -> Vec<(String, usize, &'static str, &'static str)> {
             14,
             "objects[0].matrix",
             "either",
+        ),
+        (
+            format!("{BASE}\n[materials.m]\ntype = \"metallic-roughness\"\nbase_color = [1, 1, 1]\nmetallic = 1.5\n"),
+            14,
+            "materials.m.metallic",
+            "[0, 1]",
+        ),
+        (
+            format!("{BASE}\n[materials.m]\ntype = \"metallic-roughness\"\nbase_color = [1, 1, 1]\nroughness = -0.1\n"),
+            14,
+            "materials.m.roughness",
+            "[0, 1]",
+        ),
+        (
+            format!("{BASE}\n[materials.m]\ntype = \"metallic-roughness\"\nmetallic = 0.5\n"),
+            11,
+            "materials.m.base_color",
+            "needs",
+        ),
+        (
+            format!("{BASE}\n[materials.m]\ntype = \"metallic-roughness\"\nbase_color = [1, 1, 1]\neta = [1, 1, 1]\n"),
+            14,
+            "materials.m.eta",
+            "not a key of the `metallic-roughness` material type",
+        ),
+        (
+            format!("{BASE}\n[materials.m]\ntype = \"diffuse\"\nalbedo = [1, 1, 1]\nmetallic = 1\n"),
+            14,
+            "materials.m.metallic",
+            "not a key of the `diffuse` material type",
+        ),
+        (
+            format!("{BASE}\n[materials.m]\ntype = \"metallic-roughness\"\nbase_color = [1, 1, 1]\nior = 0\n"),
+            14,
+            "materials.m.ior",
+            "> 0",
         ),
         (format!("{BASE}{obj}[render]\nmax_depth = 0\n"), 15, "render.max_depth", "at least 1"),
         (format!("{BASE}{obj}[environment]\nradiance = [1, 1]\n"), 15, "environment.radiance:", "length 3"),

@@ -947,13 +947,14 @@ fn furnace_coverage(scene: &Scene) -> Vec<i8> {
 /// the blocks and channels); background pixels exactly 1; and per material:
 /// white diffuse, white smooth conductor: every pixel exactly 1 (1e-5); grey diffuse: exactly
 /// its albedo; an emitter (radiance 0.5) reflecting with albedo 1: exactly 1.5; smooth glass
-/// (no absorption): 1 within 3 SE. The rough materials' losses (1 - mean) are printed: GGX
+/// (no absorption) and the smooth coat over a white base (`render::bsdf`'s normalisation of
+/// the coated base): 1 within 3 SE. The rough materials' losses (1 - mean) are printed: GGX
 /// with single scattering loses energy that multiple scattering between microfacets would
 /// return, more as roughness grows.
 #[test]
 fn furnace_every_material() {
     let gold = "eta = [0.143, 0.374, 1.442]\nk = [3.983, 2.385, 1.603]";
-    let cases: [(&str, String, FurnaceExpect); 11] = [
+    let cases: [(&str, String, FurnaceExpect); 13] = [
         ("white diffuse", "type = \"diffuse\"\nalbedo = [1, 1, 1]".into(), FurnaceExpect::Exact(Vec3::ONE)),
         (
             "grey diffuse",
@@ -980,6 +981,16 @@ fn furnace_every_material() {
         ("smooth glass", "type = \"dielectric\"\nior = 1.5".into(), FurnaceExpect::One),
         ("glass α 0.3", "type = \"dielectric\"\nior = 1.5\nroughness = 0.3".into(), FurnaceExpect::AtMostOne),
         ("glass α 1", "type = \"dielectric\"\nior = 1.5\nroughness = 1".into(), FurnaceExpect::AtMostOne),
+        (
+            "coated smooth, white base",
+            "type = \"metallic-roughness\"\nbase_color = [1, 1, 1]".into(),
+            FurnaceExpect::One,
+        ),
+        (
+            "coated metallic 0.5, rough 0.5",
+            "type = \"metallic-roughness\"\nbase_color = [1, 1, 1]\nmetallic = 0.5\nroughness = 0.5".into(),
+            FurnaceExpect::AtMostOne,
+        ),
         (
             "emitter 0.5 with albedo 1",
             "type = \"emissive\"\nradiance = [0.5, 0.5, 0.5]\nalbedo = [1, 1, 1]".into(),

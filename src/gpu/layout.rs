@@ -186,16 +186,17 @@ pub struct GpuTriangle {
 }
 
 /// A material ([`crate::render::bsdf::Bsdf`] plus emission). `albedo` is the diffuse albedo,
-/// the conductor's Schlick F0, or the real part of its complex index; `k` the imaginary part.
+/// the conductor's Schlick F0 or the real part of its complex index, or the coated material's
+/// base colour; `k` the conductor's imaginary part, or the coated material's metallic in `k.x`.
 pub struct GpuMaterial {
     pub albedo: Vec3,
-    /// `MAT_BLACK`, `MAT_DIFFUSE`, `MAT_CONDUCTOR` or `MAT_DIELECTRIC`.
+    /// `MAT_BLACK`, `MAT_DIFFUSE`, `MAT_CONDUCTOR`, `MAT_DIELECTRIC` or `MAT_COATED`.
     pub kind: u32,
     pub k: Vec3,
-    /// GGX α (conductor, dielectric).
+    /// GGX α (conductor, dielectric, coated).
     pub alpha: f32,
     pub emission: Vec3,
-    /// Index below the surface over the one above (dielectric).
+    /// Index below the surface over the one above (dielectric), or of the coat (coated).
     pub ior: f32,
     /// `MAT_EMITS | MAT_TWO_SIDED | MAT_COMPLEX_FRESNEL`.
     pub flags: u32,
@@ -338,6 +339,8 @@ pub const MAT_DIFFUSE: u32 = 1;
 pub const MAT_CONDUCTOR: u32 = 2;
 /// [`GpuMaterial::kind`]: smooth or rough dielectric.
 pub const MAT_DIELECTRIC: u32 = 3;
+/// [`GpuMaterial::kind`]: glTF's metallic-roughness, base colour `albedo`, metallic `k.x`.
+pub const MAT_COATED: u32 = 4;
 /// [`GpuMaterial::flags`]: the material emits `emission`.
 pub const MAT_EMITS: u32 = 1;
 /// [`GpuMaterial::flags`]: it emits from the back face too.
@@ -362,6 +365,7 @@ fn trace_constants() -> String {
          const MAT_DIFFUSE: u32 = {MAT_DIFFUSE}u;\n\
          const MAT_CONDUCTOR: u32 = {MAT_CONDUCTOR}u;\n\
          const MAT_DIELECTRIC: u32 = {MAT_DIELECTRIC}u;\n\
+         const MAT_COATED: u32 = {MAT_COATED}u;\n\
          const MAT_EMITS: u32 = {MAT_EMITS}u;\n\
          const MAT_TWO_SIDED: u32 = {MAT_TWO_SIDED}u;\n\
          const MAT_COMPLEX_FRESNEL: u32 = {MAT_COMPLEX_FRESNEL}u;\n\

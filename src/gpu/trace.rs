@@ -11,7 +11,7 @@
 //! divergence between material kinds on real GPUs.
 //!
 //! **Specialization.** Each scene gets a shader variant: `HAS_DIELECTRIC`, `HAS_CONDUCTOR`,
-//! `HAS_ENVIRONMENT`, `HAS_LIGHTS` and `HAS_THIN_LENS` are generated as `const` bools in front of
+//! `HAS_COATED`, `HAS_ENVIRONMENT`, `HAS_LIGHTS` and `HAS_THIN_LENS` are generated as `const` bools in front of
 //! the source ([`Features`]), and code behind a false one (a material's BSDF, the environment,
 //! next-event estimation and shadow rays, the thin lens) is removed by the compiler. The pipeline
 //! cache key names the variant. `ARBOR_GPU_NO_SPECIALIZE=1` compiles every scene with all
@@ -57,7 +57,7 @@
 //! culling slack of the traversal, the watertight test's f32 path with its conservative `t`, error-bound
 //! ray offsets and shadow rays kept on the line to the light sample, every BSDF (Lambert, GGX
 //! conductors with height-correlated Smith, visible-normal sampling, complex or Schlick
-//! Fresnel, smooth and rough dielectrics), emitters front-only or two-sided, lights chosen by
+//! Fresnel, smooth and rough dielectrics, the coated metallic-roughness mixture), emitters front-only or two-sided, lights chosen by
 //! power through the CDF, next-event estimation with the power heuristic and the `prev_delta`
 //! rule, Russian roulette from `RR_DEPTH`, the firefly clamp, and non-finite samples counted and
 //! dropped.
@@ -70,7 +70,7 @@ use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{
-    BvhNode, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
+    BvhNode, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COATED, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
     MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP, TraceParams,
     with_prelude,
 };
@@ -99,6 +99,8 @@ pub const PASS_SPP: u32 = 4;
 pub struct Features {
     pub dielectric: bool,
     pub conductor: bool,
+    /// The coated (metallic-roughness) material.
+    pub coated: bool,
     pub environment: bool,
     /// Emitters to sample: next-event estimation and shadow rays.
     pub lights: bool,
@@ -116,6 +118,7 @@ impl Features {
     pub const ALL: Features = Features {
         dielectric: true,
         conductor: true,
+        coated: true,
         environment: true,
         lights: true,
         thin_lens: true,
@@ -130,6 +133,7 @@ impl Features {
         Features {
             dielectric: has(|b| matches!(b, Bsdf::Dielectric { .. })),
             conductor: has(|b| matches!(b, Bsdf::Conductor { .. })),
+            coated: has(|b| matches!(b, Bsdf::Coated { .. })),
             environment: scene.environment.is_some(),
             lights: !scene.lights.is_empty(),
             thin_lens: scene.camera.parts().lens_radius != 0.0,
@@ -144,9 +148,10 @@ impl Features {
     pub fn key(&self) -> String {
         let b = |x: bool| u8::from(x);
         format!(
-            "trace[dielectric={} conductor={} environment={} lights={} thin_lens={} shading_normals={} env_map={} textures={}]",
+            "trace[dielectric={} conductor={} coated={} environment={} lights={} thin_lens={} shading_normals={} env_map={} textures={}]",
             b(self.dielectric),
             b(self.conductor),
+            b(self.coated),
             b(self.environment),
             b(self.lights),
             b(self.thin_lens),
@@ -158,7 +163,7 @@ impl Features {
 
     /// Every combination, for tests that validate each variant.
     pub fn every() -> Vec<Features> {
-        (0..256u32)
+        (0..512u32)
             .map(|m| Features {
                 dielectric: m & 1 != 0,
                 conductor: m & 2 != 0,
@@ -168,6 +173,7 @@ impl Features {
                 shading_normals: m & 32 != 0,
                 env_map: m & 64 != 0,
                 textures: m & 128 != 0,
+                coated: m & 256 != 0,
             })
             .collect()
     }
@@ -177,11 +183,13 @@ impl Features {
 /// [`SHADER_FILES`].
 pub fn shader_source(features: Features) -> String {
     let flags = format!(
-        "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_ENVIRONMENT: bool = {};\n\
+        "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_COATED: bool = {};\n\
+         const HAS_ENVIRONMENT: bool = {};\n\
          const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\nconst HAS_SHADING_NORMALS: bool = {};\n\
          const HAS_ENV_MAP: bool = {};\nconst HAS_TEXTURES: bool = {};\n",
         features.dielectric,
         features.conductor,
+        features.coated,
         features.environment,
         features.lights,
         features.thin_lens,
@@ -267,6 +275,13 @@ fn gpu_material(m: &RenderMaterial) -> GpuMaterial {
         }
         Some(Bsdf::Dielectric { alpha, ior }) => {
             g.kind = MAT_DIELECTRIC;
+            g.alpha = alpha;
+            g.ior = ior;
+        }
+        Some(Bsdf::Coated { base_color, metallic, alpha, ior }) => {
+            g.kind = MAT_COATED;
+            g.albedo = base_color;
+            g.k = Vec3::new(metallic, 0.0, 0.0);
             g.alpha = alpha;
             g.ior = ior;
         }

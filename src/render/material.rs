@@ -15,7 +15,8 @@ pub struct RenderMaterial {
     pub bsdf: Option<Bsdf>,
     pub emission: Option<Vec3>,
     pub two_sided: bool,
-    /// Multiplies the diffuse albedo or the conductor's Schlick F0 at the hit.
+    /// Multiplies the diffuse albedo, the conductor's Schlick F0 or the coated material's base
+    /// colour at the hit.
     pub base_color: Option<TextureRef>,
     /// The cut-out mask and its cutoff (the CPU reads them through
     /// [`super::geometry::Cutouts`], the GPU from here).
@@ -35,6 +36,9 @@ impl RenderMaterial {
                 },
             }),
             Scattering::Dielectric { ior, roughness } => Some(Bsdf::Dielectric { alpha: *roughness, ior: *ior }),
+            Scattering::Coated { base_color, metallic, alpha, ior } => {
+                Some(Bsdf::Coated { base_color: *base_color, metallic: *metallic, alpha: *alpha, ior: *ior })
+            }
         };
         Self {
             bsdf,
@@ -56,6 +60,9 @@ impl RenderMaterial {
             Bsdf::Diffuse { albedo } => Bsdf::Diffuse { albedo: albedo * c },
             Bsdf::Conductor { alpha, fresnel: BsdfFresnel::Schlick { f0 } } => {
                 Bsdf::Conductor { alpha, fresnel: BsdfFresnel::Schlick { f0: f0 * c } }
+            }
+            Bsdf::Coated { base_color, metallic, alpha, ior } => {
+                Bsdf::Coated { base_color: base_color * c, metallic, alpha, ior }
             }
             other => other,
         })

@@ -88,6 +88,7 @@ pub(super) struct MaterialFile {
     pub radiance: Option<S<[f32; 3]>>,
     pub two_sided: Option<S<bool>>,
     pub roughness: Option<S<f32>>,
+    pub metallic: Option<S<f32>>,
     #[serde(default, deserialize_with = "exact_opt")]
     pub eta: Option<S<[f32; 3]>>,
     #[serde(default, deserialize_with = "exact_opt")]

@@ -44,9 +44,9 @@
 //!   `doubleSided`, `alphaMode`/`alphaCutoff` and every texture reference (texture, image,
 //!   sampler, texture coordinate set, normal scale, occlusion strength) are kept as plain data
 //!   ([`GltfMaterial`]); factors must be finite and within the spec's ranges. Textures are not
-//!   read or rendered: the scene loader maps each material to an Arbor material by factors
-//!   alone, a temporary approximation documented at [`GltfMaterial::to_arbor`]. The default
-//!   material (3.9.6) is [`GltfMaterial::default`].
+//!   read here: the scene loader maps each material's factors to Arbor's coated
+//!   metallic-roughness material ([`GltfMaterial::to_arbor`]) and attaches its base colour
+//!   texture and MASK cut-out. The default material (3.9.6) is [`GltfMaterial::default`].
 //! - Cameras (3.10): every camera node, with its world matrix; [`GltfFile::projection`] reads a
 //!   camera's projection.
 //!
@@ -74,7 +74,7 @@ use json::accessor::{ComponentType, Type};
 use json::mesh::{Mode, Semantic};
 use json::validation::{Checked, Validate};
 
-use super::{ConductorFresnel, Material, Scattering};
+use super::{Material, Scattering};
 use crate::geometry::TriangleMesh;
 
 /// The material id of a triangle whose primitive names no material: the spec's default
@@ -308,19 +308,20 @@ impl GltfMaterial {
         self.emissive_factor * self.emissive_strength
     }
 
-    /// The Arbor material standing in for this one until textures and a coated
-    /// metallic-roughness model exist, a temporary approximation by the factors alone:
-    /// `metallicFactor >= 0.5` gives a conductor with GGX α = roughnessFactor² and the base
-    /// colour as its reflectance at normal incidence, anything else a diffuse surface of the
-    /// base colour; alpha is ignored. A non-zero emission makes it emit, from both sides where
-    /// the material is `doubleSided`. Textures (and so a texture's colour) are not applied.
+    /// The Arbor material for this one, by its factors: the coated metallic-roughness material
+    /// ([`Scattering::Coated`], the specification's Appendix B model with the departures
+    /// `src/render/bsdf.rs` states) of base colour `baseColorFactor` (RGB; its alpha is
+    /// ignored), `metallicFactor`, GGX α = `roughnessFactor`² and a coat of index 1.5 (the
+    /// specification's F0 = 0.04). A non-zero emission makes it emit, from both sides where the
+    /// material is `doubleSided`. The base colour texture and the MASK cut-out are attached by
+    /// the scene loader; the metallic-roughness, normal, occlusion and emissive textures are
+    /// not applied.
     pub fn to_arbor(&self, name: String) -> Material {
-        let color = self.base_color_factor.truncate();
-        let scattering = if self.metallic_factor >= 0.5 {
-            let roughness = self.roughness_factor * self.roughness_factor;
-            Scattering::Conductor { roughness, fresnel: ConductorFresnel::BaseColor(color) }
-        } else {
-            Scattering::Diffuse { albedo: color }
+        let scattering = Scattering::Coated {
+            base_color: self.base_color_factor.truncate(),
+            metallic: self.metallic_factor,
+            alpha: self.roughness_factor * self.roughness_factor,
+            ior: 1.5,
         };
         let emission = Some(self.emission()).filter(|e| e.max_element() > 0.0);
         let two_sided = emission.is_some() && self.double_sided;
@@ -1398,10 +1399,7 @@ mod tests {
         let m = GltfMaterial::default();
         assert_eq!((m.base_color_factor, m.metallic_factor, m.roughness_factor), (Vec4::ONE, 1.0, 1.0));
         let arbor = m.to_arbor("d".into());
-        assert_eq!(
-            arbor.scattering,
-            Scattering::Conductor { roughness: 1.0, fresnel: ConductorFresnel::BaseColor(Vec3::ONE) }
-        );
+        assert_eq!(arbor.scattering, Scattering::Coated { base_color: Vec3::ONE, metallic: 1.0, alpha: 1.0, ior: 1.5 });
         assert_eq!((arbor.emission, arbor.two_sided), (None, false));
     }
 }

@@ -438,6 +438,7 @@ fn allowed_keys(kind: &str) -> Option<&'static [&'static str]> {
         "emissive" => &["radiance", "two_sided", "albedo", "texture", "alpha_texture"],
         "conductor" => &["roughness", "eta", "k", "base_color", "texture", "alpha_texture"],
         "dielectric" => &["ior", "roughness", "alpha_texture"],
+        "metallic-roughness" => &["base_color", "metallic", "roughness", "ior", "texture", "alpha_texture"],
         _ => return None,
     })
 }
@@ -456,11 +457,12 @@ fn material(
         ctx.err(
             f.kind.span(),
             key("type"),
-            format!("unknown type `{kind}`; known: diffuse, emissive, conductor, dielectric"),
+            format!("unknown type `{kind}`; known: diffuse, emissive, conductor, dielectric, metallic-roughness"),
         )
     })?;
-    let present: [(&str, Option<Range<usize>>); 10] = [
+    let present: [(&str, Option<Range<usize>>); 11] = [
         ("texture", f.texture.as_ref().map(|v| v.span())),
+        ("metallic", f.metallic.as_ref().map(|v| v.span())),
         ("alpha_texture", f.alpha_texture.as_ref().map(|v| v.span())),
         ("albedo", f.albedo.as_ref().map(|v| v.span())),
         ("radiance", f.radiance.as_ref().map(|v| v.span())),
@@ -492,6 +494,10 @@ fn material(
     let roughness = match &f.roughness {
         Some(r) => ctx.number(r, &key("roughness"), |x| (0.0..=1.0).contains(&x), "in [0, 1]")?,
         None => 0.0,
+    };
+    let ior = || match &f.ior {
+        Some(i) => ctx.number(i, &key("ior"), |x| x > 0.0, "an index of refraction > 0"),
+        None => Ok(1.5),
     };
     let mut out = Material {
         name: name.to_owned(),
@@ -558,13 +564,19 @@ fn material(
             };
             out.scattering = Scattering::Conductor { roughness, fresnel };
         }
-        _ => {
-            let ior = match &f.ior {
-                Some(i) => ctx.number(i, &key("ior"), |x| x > 0.0, "an index of refraction > 0")?,
-                None => 1.5,
+        "metallic-roughness" => {
+            let base_color = match (&f.base_color, textured) {
+                (None, true) => Vec3::ONE,
+                _ => ctx.color(required(ctx, &f.base_color, m, key("base_color"))?, &key("base_color"))?,
             };
-            out.scattering = Scattering::Dielectric { ior, roughness };
+            let metallic = match &f.metallic {
+                Some(v) => ctx.number(v, &key("metallic"), |x| (0.0..=1.0).contains(&x), "in [0, 1]")?,
+                None => 0.0,
+            };
+            // `roughness` is perceptual here, as in glTF: GGX α is its square.
+            out.scattering = Scattering::Coated { base_color, metallic, alpha: roughness * roughness, ior: ior()? };
         }
+        _ => out.scattering = Scattering::Dielectric { ior: ior()?, roughness },
     }
     Ok(out)
 }
@@ -1039,14 +1051,23 @@ fn missing_material(path: &Path, obj: &ObjFile, model: &str) -> String {
 }
 
 /// MTL to Arbor, documented in `docs/scene-format.md`: `Ke` makes an emitter (which also
-/// reflects `Kd`); `d < 1` or `illum` 4, 6, 7, 9 a dielectric of index `Ni`; `Ks` without `Kd` a
-/// conductor with base colour `Ks` and GGX α = sqrt(2 / (Ns + 2)); otherwise diffuse `Kd`.
+/// reflects `Kd`); `d < 1` or `illum` 4, 6, 7, 9 a dielectric of index `Ni`; the PBR extension's
+/// `Pr` or `Pm`, or `Kd` and `Ks` both non-zero, the coated metallic-roughness material of base
+/// colour `Kd`, metallic `Pm` (default 0) and GGX α = `Pr`² or else sqrt(2 / (Ns + 2)); `Ks`
+/// without `Kd` a conductor with base colour `Ks` and that α; otherwise diffuse `Kd`.
 fn from_mtl(name: &str, m: &tobj::Material) -> Material {
     let v = |a: Option<[f32; 3]>| a.map(Vec3::from).filter(|c| c.is_finite()).map(|c| c.max(Vec3::ZERO));
     // `map_Kd` multiplies `Kd` (the MTL specification), which defaults to white beside a map.
     let kd_default = if m.diffuse_texture.is_some() { Vec3::ONE } else { Vec3::ZERO };
     let (kd, ks, ke) = (v(m.diffuse).unwrap_or(kd_default), v(m.specular).unwrap_or(Vec3::ZERO), v(m.emissive));
     let roughness = m.shininess.filter(|s| s.is_finite() && *s >= 0.0).map_or(1.0, |ns| (2.0 / (ns + 2.0)).sqrt());
+    // The PBR extension's statements, which tobj keeps as unknown: a number in [0, 1], else
+    // ignored as if absent.
+    let pbr = |key: &str| {
+        let x = m.unknown_param.get(key)?.split_whitespace().next()?.parse::<f32>().ok()?;
+        x.is_finite().then_some(x.clamp(0.0, 1.0))
+    };
+    let (pr, pm) = (pbr("Pr"), pbr("Pm"));
     let glass = m.dissolve.is_some_and(|d| d < 1.0) || matches!(m.illumination_model, Some(4 | 6 | 7 | 9));
     let emission = ke.filter(|e| e.max_element() > 0.0);
     let scattering = if emission.is_some() {
@@ -1054,6 +1075,9 @@ fn from_mtl(name: &str, m: &tobj::Material) -> Material {
     } else if glass {
         let ior = m.optical_density.filter(|n| n.is_finite() && *n > 0.0).unwrap_or(1.5);
         Scattering::Dielectric { ior, roughness: if m.shininess.is_some() { roughness } else { 0.0 } }
+    } else if pr.is_some() || pm.is_some() || (kd.max_element() > 0.0 && ks.max_element() > 0.0) {
+        let alpha = pr.map_or(roughness, |r| r * r);
+        Scattering::Coated { base_color: kd, metallic: pm.unwrap_or(0.0), alpha, ior: 1.5 }
     } else if kd.max_element() == 0.0 && ks.max_element() > 0.0 {
         Scattering::Conductor { roughness, fresnel: ConductorFresnel::BaseColor(ks) }
     } else {

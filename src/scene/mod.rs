@@ -86,6 +86,11 @@ pub enum Scattering {
     Conductor { roughness: f32, fresnel: ConductorFresnel },
     /// Glass-like: `ior` relative to the outside, GGX `roughness` in [0, 1] (0 smooth).
     Dielectric { ior: f32, roughness: f32 },
+    /// glTF 2.0's metallic-roughness model ([`crate::render::bsdf::Bsdf::Coated`]): a metal of
+    /// reflectance `base_color` mixed by `metallic` in [0, 1] with a Lambertian `base_color`
+    /// under a dielectric coat of index `ior`. `alpha` is the GGX α in [0, 1], the square of
+    /// the perceptual roughness that TOML and glTF give.
+    Coated { base_color: Vec3, metallic: f32, alpha: f32, ior: f32 },
 }
 
 /// A conductor's Fresnel term.
@@ -113,7 +118,7 @@ pub struct Material {
 /// coordinates.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct MaterialTextures {
-    /// Multiplies the diffuse albedo, or a conductor's base colour (`map_Kd`).
+    /// Multiplies the diffuse albedo, a conductor's or a coated material's base colour (`map_Kd`).
     pub base_color: Option<TextureRef>,
     /// A cut-out mask (`map_d`): where its coverage is below `alpha_cutoff` the surface is not
     /// there, for every ray.
