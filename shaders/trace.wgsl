@@ -562,10 +562,11 @@ fn triangle_uv(index: u32, u: f32, v: f32) -> vec2<f32> {
 // Cutouts::cut: whether leaf triangle `index` is cut out at (u, v) by its material's mask
 // (the alpha channel where the texture has one, else its first channel).
 fn cut_out(index: u32, u: f32, v: f32) -> bool {
-    let mat = materials[triangles[index].material];
-    if mat.alpha_tex == INVALID_INDEX {
+    let tri = triangles[index];
+    if tri.cutout == 0u {
         return false;
     }
+    let mat = materials[tri.material];
     let t = tex_sample(mat.alpha_tex, triangle_uv(index, u, v));
     let header = 256u + 4u * (mat.alpha_tex & 0xffffffu);
     let coverage = select(t.x, t.w, (textures[header + 3u] & 2u) != 0u);

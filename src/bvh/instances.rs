@@ -12,8 +12,8 @@
 
 use glam::{Affine3A, Vec3};
 
-use super::traverse::Reject;
 use super::dynamic::{DynamicBvh, DynamicConfig, UpdateStats};
+use super::traverse::Reject;
 use super::{Bvh, MeshBvh};
 use crate::geometry::{Aabb, Ray};
 
@@ -191,8 +191,11 @@ impl TwoLevel {
         !bvh.is_empty()
             && bvh.any_hit(ray, t_max, |_, i, t_limit| {
                 let inst = &self.instances[i as usize];
-                self.meshes[inst.mesh as usize]
-                    .any_hit_filtered(&to_object(inst, ray), t_limit, &Reject(|prim, u, v| reject(i, prim, u, v)))
+                self.meshes[inst.mesh as usize].any_hit_filtered(
+                    &to_object(inst, ray),
+                    t_limit,
+                    &Reject(|prim, u, v| reject(i, prim, u, v)),
+                )
             })
     }
 

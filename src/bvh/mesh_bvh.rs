@@ -155,7 +155,8 @@ impl MeshBvh {
         let wr = WatertightRay::new(ray);
         self.bvh.any_hit(ray, t_max, |pos, prim, t_limit| {
             if !R::USES_UV {
-                return !reject.reject(prim, 0.0, 0.0) && self.triangles[pos as usize].intersect(&wr, t_limit).is_some();
+                return !reject.reject(prim, 0.0, 0.0)
+                    && self.triangles[pos as usize].intersect(&wr, t_limit).is_some();
             }
             self.triangles[pos as usize].intersect(&wr, t_limit).is_some_and(|h| !reject.reject(prim, h.u, h.v))
         })

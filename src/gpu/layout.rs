@@ -173,16 +173,17 @@ pub struct PrbvhParams {
     pub pad1: u32,
 }
 
-/// A triangle in leaf order, with what shading needs of its primitive: its material and the
-/// area density with which light sampling picks points on it (0 for a non-light), in the
-/// padding words of its `vec3` vertices.
+/// A triangle in leaf order, with what shading needs of its primitive: its material, the
+/// area density with which light sampling picks points on it (0 for a non-light), and whether
+/// its material has a cut-out mask (1, else 0: the traversal looks up no material for it), in
+/// the padding words of its `vec3` vertices.
 pub struct GpuTriangle {
     pub v0: Vec3,
     pub material: u32,
     pub v1: Vec3,
     pub light_pdf: f32,
     pub v2: Vec3,
-    pub pad: u32,
+    pub cutout: u32,
 }
 
 /// A material ([`crate::render::bsdf::Bsdf`] plus emission). `albedo` is the diffuse albedo,

@@ -357,7 +357,7 @@ impl GpuScene {
                 v1: t.v1,
                 light_pdf: scene.lights.pdf_area(prim),
                 v2: t.v2,
-                pad: 0,
+                cutout: u32::from(scene.materials[flat.material_of[prim as usize] as usize].alpha.is_some()),
             })
             .collect();
         let normals: Vec<f32> = if flat.normals.is_empty() {

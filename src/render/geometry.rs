@@ -374,9 +374,11 @@ impl Flat {
         let skip = skip_prim(from);
         match &self.cutouts {
             None => self.mesh.closest_hit_skipping(ray, f32::INFINITY, skip),
-            Some(c) => self
-                .mesh
-                .closest_hit_filtered(ray, f32::INFINITY, &Reject(|prim, u, v| prim == skip || self.cut(c, prim, u, v))),
+            Some(c) => self.mesh.closest_hit_filtered(
+                ray,
+                f32::INFINITY,
+                &Reject(|prim, u, v| prim == skip || self.cut(c, prim, u, v)),
+            ),
         }
     }
 
