@@ -13,7 +13,7 @@
 use glam::{Affine3A, Vec3};
 
 use super::dynamic::{DynamicBvh, DynamicConfig, UpdateStats};
-use super::traverse::Reject;
+use super::traverse::{HitFilter, Reject, Skip};
 use super::{Bvh, MeshBvh};
 use crate::geometry::{Aabb, Ray};
 
@@ -148,18 +148,17 @@ impl TwoLevel {
     /// [`TwoLevel::closest_hit`] without testing triangle `skip = (instance, triangle)`: the
     /// one a spawned ray leaves ([`MeshBvh::closest_hit_skipping`]).
     pub fn closest_hit_skipping(&self, ray: &Ray, t_max: f32, skip: Option<(u32, u32)>) -> Option<InstanceHit> {
-        let bvh = self.tlas.bvh();
-        if bvh.is_empty() {
-            return None;
-        }
-        bvh.closest_hit(ray, t_max, |_, i, t_limit| {
-            let inst = &self.instances[i as usize];
-            let local = to_object(inst, ray);
-            self.meshes[inst.mesh as usize]
-                .closest_hit_skipping(&local, t_limit, skipped(skip, i))
-                .map(|h| (h.t, (h.prim_id, h.u, h.v)))
-        })
-        .map(|(instance, t, (prim_id, u, v))| InstanceHit { t, instance, prim_id, u, v })
+        self.closest_hit_with(ray, t_max, |i| Skip(skipped(skip, i)))
+    }
+
+    /// Whether anything is hit with `0 < t <= t_max`.
+    pub fn any_hit(&self, ray: &Ray, t_max: f32) -> bool {
+        self.any_hit_skipping(ray, t_max, None)
+    }
+
+    /// [`TwoLevel::any_hit`] without testing triangle `skip = (instance, triangle)`.
+    pub fn any_hit_skipping(&self, ray: &Ray, t_max: f32, skip: Option<(u32, u32)>) -> bool {
+        self.any_hit_with(ray, t_max, |i| Skip(skipped(skip, i)))
     }
 
     /// [`TwoLevel::closest_hit`] leaving out every hit `(instance, prim, u, v)` that `reject`
@@ -170,6 +169,17 @@ impl TwoLevel {
         t_max: f32,
         reject: &R,
     ) -> Option<InstanceHit> {
+        self.closest_hit_with(ray, t_max, |i| Reject(move |prim, u, v| reject(i, prim, u, v)))
+    }
+
+    /// [`TwoLevel::any_hit`] counting only hits `(instance, prim, u, v)` that `reject` does not
+    /// refuse.
+    pub fn any_hit_filtered<R: Fn(u32, u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
+        self.any_hit_with(ray, t_max, |i| Reject(move |prim, u, v| reject(i, prim, u, v)))
+    }
+
+    /// The closest hit, each instance `i` traced with the filter `filter(i)`.
+    fn closest_hit_with<F: HitFilter>(&self, ray: &Ray, t_max: f32, filter: impl Fn(u32) -> F) -> Option<InstanceHit> {
         let bvh = self.tlas.bvh();
         if bvh.is_empty() {
             return None;
@@ -178,39 +188,19 @@ impl TwoLevel {
             let inst = &self.instances[i as usize];
             let local = to_object(inst, ray);
             self.meshes[inst.mesh as usize]
-                .closest_hit_filtered(&local, t_limit, &Reject(|prim, u, v| reject(i, prim, u, v)))
+                .closest_hit_filtered(&local, t_limit, &filter(i))
                 .map(|h| (h.t, (h.prim_id, h.u, h.v)))
         })
         .map(|(instance, t, (prim_id, u, v))| InstanceHit { t, instance, prim_id, u, v })
     }
 
-    /// [`TwoLevel::any_hit`] counting only hits `(instance, prim, u, v)` that `reject` does not
-    /// refuse.
-    pub fn any_hit_filtered<R: Fn(u32, u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
+    /// Whether anything is hit, each instance `i` traced with the filter `filter(i)`.
+    fn any_hit_with<F: HitFilter>(&self, ray: &Ray, t_max: f32, filter: impl Fn(u32) -> F) -> bool {
         let bvh = self.tlas.bvh();
         !bvh.is_empty()
             && bvh.any_hit(ray, t_max, |_, i, t_limit| {
                 let inst = &self.instances[i as usize];
-                self.meshes[inst.mesh as usize].any_hit_filtered(
-                    &to_object(inst, ray),
-                    t_limit,
-                    &Reject(|prim, u, v| reject(i, prim, u, v)),
-                )
-            })
-    }
-
-    /// Whether anything is hit with `0 < t <= t_max`.
-    pub fn any_hit(&self, ray: &Ray, t_max: f32) -> bool {
-        self.any_hit_skipping(ray, t_max, None)
-    }
-
-    /// [`TwoLevel::any_hit`] without testing triangle `skip = (instance, triangle)`.
-    pub fn any_hit_skipping(&self, ray: &Ray, t_max: f32, skip: Option<(u32, u32)>) -> bool {
-        let bvh = self.tlas.bvh();
-        !bvh.is_empty()
-            && bvh.any_hit(ray, t_max, |_, i, t_limit| {
-                let inst = &self.instances[i as usize];
-                self.meshes[inst.mesh as usize].any_hit_skipping(&to_object(inst, ray), t_limit, skipped(skip, i))
+                self.meshes[inst.mesh as usize].any_hit_filtered(&to_object(inst, ray), t_limit, &filter(i))
             })
     }
 }

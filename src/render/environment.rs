@@ -31,6 +31,7 @@ use std::path::{Path, PathBuf};
 use glam::{Mat3, Vec2, Vec3};
 
 use super::lights::luminance;
+use super::texture::{chain, exr_size};
 use crate::image_io::Image;
 
 /// An environment map with its sampling distribution.
@@ -71,16 +72,8 @@ pub struct Distribution {
     pub conditional: Vec<f32>,
 }
 
-/// Why a map cannot be used: each names the file.
-#[derive(Debug, thiserror::Error)]
-pub enum EnvironmentError {
-    #[error("{}: cannot read: {error}", path.display())]
-    Read { path: PathBuf, error: String },
-    #[error("{}: {message}", path.display())]
-    Invalid { path: PathBuf, message: String },
-    #[error(transparent)]
-    Memory(#[from] crate::memory::OutOfMemory),
-}
+/// Why a map cannot be used: each names the file (the error of any image file).
+pub type EnvironmentError = super::texture::TextureError;
 
 /// Bytes a map holds per texel once loaded: its radiance, its density and its row CDF, and the
 /// decoder's own copy while it is read.
@@ -110,7 +103,7 @@ impl EnvironmentMap {
         )?;
         let image = match ext.as_deref() {
             Some("exr") => crate::image_io::read_exr(path)
-                .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: error_chain(&e) })?,
+                .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: chain(&e) })?,
             _ => read_hdr(path)?,
         };
         Self::new(path.to_owned(), image, world_from_map, sampling).map_err(invalid)
@@ -315,29 +308,6 @@ pub fn uv_to_direction(uv: Vec2) -> (Vec3, f32) {
     (Vec3::new(sin_phi * sin_theta, cos_theta, -cos_phi * sin_theta), sin_theta)
 }
 
-fn error_chain(e: &dyn std::error::Error) -> String {
-    let mut s = e.to_string();
-    let mut source = e.source();
-    while let Some(inner) = source {
-        s.push_str(": ");
-        s.push_str(&inner.to_string());
-        source = inner.source();
-    }
-    s
-}
-
-/// An EXR file's size, from its header (its first layer's data window).
-fn exr_size(path: &Path) -> Result<(u32, u32), EnvironmentError> {
-    let meta = exr::meta::MetaData::read_from_file(path, false)
-        .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: error_chain(&e) })?;
-    let header = meta
-        .headers
-        .first()
-        .ok_or_else(|| EnvironmentError::Invalid { path: path.to_owned(), message: "has no image layer".into() })?;
-    let size = header.layer_size;
-    Ok((size.width() as u32, size.height() as u32))
-}
-
 fn open(path: &Path) -> Result<std::io::BufReader<std::fs::File>, EnvironmentError> {
     let file = std::fs::File::open(path)
         .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: e.to_string() })?;
@@ -347,14 +317,14 @@ fn open(path: &Path) -> Result<std::io::BufReader<std::fs::File>, EnvironmentErr
 /// A Radiance HDR file's size, from its header.
 fn hdr_size(path: &Path) -> Result<(u32, u32), EnvironmentError> {
     let decoder = image::codecs::hdr::HdrDecoder::new(open(path)?)
-        .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: error_chain(&e) })?;
+        .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: chain(&e) })?;
     let meta = decoder.metadata();
     Ok((meta.width, meta.height))
 }
 
 /// A Radiance HDR (RGBE) file, row 0 at the top.
 fn read_hdr(path: &Path) -> Result<Image, EnvironmentError> {
-    let err = |e: image::ImageError| EnvironmentError::Read { path: path.to_owned(), error: error_chain(&e) };
+    let err = |e: image::ImageError| EnvironmentError::Read { path: path.to_owned(), error: chain(&e) };
     let decoder = image::codecs::hdr::HdrDecoder::new(open(path)?).map_err(err)?;
     let meta = decoder.metadata();
     let pixels = decoder.read_image_hdr().map_err(err)?;

@@ -60,7 +60,7 @@ pub struct Texture {
     pub has_alpha: bool,
 }
 
-/// Why a texture cannot be used; each names the file.
+/// Why an image file (a texture, an environment map) cannot be used; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum TextureError {
     #[error("{}: cannot read: {error}", path.display())]
@@ -87,9 +87,7 @@ impl Texture {
             return Err(invalid("is not a supported image: give a .png, .jpg, .tga, .bmp, .exr or .hdr file".into()));
         }
         let (width, height) = if ext.as_deref() == Some("exr") {
-            let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| read(chain(&e)))?;
-            let size = meta.headers.first().ok_or_else(|| invalid("has no image layer".into()))?.layer_size;
-            (size.width() as u32, size.height() as u32)
+            exr_size(path)?
         } else {
             reader(path)?.into_dimensions().map_err(|e| read(chain(&e)))?
         };
@@ -187,6 +185,17 @@ impl Texture {
     }
 }
 
+/// An EXR file's size, from its header (its first layer's).
+pub(crate) fn exr_size(path: &Path) -> Result<(u32, u32), TextureError> {
+    let meta = exr::meta::MetaData::read_from_file(path, false)
+        .map_err(|e| TextureError::Read { path: path.to_owned(), error: chain(&e) })?;
+    let header = meta
+        .headers
+        .first()
+        .ok_or_else(|| TextureError::Invalid { path: path.to_owned(), message: "has no image layer".into() })?;
+    Ok((header.layer_size.width() as u32, header.layer_size.height() as u32))
+}
+
 /// Index `i` (an integer-valued f32) wrapped into `0..n`.
 fn wrap_index(i: f32, n: u32, wrap: Wrap) -> u32 {
     let nf = n as f32;
@@ -223,7 +232,8 @@ fn decoder_limits() -> image::io::Limits {
     limits
 }
 
-fn chain(e: &dyn std::error::Error) -> String {
+/// An error and its sources, joined by `: `.
+pub(crate) fn chain(e: &dyn std::error::Error) -> String {
     let mut s = e.to_string();
     let mut source = e.source();
     while let Some(inner) = source {

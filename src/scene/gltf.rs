@@ -608,7 +608,6 @@ impl GltfFile {
         }
         let size = component_size(component);
         let elem = size * N as u64;
-        let count = a.count.0;
         let read = |b: &[u8]| -> f32 {
             match component {
                 ComponentType::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]),
@@ -620,7 +619,46 @@ impl GltfFile {
             }
         };
         let element = |bytes: &[u8]| -> [f32; N] { std::array::from_fn(|c| read(&bytes[c * size as usize..])) };
-        let mut out: Vec<[f32; N]> = match a.buffer_view {
+        self.read_accessor(index, place, elem, [0.0; N], element)
+    }
+
+    /// Accessor `index` read as vertex indices: scalar unsigned integers.
+    fn read_indices(&self, index: usize, place: &str) -> Result<Vec<u32>, GltfError> {
+        let at = || format!("{place}: accessor {index}");
+        let (component, dims) = self.accessor_type(index, place)?;
+        if dims != 1 || !matches!(component, ComponentType::U8 | ComponentType::U16 | ComponentType::U32) {
+            return Err(self.fail(
+                at(),
+                format!(
+                    "is {} of {}; indices are scalars of UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT",
+                    type_name(dims),
+                    component_name(component)
+                ),
+            ));
+        }
+        let size = component_size(component);
+        let element = |b: &[u8]| match component {
+            ComponentType::U8 => u32::from(b[0]),
+            ComponentType::U16 => u32::from(u16::from_le_bytes([b[0], b[1]])),
+            _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        };
+        self.read_accessor(index, place, size, 0, element)
+    }
+
+    /// The elements of accessor `index`, `elem` bytes each, decoded by `element`: from its
+    /// buffer view (zeros without one), then its sparse substitutions.
+    fn read_accessor<T: Clone>(
+        &self,
+        index: usize,
+        place: &str,
+        elem: u64,
+        zero: T,
+        element: impl Fn(&[u8]) -> T,
+    ) -> Result<Vec<T>, GltfError> {
+        let a = &self.root.accessors[index];
+        let at = || format!("{place}: accessor {index}");
+        let count = a.count.0;
+        let mut out: Vec<T> = match a.buffer_view {
             Some(view) => {
                 let stride = self.stride(view.value(), elem, &at)?;
                 let bytes =
@@ -628,11 +666,11 @@ impl GltfFile {
                 // Bounded by the view's length: count <= length / stride + 1.
                 let mut out = Vec::with_capacity(count as usize);
                 if count > 0 {
-                    out.extend(bytes.chunks(stride as usize).take(count as usize).map(element));
+                    out.extend(bytes.chunks(stride as usize).take(count as usize).map(&element));
                 }
                 out
             }
-            None => vec![[0.0; N]; self.unbacked(index, place, count, elem)?],
+            None => vec![zero; self.unbacked(index, place, count, elem)?],
         };
         if let Some(sparse) = &a.sparse {
             let sparse_at = || format!("{place}: accessor {index} sparse");
@@ -647,63 +685,6 @@ impl GltfFile {
             )?;
             for (&t, bytes) in targets.iter().zip(values.chunks(elem as usize)) {
                 out[t as usize] = element(bytes);
-            }
-        }
-        Ok(out)
-    }
-
-    /// Accessor `index` read as vertex indices: scalar unsigned integers.
-    fn read_indices(&self, index: usize, place: &str) -> Result<Vec<u32>, GltfError> {
-        let a = &self.root.accessors[index];
-        let at = || format!("{place}: accessor {index}");
-        let (component, dims) = self.accessor_type(index, place)?;
-        if dims != 1 || !matches!(component, ComponentType::U8 | ComponentType::U16 | ComponentType::U32) {
-            return Err(self.fail(
-                at(),
-                format!(
-                    "is {} of {}; indices are scalars of UNSIGNED_BYTE, UNSIGNED_SHORT or UNSIGNED_INT",
-                    type_name(dims),
-                    component_name(component)
-                ),
-            ));
-        }
-        let size = component_size(component);
-        let count = a.count.0;
-        let mut out = match a.buffer_view {
-            Some(view) => {
-                let stride = self.stride(view.value(), size, &at)?;
-                let bytes =
-                    self.view_bytes(view.value(), a.byte_offset.map_or(0, |o| o.0), count, size, stride, &at)?;
-                let mut out = Vec::with_capacity(count as usize);
-                if count > 0 {
-                    let chunks = bytes.chunks(stride as usize).take(count as usize);
-                    match component {
-                        ComponentType::U8 => out.extend(chunks.map(|b| u32::from(b[0]))),
-                        ComponentType::U16 => out.extend(chunks.map(|b| u32::from(u16::from_le_bytes([b[0], b[1]])))),
-                        _ => out.extend(chunks.map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))),
-                    }
-                }
-                out
-            }
-            None => vec![0; self.unbacked(index, place, count, size)?],
-        };
-        if let Some(sparse) = &a.sparse {
-            let sparse_at = || format!("{place}: accessor {index} sparse");
-            let targets = self.sparse_indices(index, sparse, count, &sparse_at)?;
-            let values = self.view_bytes(
-                sparse.values.buffer_view.value(),
-                sparse.values.byte_offset.0,
-                targets.len() as u64,
-                size,
-                size,
-                &|| format!("{} values", sparse_at()),
-            )?;
-            for (&t, b) in targets.iter().zip(values.chunks(size as usize)) {
-                out[t as usize] = match component {
-                    ComponentType::U8 => u32::from(b[0]),
-                    ComponentType::U16 => u32::from(u16::from_le_bytes([b[0], b[1]])),
-                    _ => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
-                };
             }
         }
         Ok(out)
