@@ -11,9 +11,11 @@
 //! divergence between material kinds on real GPUs.
 //!
 //! **Specialization.** Each scene gets a shader variant: `HAS_DIELECTRIC`, `HAS_CONDUCTOR`,
-//! `HAS_COATED`, `HAS_ENVIRONMENT`, `HAS_LIGHTS` and `HAS_THIN_LENS` are generated as `const` bools in front of
-//! the source ([`Features`]), and code behind a false one (a material's BSDF, the environment,
-//! next-event estimation and shadow rays, the thin lens) is removed by the compiler. The pipeline
+//! `HAS_COATED`, `HAS_ENVIRONMENT`, `HAS_LIGHTS`, `HAS_THIN_LENS`, `HAS_SHADING_NORMALS`,
+//! `HAS_ENV_MAP` and `HAS_TEXTURES` are generated as `const` bools in front of the source
+//! ([`Features`]), and code behind a false one (a material's BSDF, the environment, next-event
+//! estimation and shadow rays, the thin lens, vertex normals, the environment map's sampling,
+//! texture lookups and the traversal's cut-out test) is removed by the compiler. The pipeline
 //! cache key names the variant. `ARBOR_GPU_NO_SPECIALIZE=1` compiles every scene with all
 //! features, for measuring what specialization saves.
 //!
@@ -60,7 +62,9 @@
 //! Fresnel, smooth and rough dielectrics, the coated metallic-roughness mixture), emitters front-only or two-sided, lights chosen by
 //! power through the CDF, next-event estimation with the power heuristic and the `prev_delta`
 //! rule, Russian roulette from `RR_DEPTH`, the firefly clamp, and non-finite samples counted and
-//! dropped.
+//! dropped; shading normals and their two rules; environment maps, sampled from the same CDF
+//! arrays ([`env_map_data`]) and weighted by MIS as on the CPU; textures read from the same
+//! texel words and sRGB table ([`gpu_texture_data`]), and cut-outs tested in both traversals.
 
 use std::ops::Range;
 use std::time::Instant;

@@ -10,6 +10,13 @@
 //! counted twice. What a scene lacks costs nothing: no emitters, no shadow rays; no
 //! environment, no environment lookups.
 //!
+//! **Environment maps.** A map is a light at infinity: next-event estimation picks it with the
+//! probability [`RenderScene::environment_light`] gives (else an area light), draws a direction
+//! from its luminance distribution, and weights it by MIS against the BSDF; a bounce that
+//! escapes is weighted against that light sampling (`RenderScene::escaped`). Each strategy's
+//! density counts the other's selection probability. A constant environment is left to BSDF
+//! sampling.
+//!
 //! **Shading normals.** Where a mesh gives vertex normals, the BSDF is evaluated in the frame of
 //! the interpolated normal `ns` (turned to the side of the geometric normal `ng`, whose winding
 //! decides the front). Two rules keep that from breaking what the geometry says:
