@@ -573,6 +573,36 @@ fn cut_out(index: u32, u: f32, v: f32) -> bool {
     return coverage < mat.alpha_cutoff;
 }
 
+// RenderMaterial::shading_normal's normal map: `n` turned by the tangent-space map in the
+// triangle's frame (directions of increasing u and v, made orthonormal about n), on ng's side;
+// zero where the frame or the result is degenerate.
+fn normal_mapped(index: u32, u: f32, v: f32, tri: GpuTriangle, mat: GpuMaterial, n: vec3<f32>, ng: vec3<f32>) -> vec3<f32> {
+    let b = 6u * index;
+    let uv0 = vec2<f32>(uvs[b], uvs[b + 1u]);
+    let duv1 = vec2<f32>(uvs[b + 2u], uvs[b + 3u]) - uv0;
+    let duv2 = vec2<f32>(uvs[b + 4u], uvs[b + 5u]) - uv0;
+    let det = duv1.x * duv2.y - duv1.y * duv2.x;
+    let zero = vec3<f32>(0.0);
+    if det == 0.0 || !is_finite_f(det) {
+        return zero;
+    }
+    let dp1 = tri.v1 - tri.v0;
+    let dp2 = tri.v2 - tri.v0;
+    let tangent_raw = (dp1 * duv2.y - dp2 * duv1.y) / det;
+    let bitangent = (dp2 * duv1.x - dp1 * duv2.x) / det;
+    let tangent = normalize_or_zero(tangent_raw - n * dot(n, tangent_raw));
+    if all(tangent == zero) {
+        return zero;
+    }
+    var bt = cross(n, tangent);
+    if dot(bt, bitangent) < 0.0 {
+        bt = -bt;
+    }
+    let m = tex_sample(mat.normal_tex, triangle_uv(index, u, v)).xyz * 2.0 - vec3<f32>(1.0);
+    let mapped = normalize_or_zero(tangent * (m.x * mat.normal_scale) + bt * (m.y * mat.normal_scale) + n * m.z);
+    return select(mapped, -mapped, dot(mapped, ng) < 0.0);
+}
+
 // ---- the environment map: src/render/environment.rs ----
 
 // The map's frame from the world's.
@@ -900,12 +930,19 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         let wo_ng = dot(ng, wo_world);
         var n = ng;
         var check = false;
+        var ns = vec3<f32>(0.0);
         if HAS_SHADING_NORMALS {
-            let ns = shading_normal(hit.index, hit.u, hit.v, ng);
-            if any(ns != vec3<f32>(0.0)) && (dot(ns, wo_world) > 0.0) == (wo_ng > 0.0) {
-                n = ns;
-                check = true;
+            ns = shading_normal(hit.index, hit.u, hit.v, ng);
+        }
+        if HAS_TEXTURES && mat.normal_tex != INVALID_INDEX {
+            let mapped = normal_mapped(hit.index, hit.u, hit.v, tri, mat, select(ns, ng, all(ns == vec3<f32>(0.0))), ng);
+            if any(mapped != vec3<f32>(0.0)) {
+                ns = mapped;
             }
+        }
+        if any(ns != vec3<f32>(0.0)) && (dot(ns, wo_world) > 0.0) == (wo_ng > 0.0) {
+            n = ns;
+            check = true;
         }
         let frame = frame_from_normal(n);
         let wo = to_local(frame, wo_world);

@@ -85,7 +85,7 @@ fn sampled(scene: &Scene, sampling: Sampling) -> Scene {
 }
 
 /// Each quadrant's mean and its standard error, per channel.
-fn quadrant_means(film: &Film) -> Vec<([f64; 3], [f64; 3])> {
+pub(crate) fn quadrant_means(film: &Film) -> Vec<([f64; 3], [f64; 3])> {
     let (mean, se) = (film.mean(), film.stderr());
     let (w, h) = (film.width() as usize, film.height() as usize);
     let mut out = Vec::new();
@@ -106,7 +106,7 @@ fn quadrant_means(film: &Film) -> Vec<([f64; 3], [f64; 3])> {
 }
 
 /// Fails unless every quadrant of `a` and `b` agrees within `z` combined standard errors.
-fn assert_agree(what: &str, a: &Film, b: &Film, z: f64) {
+pub(crate) fn assert_agree(what: &str, a: &Film, b: &Film, z: f64) {
     assert_quadrants_agree(what, quadrant_means(a), quadrant_means(b), z);
 }
 

@@ -239,9 +239,18 @@ fn materials_map_as_documented_and_keep_their_description() {
     default["mode"] = json!(4);
     d.json["meshes"][0]["primitives"] = json!([one, metal, default]);
     d.node(json!({ "mesh": 0 }), true);
-    let scene = load(&dir, &[("lamp.glb", &d.glb())], &object("lamp.glb")).unwrap_or_else(|e| panic!("{e}"));
+    // The image the normal texture reads (the base colour texture reads set 1, which is left out).
+    let mut png = Vec::new();
+    image::RgbaImage::from_raw(1, 1, vec![128, 128, 255, 255])
+        .unwrap()
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageOutputFormat::Png)
+        .unwrap();
+    let files: [(&str, &[u8]); 2] = [("lamp.glb", &d.glb()), ("tex a.png", &png)];
+    let scene = load(&dir, &files, &object("lamp.glb")).unwrap_or_else(|e| panic!("{e}"));
     let names: Vec<&str> = scene.materials.iter().map(|m| m.name.as_str()).collect();
     assert_eq!(names, ["lamp/paint", "lamp/1", "lamp/default"]);
+    let t = &scene.materials[0].textures;
+    assert!(t.base_color.is_none() && t.normal.is_some() && t.normal_scale == 0.7, "{t:?}");
     let ids = &scene.meshes[0].material_ids;
     assert_eq!(ids, &[0, 1, 2]);
     let paint = &scene.materials[0];

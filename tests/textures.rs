@@ -287,3 +287,57 @@ fn gltf_base_colour_textures_and_masks() {
         }
     }
 }
+
+/// A normal map turns the shading as vertex normals turned the same way do: a lit floor whose
+/// map (MTL `norm`, one texel tilting the normal 30° toward +x in tangent space) renders as the
+/// same floor with that normal given at its vertices, quadrant by quadrant, and unlike the
+/// floor with neither. On both devices.
+#[test]
+fn a_normal_map_shades_as_the_vertex_normals_it_encodes() {
+    use crate::environment::{assert_agree, quadrant_means};
+    let dir = temp_dir("normal-map");
+    // Tangent-space (sin 30°, 0, cos 30°), as bytes; the vertex normal is decoded from them.
+    let texel = [191u8, 128, 238, 255];
+    write_png(&dir.join("tilt.png"), 1, 1, |_, _| texel);
+    let m = |c: u8| 2.0 * f32::from(c) / 255.0 - 1.0;
+    let n = glam::Vec3::new(m(texel[0]), m(texel[2]), -m(texel[1])).normalize();
+    // A floor in the xz plane facing +y: u runs along +x, v along -z.
+    let scene = |normals: bool, mtl: &str| {
+        let vn = if normals { format!("vn {} {} {}\n", n.x, n.y, n.z) } else { String::new() };
+        let f = if normals { "f 1/1/1 2/2/1 3/3/1 4/4/1" } else { "f 1/1 2/2 3/3 4/4" };
+        let name = format!("floor-{normals}-{mtl}");
+        let obj = format!(
+            "mtllib {mtl}\nv -2 0 2\nv 2 0 2\nv 2 0 -2\nv -2 0 -2\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n{vn}usemtl m\n{f}\n"
+        );
+        std::fs::write(dir.join(format!("{name}.obj")), obj).unwrap();
+        let text = format!(
+            "[camera]\nposition = [0, 4, 0.01]\nlook_at = [0, 0, 0]\nfov = 50\nresolution = [24, 24]\n\
+             [materials.lamp]\ntype = \"emissive\"\nradiance = [30, 30, 30]\n\
+             [[objects]]\nmesh = \"{name}.obj\"\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [3, 1.5, 0]\nrotate = [90, 0, 0]\nscale = 0.3\n"
+        );
+        std::fs::write(dir.join(format!("{name}.toml")), text).unwrap();
+        Scene::load(dir.join(format!("{name}.toml"))).unwrap()
+    };
+    std::fs::write(dir.join("m.mtl"), "newmtl m\nKd 0.8 0.8 0.8\nnorm tilt.png\n").unwrap();
+    std::fs::write(dir.join("n.mtl"), "newmtl m\nKd 0.8 0.8 0.8\n").unwrap();
+    let mapped = scene(false, "m.mtl");
+    assert!(mapped.materials.last().unwrap().textures.normal.is_some());
+    let normals = scene(true, "n.mtl");
+    let flat = scene(false, "n.mtl");
+    for device in devices("a_normal_map_shades_as_the_vertex_normals_it_encodes") {
+        let a = render(device, &mapped, 256, 2);
+        let b = render(device, &normals, 256, 2);
+        assert_agree(&format!("{}: normal map against vertex normals", device.name()), &a, &b, 4.5);
+        // Tilted toward the lamp at +x, the floor is brighter than flat.
+        let (tilted, level) = (quadrant_means(&a), quadrant_means(&render(device, &flat, 256, 2)));
+        let sum = |q: &[([f64; 3], [f64; 3])]| q.iter().map(|(m, _)| m[0]).sum::<f64>();
+        assert!(sum(&tilted) > 1.15 * sum(&level), "{}: {} tilted, {} flat", device.name(), sum(&tilted), sum(&level));
+    }
+    // `bump` and `map_Bump` name the normal map too.
+    for statement in ["bump", "map_Bump"] {
+        std::fs::write(dir.join("m.mtl"), format!("newmtl m\nKd 0.8 0.8 0.8\n{statement} tilt.png\n")).unwrap();
+        let s = scene(false, "m.mtl");
+        assert!(s.materials.last().unwrap().textures.normal.is_some(), "{statement}");
+    }
+}

@@ -207,6 +207,11 @@ pub struct GpuMaterial {
     pub base_color_tex: u32,
     pub alpha_tex: u32,
     pub alpha_cutoff: f32,
+    /// The tangent-space normal map, packed as the textures above, and the scale of its x and y.
+    pub normal_tex: u32,
+    pub normal_scale: f32,
+    pub pad0: u32,
+    pub pad1: u32,
 }
 
 /// An emissive triangle ([`crate::render::lights::Lights`]): `cdf` is the running sum of power
@@ -287,7 +292,7 @@ const _: () = assert!(size_of::<GpuAabb>() == 32);
 const _: () = assert!(size_of::<LbvhParams>() == 32);
 const _: () = assert!(size_of::<PrbvhParams>() == 32);
 const _: () = assert!(size_of::<GpuTriangle>() == 48);
-const _: () = assert!(size_of::<GpuMaterial>() == 64);
+const _: () = assert!(size_of::<GpuMaterial>() == 80);
 const _: () = assert!(size_of::<GpuLight>() == 80);
 const _: () = assert!(size_of::<GpuPixel>() == 96);
 const _: () = assert!(size_of::<TraceParams>() == 176);

@@ -143,8 +143,7 @@ impl Features {
             thin_lens: scene.camera.parts().lens_radius != 0.0,
             shading_normals: matches!(&scene.geometry, Geometry::Flat(f) if !f.normals.is_empty()),
             env_map: scene.environment_light().is_some(),
-            textures: matches!(&scene.geometry, Geometry::Flat(f) if !f.uvs.is_empty())
-                && scene.materials.iter().any(|m| m.base_color.is_some() || m.alpha.is_some()),
+            textures: scene.materials.iter().any(|m| m.base_color.is_some() || m.alpha.is_some() || m.normal.is_some()),
         }
     }
 
@@ -300,6 +299,8 @@ fn gpu_material(m: &RenderMaterial) -> GpuMaterial {
     g.base_color_tex = gpu_texture_ref(m.base_color);
     g.alpha_tex = gpu_texture_ref(m.alpha.map(|(r, _)| r));
     g.alpha_cutoff = m.alpha.map_or(0.0, |(_, c)| c);
+    g.normal_tex = gpu_texture_ref(m.normal.map(|(r, _)| r));
+    g.normal_scale = m.normal.map_or(1.0, |(_, s)| s);
     g
 }
 
@@ -370,8 +371,11 @@ impl GpuScene {
             bvh.prim_ids.iter().flat_map(|&prim| flat.normals[prim as usize].map(|n| n.to_array())).flatten().collect()
         };
         let materials: Vec<GpuMaterial> = scene.materials.iter().map(gpu_material).collect();
-        let (textures, uvs): (Vec<u32>, Vec<f32>) = if flat.uvs.is_empty() || scene.textures.is_empty() {
+        let (textures, uvs): (Vec<u32>, Vec<f32>) = if scene.textures.is_empty() {
             (Vec::new(), Vec::new())
+        } else if flat.uvs.is_empty() {
+            // No mesh has coordinates: every lookup is at (0, 0), as on the CPU.
+            (gpu_texture_data(&scene.textures), vec![0.0; 6 * bvh.prim_ids.len()])
         } else {
             let uvs = bvh.prim_ids.iter().flat_map(|&prim| flat.uvs[prim as usize].map(|t| t.to_array())).flatten();
             (gpu_texture_data(&scene.textures), uvs.collect())

@@ -96,7 +96,9 @@ impl RenderScene {
             // The shading normal where the view sees the same side of it as of the surface
             // (module docs).
             let wo_ng = ng.dot(wo_world);
-            let shading = hit.shading_normal(ng).filter(|ns| (ns.dot(wo_world) > 0.0) == (wo_ng > 0.0));
+            let shading = material
+                .shading_normal(&self.textures, &hit, ng)
+                .filter(|ns| (ns.dot(wo_world) > 0.0) == (wo_ng > 0.0));
             let frame = Frame::from_normal(shading.unwrap_or(ng));
             // Without a shading normal the frame is the geometry's, and every direction agrees.
             let check = shading.map(|_| wo_ng);

@@ -5,6 +5,7 @@ use std::sync::Arc;
 use glam::{Vec2, Vec3};
 
 use super::bsdf::{Bsdf, ConductorFresnel as BsdfFresnel};
+use super::geometry::SurfaceHit;
 use super::texture::{Texture, TextureRef};
 use crate::scene::{ConductorFresnel, Scattering};
 
@@ -21,6 +22,8 @@ pub struct RenderMaterial {
     /// The cut-out mask and its cutoff (the CPU reads them through
     /// [`super::geometry::Cutouts`], the GPU from here).
     pub alpha: Option<(TextureRef, f32)>,
+    /// A tangent-space normal map and the scale of its x and y.
+    pub normal: Option<(TextureRef, f32)>,
 }
 
 impl RenderMaterial {
@@ -46,7 +49,40 @@ impl RenderMaterial {
             two_sided: m.two_sided,
             base_color: m.textures.base_color,
             alpha: m.textures.alpha.map(|r| (r, m.textures.alpha_cutoff)),
+            normal: m.textures.normal.map(|r| (r, m.textures.normal_scale)),
         }
+    }
+
+    /// The shading normal at `hit`: the vertex normals' (or `ng` where there are none), turned
+    /// by the normal map where the material has one, and on `ng`'s side. Its tangent frame is the
+    /// triangle's: the directions of increasing u and v in its plane, made orthonormal about the
+    /// normal (Gram-Schmidt), the bitangent keeping the texture's handedness. `None` where there
+    /// is no shading normal, or the map's is degenerate (a triangle whose texture coordinates
+    /// span no area keeps its unmapped normal).
+    pub fn shading_normal(&self, textures: &[Arc<Texture>], hit: &SurfaceHit, ng: Vec3) -> Option<Vec3> {
+        let vertex = hit.shading_normal(ng);
+        let Some((r, scale)) = self.normal else { return vertex };
+        let n = vertex.unwrap_or(ng);
+        let t = &hit.triangle;
+        let (dp1, dp2) = (t.v1 - t.v0, t.v2 - t.v0);
+        let (duv1, duv2) = (hit.uvs[1] - hit.uvs[0], hit.uvs[2] - hit.uvs[0]);
+        let det = duv1.x * duv2.y - duv1.y * duv2.x;
+        if det == 0.0 || !det.is_finite() {
+            return vertex;
+        }
+        let (tangent, bitangent) = ((dp1 * duv2.y - dp2 * duv1.y) / det, (dp2 * duv1.x - dp1 * duv2.x) / det);
+        let tangent = (tangent - n * n.dot(tangent)).normalize_or_zero();
+        if tangent == Vec3::ZERO {
+            return vertex;
+        }
+        let b = n.cross(tangent);
+        let b = if b.dot(bitangent) < 0.0 { -b } else { b };
+        let m = textures[r.texture as usize].sample(hit.uv(), r.wrap, false).truncate() * 2.0 - Vec3::ONE;
+        let mapped = (tangent * (m.x * scale) + b * (m.y * scale) + n * m.z).normalize_or_zero();
+        if mapped == Vec3::ZERO {
+            return vertex;
+        }
+        Some(if mapped.dot(ng) < 0.0 { -mapped } else { mapped })
     }
 
     /// The BSDF at a hit with texture coordinates `uv()` (computed only for a textured

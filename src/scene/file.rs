@@ -98,6 +98,7 @@ pub(super) struct MaterialFile {
     pub ior: Option<S<f32>>,
     pub texture: Option<S<String>>,
     pub alpha_texture: Option<S<String>>,
+    pub normal_texture: Option<S<String>>,
 }
 
 #[derive(Deserialize)]

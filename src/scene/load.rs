@@ -20,7 +20,7 @@ use glam::{EulerRot, Mat4, Quat, Vec3};
 use super::file::{EnvironmentFile, KeyframeFile, MaterialFile, ObjectFile, S, ScaleFile, ScatterFile, SceneFile};
 use super::gltf::{
     AlphaMode, DEFAULT_MATERIAL, GltfCameraNode, GltfError, GltfFile, GltfImageSource, GltfMaterial, GltfProjection,
-    WrapMode,
+    GltfTexture, WrapMode,
 };
 use super::{
     Animation, AnimationSettings, Camera, ConductorFresnel, Environment, Keyframe, Material, MaterialTextures, Object,
@@ -434,11 +434,13 @@ fn render(ctx: &Ctx, f: &SceneFile) -> Result<RenderSettings, SceneError> {
 /// The keys each material type accepts, besides `type`.
 fn allowed_keys(kind: &str) -> Option<&'static [&'static str]> {
     Some(match kind {
-        "diffuse" => &["albedo", "texture", "alpha_texture"],
-        "emissive" => &["radiance", "two_sided", "albedo", "texture", "alpha_texture"],
-        "conductor" => &["roughness", "eta", "k", "base_color", "texture", "alpha_texture"],
-        "dielectric" => &["ior", "roughness", "alpha_texture"],
-        "metallic-roughness" => &["base_color", "metallic", "roughness", "ior", "texture", "alpha_texture"],
+        "diffuse" => &["albedo", "texture", "alpha_texture", "normal_texture"],
+        "emissive" => &["radiance", "two_sided", "albedo", "texture", "alpha_texture", "normal_texture"],
+        "conductor" => &["roughness", "eta", "k", "base_color", "texture", "alpha_texture", "normal_texture"],
+        "dielectric" => &["ior", "roughness", "alpha_texture", "normal_texture"],
+        "metallic-roughness" => {
+            &["base_color", "metallic", "roughness", "ior", "texture", "alpha_texture", "normal_texture"]
+        }
         _ => return None,
     })
 }
@@ -460,8 +462,9 @@ fn material(
             format!("unknown type `{kind}`; known: diffuse, emissive, conductor, dielectric, metallic-roughness"),
         )
     })?;
-    let present: [(&str, Option<Range<usize>>); 11] = [
+    let present: [(&str, Option<Range<usize>>); 12] = [
         ("texture", f.texture.as_ref().map(|v| v.span())),
+        ("normal_texture", f.normal_texture.as_ref().map(|v| v.span())),
         ("metallic", f.metallic.as_ref().map(|v| v.span())),
         ("alpha_texture", f.alpha_texture.as_ref().map(|v| v.span())),
         ("albedo", f.albedo.as_ref().map(|v| v.span())),
@@ -517,6 +520,8 @@ fn material(
     out.textures.base_color = texture(&f.texture, "texture", true)?;
     out.textures.alpha = texture(&f.alpha_texture, "alpha_texture", false)?;
     out.textures.alpha_cutoff = 0.5;
+    out.textures.normal = texture(&f.normal_texture, "normal_texture", false)?;
+    out.textures.normal_scale = 1.0;
     // A texture alone gives the colour: `albedo` (or `base_color`) then defaults to white.
     let textured = out.textures.base_color.is_some();
     match kind {
@@ -753,40 +758,53 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
     Ok(())
 }
 
-/// The textures of glTF material `index` that Arbor applies: the base colour texture (sRGB)
-/// and, with `alphaMode` MASK, its alpha as a cut-out at `alphaCutoff` (the factor's alpha folded
-/// into the cutoff). Only `TEXCOORD_0` is kept, so a texture reading another set is left out; the
-/// wrap is the sampler's `wrapS`.
+/// The textures of glTF material `index` that Arbor applies: the base colour texture (sRGB),
+/// with `alphaMode` MASK its alpha as a cut-out at `alphaCutoff` (the factor's alpha folded into
+/// the cutoff), and the normal texture with its scale. Only `TEXCOORD_0` is kept, so a texture
+/// reading another set is left out; the wrap is the sampler's `wrapS`.
 fn gltf_textures(
     file: &GltfFile,
     index: usize,
     m: &GltfMaterial,
     cache: &mut TextureCache,
 ) -> Result<MaterialTextures, String> {
-    let mut out = MaterialTextures::default();
-    let Some(t) = m.base_color_texture.as_ref().filter(|t| t.tex_coord == 0) else { return Ok(out) };
-    let place = format!("materials[{index}].pbrMetallicRoughness.baseColorTexture");
-    let texture = match file.embedded_image(t) {
-        None => {
-            let GltfImageSource::File { path, .. } = &t.source else { unreachable!("only files are not embedded") };
-            cache.get(path).map_err(|e| format!("{place}: {e}"))?
+    let mut out = MaterialTextures { normal_scale: 1.0, ..Default::default() };
+    let mut load = |t: &GltfTexture, what: &str, srgb: bool| -> Result<Option<TextureRef>, String> {
+        if t.tex_coord != 0 {
+            return Ok(None);
         }
-        Some(bytes) => {
-            let key = PathBuf::from(format!("{}#images[{}]", file.path.display(), t.image));
-            cache
-                .get_embedded(key, || bytes.map(|(b, _)| b).map_err(|e| e.to_string()))
-                .map_err(|e| format!("{place}: {e}"))?
-        }
+        let place = format!("materials[{index}].{what}");
+        let texture = match file.embedded_image(t) {
+            None => {
+                let GltfImageSource::File { path, .. } = &t.source else { unreachable!("only files are not embedded") };
+                cache.get(path).map_err(|e| format!("{place}: {e}"))?
+            }
+            Some(bytes) => {
+                let key = PathBuf::from(format!("{}#images[{}]", file.path.display(), t.image));
+                cache
+                    .get_embedded(key, || bytes.map(|(b, _)| b).map_err(|e| e.to_string()))
+                    .map_err(|e| format!("{place}: {e}"))?
+            }
+        };
+        let wrap = match t.sampler.wrap_s {
+            WrapMode::Repeat => Wrap::Repeat,
+            WrapMode::ClampToEdge => Wrap::Clamp,
+            WrapMode::MirroredRepeat => Wrap::Mirror,
+        };
+        Ok(Some(TextureRef { texture, wrap, srgb }))
     };
-    let wrap = match t.sampler.wrap_s {
-        WrapMode::Repeat => Wrap::Repeat,
-        WrapMode::ClampToEdge => Wrap::Clamp,
-        WrapMode::MirroredRepeat => Wrap::Mirror,
-    };
-    out.base_color = Some(TextureRef { texture, wrap, srgb: true });
+    if let Some(t) = &m.base_color_texture {
+        out.base_color = load(t, "pbrMetallicRoughness.baseColorTexture", true)?;
+    }
+    if let Some((t, scale)) = &m.normal_texture {
+        out.normal = load(t, "normalTexture", false)?;
+        out.normal_scale = *scale;
+    }
     // A texture without an alpha channel has alpha 1 (3.9.2), so only the factor would cut.
-    if m.alpha_mode == AlphaMode::Mask && cache.textures[texture as usize].has_alpha {
-        out.alpha = Some(TextureRef { texture, wrap, srgb: false });
+    if let Some(r) =
+        out.base_color.filter(|r| m.alpha_mode == AlphaMode::Mask && cache.textures[r.texture as usize].has_alpha)
+    {
+        out.alpha = Some(TextureRef { srgb: false, ..r });
         out.alpha_cutoff = m.alpha_cutoff / m.base_color_factor.w.max(1e-6);
     }
     Ok(out)
@@ -991,7 +1009,11 @@ fn obj_mesh(
     let mut mtl_texts = None;
     for m in &obj.materials {
         let mut material = from_mtl(&format!("{stem}/{}", m.name), m);
-        if m.diffuse_texture.is_some() || m.dissolve_texture.is_some() {
+        if m.diffuse_texture.is_some()
+            || m.dissolve_texture.is_some()
+            || m.normal_texture.is_some()
+            || m.unknown_param.contains_key("norm")
+        {
             let texts = mtl_texts.get_or_insert_with(|| {
                 obj.mtl_files.iter().map(|f| (f.clone(), std::fs::read(f).unwrap_or_default())).collect::<Vec<_>>()
             });
@@ -1094,21 +1116,39 @@ fn mtl_textures(
     m: &tobj::Material,
     cache: &mut TextureCache,
 ) -> Result<MaterialTextures, String> {
-    let mut out = MaterialTextures { alpha_cutoff: 0.5, ..Default::default() };
-    for (statement, value, srgb) in [("map_Kd", &m.diffuse_texture, true), ("map_d", &m.dissolve_texture, false)] {
+    let mut out = MaterialTextures { alpha_cutoff: 0.5, normal_scale: 1.0, ..Default::default() };
+    // tobj reads `bump` and `map_Bump` as the normal texture, and leaves `norm` unread.
+    let (normal_statement, normal) = match (&m.normal_texture, m.unknown_param.get("norm")) {
+        (Some(t), _) => ("bump", Some(t.clone())),
+        (None, n) => ("norm", n.cloned()),
+    };
+    let textures = [
+        ("map_Kd", &m.diffuse_texture, true),
+        ("map_d", &m.dissolve_texture, false),
+        (normal_statement, &normal, false),
+    ];
+    for (statement, value, srgb) in textures {
         let Some(value) = value else { continue };
         // The last MTL file defining the material wins, as in tobj.
         let (mtl, line) = texts
             .iter()
             .rev()
-            .find_map(|(f, text)| mtl_line(text, &m.name, statement).map(|l| (f.as_path(), l)))
+            .find_map(|(f, text)| {
+                let spellings: &[&str] =
+                    if statement == "bump" { &["bump", "map_Bump", "map_bump"] } else { &[statement] };
+                spellings.iter().find_map(|s| mtl_line(text, &m.name, s)).map(|l| (f.as_path(), l))
+            })
             .unwrap_or((texts.first().map_or(Path::new("?"), |(f, _)| f.as_path()), 0));
         let at = format!("{}:{line}: `{statement}`", mtl.display());
         let (file, wrap) = texture_statement(value).ok_or_else(|| format!("{at}: names no file"))?;
         let path = mtl.parent().unwrap_or(Path::new(".")).join(file);
         let texture = cache.get(&path).map_err(|e| format!("{at}: {e}"))?;
         let r = Some(TextureRef { texture, wrap, srgb });
-        if srgb { out.base_color = r } else { out.alpha = r }
+        match statement {
+            "map_Kd" => out.base_color = r,
+            "map_d" => out.alpha = r,
+            _ => out.normal = r,
+        }
     }
     Ok(out)
 }

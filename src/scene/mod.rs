@@ -124,6 +124,11 @@ pub struct MaterialTextures {
     /// there, for every ray.
     pub alpha: Option<TextureRef>,
     pub alpha_cutoff: f32,
+    /// A tangent-space normal map (`norm`, `bump`, glTF's `normalTexture`): red along the
+    /// direction of increasing u, green of increasing v, blue along the surface normal; its x and
+    /// y scaled by `normal_scale`.
+    pub normal: Option<TextureRef>,
+    pub normal_scale: f32,
 }
 
 /// A mesh with one material per triangle (indices into [`Scene::materials`]). Objects naming the
