@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Writes the assets of scenes/textured-sky.toml and scenes/gltf-boxes.toml: an HDR sky, three
-small PNG textures and a glTF file. Everything here is made from scratch; run it from this folder
+"""Writes the assets of scenes/textured-sky.toml and scenes/gltf-boxes.toml: an HDR sky, four
+small PNG textures (one a normal map) and a glTF file. Everything here is made from scratch; run it from this folder
 to remake them (`python3 make_assets.py`). Standard library only."""
 
 import base64
@@ -79,6 +79,16 @@ def lattice(x, y):
 def crate(x, y):
     edge = x < 4 or y < 4 or x >= 28 or y >= 28 or abs(x - y) < 3
     return (120, 75, 35, 255) if edge else (185, 140, 80, 255)
+
+
+def ripples(x, y):
+    """A tangent-space normal map (x, y, z stored as (v + 1) / 2) of shallow rounded tiles."""
+    def slope(t):
+        # The height of a tile across one axis, a smooth bump: its derivative.
+        return 0.6 * math.sin(2 * math.pi * (t % 16) / 16)
+    nx, ny = -slope(x + 0.5), slope(y + 0.5)
+    length = math.sqrt(nx * nx + ny * ny + 1)
+    return tuple(int(round((c / length + 1) / 2 * 255)) for c in (nx, ny, 1.0)) + (255,)
 
 
 def cube():
@@ -168,5 +178,6 @@ if __name__ == "__main__":
     hdr("sky.hdr", 256, 128, sky)
     png("checker.png", 64, 64, checker)
     png("lattice.png", 64, 64, lattice)
+    png("ripples.png", 64, 64, ripples)
     png("crate.png", 32, 32, crate)
     gltf("boxes.gltf")
