@@ -550,6 +550,31 @@ fn tex_sample(tex: u32, uv: vec2<f32>) -> vec4<f32> {
     return top * (1.0 - fy) + bottom * fy;
 }
 
+// Channel (bits 27 and 28 of the packed reference, gpu_texture_channel) of a lookup.
+fn tex_channel(tex: u32, uv: vec2<f32>) -> f32 {
+    return tex_sample(tex, uv)[(tex >> 27u) & 3u];
+}
+
+// RenderMaterial::bsdf_at: the coated material's roughness (α times its square) and metallic
+// textures, then the albedo, Schlick F0 or base colour times the base colour texture.
+fn textured(m: GpuMaterial, uv: vec2<f32>) -> GpuMaterial {
+    var mat = m;
+    if mat.kind == MAT_COATED {
+        if mat.metallic_tex != INVALID_INDEX {
+            mat.k.x *= tex_channel(mat.metallic_tex, uv);
+        }
+        if mat.roughness_tex != INVALID_INDEX {
+            let r = tex_channel(mat.roughness_tex, uv);
+            mat.alpha *= r * r;
+        }
+    }
+    if mat.base_color_tex != INVALID_INDEX && (mat.kind == MAT_DIFFUSE || mat.kind == MAT_COATED
+        || (mat.kind == MAT_CONDUCTOR && (mat.flags & MAT_COMPLEX_FRESNEL) == 0u)) {
+        mat.albedo *= tex_sample(mat.base_color_tex, uv).xyz;
+    }
+    return mat;
+}
+
 // The texture coordinates of leaf triangle `index` at barycentrics (u, v).
 fn triangle_uv(index: u32, u: f32, v: f32) -> vec2<f32> {
     let b = 6u * index;
@@ -831,6 +856,12 @@ fn direct_light(
     let light = lights[choose_light(u_select)];
     let b = uniform_triangle(u);
     let lp = point_with_error(light.v0, light.v1, light.v2, b.y, b.z);
+    var radiance = light.radiance;
+    if HAS_TEXTURES && light.emission_tex != INVALID_INDEX {
+        let uv = b.x * vec2<f32>(light.uvs[0], light.uvs[1]) + b.y * vec2<f32>(light.uvs[2], light.uvs[3])
+            + b.z * vec2<f32>(light.uvs[4], light.uvs[5]);
+        radiance *= tex_sample(light.emission_tex, uv).xyz;
+    }
     let to = lp.p - sp.p;
     let dist = robust_length(to);
     if !(dist > 0.0 && is_finite_f(dist)) {
@@ -863,7 +894,7 @@ fn direct_light(
     }
     let p_light = area_select * solid_angle_pdf(light.pdf_area, to, abs(cos_light));
     let w = power_heuristic(p_light, bsdf_pdf(mat, wo, wi));
-    return vec4<f32>(beta * f * abs(wi.z) * light.radiance * (w / p_light), 1.0);
+    return vec4<f32>(beta * f * abs(wi.z) * radiance * (w / p_light), 1.0);
 }
 
 struct PathResult {
@@ -904,19 +935,20 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         let wo_world = -ray.dir;
         let front = dot(ng, wo_world) > 0.0;
         var mat = materials[tri.material];
-        if HAS_TEXTURES && mat.base_color_tex != INVALID_INDEX {
-            // RenderMaterial::bsdf_at: the albedo, Schlick F0 or base colour times the texture.
-            if mat.kind == MAT_DIFFUSE || mat.kind == MAT_COATED
-                || (mat.kind == MAT_CONDUCTOR && (mat.flags & MAT_COMPLEX_FRESNEL) == 0u) {
-                mat.albedo *= tex_sample(mat.base_color_tex, triangle_uv(hit.index, hit.u, hit.v)).xyz;
-            }
+        // (The references' AND is INVALID_INDEX, all ones, only where each is.)
+        if HAS_TEXTURES && (mat.base_color_tex & mat.roughness_tex & mat.metallic_tex) != INVALID_INDEX {
+            mat = textured(mat, triangle_uv(hit.index, hit.u, hit.v));
         }
         if (mat.flags & MAT_EMITS) != 0u && (front || (mat.flags & MAT_TWO_SIDED) != 0u) {
+            var le = mat.emission;
+            if HAS_TEXTURES && mat.emission_tex != INVALID_INDEX {
+                le *= tex_sample(mat.emission_tex, triangle_uv(hit.index, hit.u, hit.v)).xyz;
+            }
             if prev_delta {
-                l += beta * mat.emission;
+                l += beta * le;
             } else {
                 let p_light = area_select * solid_angle_pdf(tri.light_pdf, sp.p - ray.origin, abs(dot(ng, wo_world)));
-                l += beta * mat.emission * power_heuristic(prev_pdf, p_light);
+                l += beta * le * power_heuristic(prev_pdf, p_light);
             }
         }
         if depth == params.max_depth || mat.kind == MAT_BLACK {

@@ -232,6 +232,7 @@ fn skip_existing_resume_and_report() {
     assert_eq!(json["tile"], "1/2");
     assert_eq!(json["rect"], serde_json::json!([12, 0, 24, 16]));
     assert_eq!(json["samples"], serde_json::json!([0, 4]));
+    assert_eq!(json["texture_bytes"], 0);
     assert_eq!(json["exit_code"], 0);
     assert_eq!(json["frames"][0]["status"], "rendered");
     assert_eq!(json["frames"][0]["samples_done"], serde_json::json!([0, 4]));

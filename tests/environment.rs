@@ -110,7 +110,7 @@ pub(crate) fn assert_agree(what: &str, a: &Film, b: &Film, z: f64) {
     assert_quadrants_agree(what, quadrant_means(a), quadrant_means(b), z);
 }
 
-fn assert_quadrants_agree(what: &str, a: Vec<([f64; 3], [f64; 3])>, b: Vec<([f64; 3], [f64; 3])>, z: f64) {
+pub(crate) fn assert_quadrants_agree(what: &str, a: Vec<([f64; 3], [f64; 3])>, b: Vec<([f64; 3], [f64; 3])>, z: f64) {
     for (q, ((ma, sa), (mb, sb))) in a.into_iter().zip(b).enumerate() {
         for c in 0..3 {
             let score = (ma[c] - mb[c]) / sa[c].hypot(sb[c]).max(1e-12);

@@ -3,7 +3,7 @@
 //! triangles, identically from a `.gltf` with a data URI, a `.gltf` with a `.bin` file and a
 //! `.glb`; normals and texture coordinates (v flipped) come through; strips, fans and every
 //! index type give the documented triangles; interleaved, normalized, sparse and unbacked
-//! accessors are read, unknown attributes ignored; materials map as documented and keep their
+//! accessors are read, unknown attributes ignored; materials map as documented, the reader keeping their
 //! full description; a camera comes from the file; scatter and keyframes move a file's nodes as
 //! one; and every kind of bad file is an error that names the scene file, line and key, the glTF
 //! file, and the place in it.
@@ -212,7 +212,7 @@ fn interleaved_normalized_and_sparse_accessors_are_read() {
 }
 
 #[test]
-fn materials_map_as_documented_and_keep_their_description() {
+fn materials_map_as_documented_and_the_reader_keeps_their_description() {
     let dir = temp_dir("materials");
     let mut d = triangle_doc();
     let p = d.json["meshes"][0]["primitives"][0]["attributes"]["POSITION"].clone();
@@ -272,11 +272,11 @@ fn materials_map_as_documented_and_keep_their_description() {
         "the spec's default material"
     );
     assert_eq!((scene.materials[1].emission, scene.materials[1].two_sided), (None, false));
-    // The full description is kept for textures to come.
-    assert_eq!(scene.gltf_materials.len(), 3);
-    let g = &scene.gltf_materials[0];
-    assert_eq!((g.material, g.file.file_name().unwrap().to_str()), (0, Some("lamp.glb")));
-    let base = g.description.base_color_texture.as_ref().unwrap();
+    // The reader keeps each material's full description.
+    let file = GltfFile::open(dir.join("lamp.glb")).unwrap();
+    assert_eq!(file.materials.len(), 2);
+    let g = &file.materials[0];
+    let base = g.base_color_texture.as_ref().unwrap();
     assert_eq!(
         (base.tex_coord, base.sampler.wrap_s, base.sampler.wrap_t),
         (1, WrapMode::ClampToEdge, WrapMode::MirroredRepeat)
@@ -285,9 +285,9 @@ fn materials_map_as_documented_and_keep_their_description() {
         GltfImageSource::File { path, .. } => assert_eq!(path, &dir.join("tex a.png")),
         other => panic!("{other:?}"),
     }
-    let (normal, scale) = g.description.normal_texture.as_ref().unwrap();
+    let (normal, scale) = g.normal_texture.as_ref().unwrap();
     assert_eq!((normal.texture, *scale), (0, 0.7));
-    assert_eq!((g.description.alpha_mode, g.description.alpha_cutoff), (arbor::scene::gltf::AlphaMode::Mask, 0.3));
+    assert_eq!((g.alpha_mode, g.alpha_cutoff), (arbor::scene::gltf::AlphaMode::Mask, 0.3));
     // An object's own material overrides the file's, as for OBJ.
     let with = format!(
         "{CAMERA}\n[materials.w]\ntype = \"diffuse\"\nalbedo = [1, 1, 1]\n\n[[objects]]\nmesh = \"lamp.glb\"\nmaterial = \"w\"\n"

@@ -63,6 +63,7 @@ fn a_base_colour_texture_is_seen_where_it_is() {
         std::fs::write(dir.join("m.mtl"), format!("newmtl m\n{mtl}map_Kd -clamp on colours.png\n")).unwrap();
         let scene = Scene::load(dir.join("scene.toml")).unwrap();
         assert_eq!(scene.textures.len(), 1);
+        assert_eq!(scene.texture_bytes(), 4 * 4 * 4, "one 4x4 texture of 8-bit RGBA");
         for device in devices("a_base_colour_texture_is_seen_where_it_is") {
             let mean = render(device, &scene, 16, 2).mean();
             let mut on_quad = 0;
@@ -189,6 +190,9 @@ fn bad_textures_name_where_they_are_used() {
         ("newmtl m\nmap_Kd text.png\n", &["m.mtl:2: `map_Kd`", "text.png"]),
         ("newmtl m\nmap_Kd t.gif\n", &["m.mtl:2: `map_Kd`", "t.gif", "not a supported image"]),
         ("newmtl m\nmap_Kd -bm 1 -o 0 0\n", &["m.mtl:2: `map_Kd`", "names no file"]),
+        ("newmtl m\nKe 1 1 1\nmap_Ke missing.png\n", &["m.mtl:3: `map_Ke`", "missing.png"]),
+        ("newmtl m\nPr 0.5\nmap_Pr text.png\n", &["m.mtl:3: `map_Pr`", "text.png"]),
+        ("newmtl m\nmap_Pm cut.png\n", &["m.mtl:2: `map_Pm`", "cut.png"]),
     ];
     let scene_path = dir.join("scene.toml").display().to_string();
     for (mtl, words) in cases {
@@ -217,6 +221,27 @@ fn bad_textures_name_where_they_are_used() {
     assert!(e.starts_with(&format!("{scene_path}:8: materials.m.texture: ")) && e.contains("missing.png"), "{e}");
     let e = load_err(&dir, &toml_material(""));
     assert!(e.contains("materials.m.texture: is empty"), "{e}");
+    // The emission, roughness and metallic textures, and where each is no key.
+    let e = load_err(
+        &dir,
+        &toml_material("ok.png")
+            .replace("type = \"diffuse\"", "type = \"emissive\"\nemission_texture = \"missing.png\""),
+    );
+    assert!(
+        e.starts_with(&format!("{scene_path}:8: materials.m.emission_texture: ")) && e.contains("missing.png"),
+        "{e}"
+    );
+    let e = load_err(
+        &dir,
+        &toml_material("ok.png").replace("type = \"diffuse\"", "type = \"diffuse\"\nroughness_texture = \"ok.png\""),
+    );
+    assert!(e.contains("materials.m.roughness_texture: not a key of the `diffuse` material type"), "{e}");
+    let e = load_err(
+        &dir,
+        &toml_material("ok.png")
+            .replace("type = \"diffuse\"", "type = \"metallic-roughness\"\nmetallic_texture = \"cut.png\""),
+    );
+    assert!(e.contains("materials.m.metallic_texture: ") && e.contains("cut.png"), "{e}");
     std::fs::write(dir.join("scene.toml"), toml_material("ok.png")).unwrap();
     let loaded = Scene::load(dir.join("scene.toml")).unwrap();
     assert!(loaded.materials[0].textures.base_color.is_some());
@@ -340,4 +365,162 @@ fn a_normal_map_shades_as_the_vertex_normals_it_encodes() {
         let s = scene(false, "m.mtl");
         assert!(s.materials.last().unwrap().textures.normal.is_some(), "{statement}");
     }
+}
+
+/// An emission texture lights the scene as it looks. A lamp facing down onto a floor emits
+/// radiance 4 times a ramp texture (linear, EXR) rising along +x, then the same lamp with the
+/// ramp reversed: light transport is linear in the emission, and the two ramps add up to 1, so
+/// the two renders add up to the lamp with no texture, quadrant by quadrant (z < 4.5), direct
+/// and indirect light alike. The ramp alone lights the floor under its bright end more than
+/// under its dark end. A lamp that sampled its points without the texture's value, or chose
+/// them by the untextured power, would fail the sum. On both devices; the lamp is one quad of
+/// two triangles, so the texture varies within each triangle.
+#[test]
+fn an_emission_texture_lights_as_it_looks() {
+    use crate::environment::{assert_quadrants_agree, quadrant_means};
+    use arbor::image_io::{Image, write_image};
+    let dir = temp_dir("emission");
+    let ramp = |rising: bool| Image {
+        width: 8,
+        height: 1,
+        pixels: (0..8)
+            .map(|x| {
+                let t = (x as f32 + 0.5) / 8.0;
+                let t = if rising { t } else { 1.0 - t };
+                [t, t * 0.5 + 0.25, 1.0 - t * 0.5]
+            })
+            .collect(),
+    };
+    let (up, down) = (ramp(true), ramp(false));
+    // The second channel sums to 1 and the third to 1.5 as well: the lamp with no texture emits
+    // 4 × (1, 1, 1.5).
+    for (a, b) in up.pixels.iter().zip(&down.pixels) {
+        assert!((a[0] + b[0] - 1.0).abs() < 1e-6 && (a[1] + b[1] - 1.0).abs() < 1e-6, "{a:?} {b:?}");
+        assert!((a[2] + b[2] - 1.5).abs() < 1e-6, "{a:?} {b:?}");
+    }
+    write_image(dir.join("up.exr"), &up).unwrap();
+    write_image(dir.join("down.exr"), &down).unwrap();
+    std::fs::write(dir.join("floor.obj"), "v -2 0 2\nv 2 0 2\nv 2 0 -2\nv -2 0 -2\nf 1 2 3 4\n").unwrap();
+    // Facing -y, u along +x.
+    std::fs::write(
+        dir.join("lamp.obj"),
+        "v -1 1 -0.5\nv 1 1 -0.5\nv 1 1 0.5\nv -1 1 0.5\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n",
+    )
+    .unwrap();
+    let scene = |name: &str, lamp: &str| {
+        let text = format!(
+            "[camera]\nposition = [0, 0.9, 3]\nlook_at = [0, 0, 0]\nfov = 60\nresolution = [24, 24]\n\
+             [materials.floor]\ntype = \"diffuse\"\nalbedo = [0.8, 0.8, 0.8]\n\
+             [materials.lamp]\ntype = \"emissive\"\n{lamp}\n\
+             [[objects]]\nmesh = \"floor.obj\"\nmaterial = \"floor\"\n\
+             [[objects]]\nmesh = \"lamp.obj\"\nmaterial = \"lamp\"\n"
+        );
+        std::fs::write(dir.join(name), text).unwrap();
+        Scene::load(dir.join(name)).unwrap_or_else(|e| panic!("{e}"))
+    };
+    let up = scene("up.toml", "radiance = [4, 4, 4]\nemission_texture = \"up.exr\"");
+    let down = scene("down.toml", "radiance = [4, 4, 4]\nemission_texture = \"down.exr\"");
+    let plain = scene("plain.toml", "radiance = [4, 4, 6]");
+    assert!(up.materials[1].textures.emission.is_some());
+    for device in devices("an_emission_texture_lights_as_it_looks") {
+        let name = device.name();
+        let (a, b) = (quadrant_means(&render(device, &up, 64, 3)), quadrant_means(&render(device, &down, 64, 3)));
+        let sum = a
+            .iter()
+            .zip(&b)
+            .map(|((ma, sa), (mb, sb))| {
+                (std::array::from_fn(|c| ma[c] + mb[c]), std::array::from_fn(|c| sa[c].hypot(sb[c])))
+            })
+            .collect();
+        let whole = quadrant_means(&render(device, &plain, 64, 3));
+        assert_quadrants_agree(&format!("{name}: rising + falling ramps against no texture"), sum, whole, 4.5);
+        // Quadrants 0 and 2 are the left (-x) half of the image, where the rising ramp is dark.
+        let (left, right) = (a[0].0[0] + a[2].0[0], a[1].0[0] + a[3].0[0]);
+        assert!(right > 1.5 * left, "{name}: the rising ramp lights +x with {right}, -x with {left}");
+    }
+}
+
+/// The coated material's roughness and metallic textures multiply its factors, each read from
+/// its channel: glTF's `metallicRoughnessTexture` green (roughness) and blue (metallic), MTL
+/// `map_Pr` and `map_Pm` and TOML `roughness_texture` and `metallic_texture` red. And a floor
+/// whose roughness and metallic vary across it renders alike on both devices.
+#[test]
+fn roughness_and_metallic_textures_read_their_channels() {
+    use arbor::render::RenderMaterial;
+    use arbor::render::bsdf::Bsdf;
+    let dir = temp_dir("roughness");
+    write_png(&dir.join("rm.png"), 1, 1, |_, _| [40, 200, 60, 255]);
+    write_png(
+        &dir.join("checker.png"),
+        4,
+        4,
+        |x, y| if (x + y) % 2 == 0 { [255, 230, 20, 255] } else { [30, 60, 255, 255] },
+    );
+    let c = |v: u8| f32::from(v) / 255.0;
+    let coated = |scene: &Scene, i: usize| match RenderMaterial::from_scene(&scene.materials[i])
+        .bsdf_at(&scene.textures, || Vec2::new(0.3, 0.6))
+    {
+        Some(Bsdf::Coated { metallic, alpha, .. }) => (metallic, alpha),
+        other => panic!("{other:?}"),
+    };
+    let close = |(m, a): (f32, f32), (wm, wa): (f32, f32), what: &str| {
+        assert!((m - wm).abs() < 1e-5 && (a - wa).abs() < 1e-5, "{what}: metallic {m}, α {a}; want {wm}, {wa}");
+    };
+    // TOML: the textures alone (the factors default to 1), and with factors.
+    std::fs::write(dir.join("quad.obj"), QUAD_OBJ.replace("mtllib m.mtl\n", "").replace("usemtl m\n", "")).unwrap();
+    let toml = |extra: &str| {
+        let text = format!(
+            "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\
+             [materials.m]\ntype = \"metallic-roughness\"\nbase_color = [1, 1, 1]\n{extra}\n\
+             [[objects]]\nmesh = \"quad.obj\"\nmaterial = \"m\"\n"
+        );
+        std::fs::write(dir.join("s.toml"), text).unwrap();
+        Scene::load(dir.join("s.toml")).unwrap_or_else(|e| panic!("{e}"))
+    };
+    let s = toml("roughness_texture = \"rm.png\"\nmetallic_texture = \"rm.png\"");
+    close(coated(&s, 0), (c(40), c(40) * c(40)), "TOML, textures alone");
+    let s = toml("roughness_texture = \"rm.png\"\nroughness = 0.5\nmetallic = 0.5\nmetallic_texture = \"rm.png\"");
+    close(coated(&s, 0), (0.5 * c(40), (0.5 * c(40)).powi(2)), "TOML, with factors");
+    // MTL.
+    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
+    std::fs::write(dir.join("m.mtl"), "newmtl m\nKd 1 1 1\nPr 0.5\nmap_Pr rm.png\nmap_Pm rm.png\n").unwrap();
+    std::fs::write(dir.join("s.toml"), "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n[[objects]]\nmesh = \"quad.obj\"\n").unwrap();
+    let s = Scene::load(dir.join("s.toml")).unwrap_or_else(|e| panic!("{e}"));
+    close(coated(&s, 0), (c(40), (0.5 * c(40)).powi(2)), "MTL map_Pr and map_Pm (Pm defaults to 1 beside its map)");
+    // glTF: one texture, green and blue.
+    let mut d = crate::common::gltf::triangle_doc();
+    d.push("images", json_value(r#"{ "uri": "rm.png" }"#));
+    d.push("textures", json_value(r#"{ "source": 0 }"#));
+    d.push(
+        "materials",
+        json_value(r#"{ "pbrMetallicRoughness": { "metallicFactor": 0.5, "roughnessFactor": 0.8, "metallicRoughnessTexture": { "index": 0 } } }"#),
+    );
+    d.json["meshes"][0]["primitives"][0]["material"] = json_value("0");
+    d.node(json_value(r#"{ "mesh": 0 }"#), true);
+    std::fs::write(dir.join("t.glb"), d.glb()).unwrap();
+    std::fs::write(dir.join("g.toml"), "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n[[objects]]\nmesh = \"t.glb\"\n").unwrap();
+    let s = Scene::load(dir.join("g.toml")).unwrap_or_else(|e| panic!("{e}"));
+    close(coated(&s, 0), (0.5 * c(60), (0.8 * c(200)).powi(2)), "glTF metallicRoughnessTexture");
+    // A lit floor (the glTF triangle, laid down) with a checker of roughness and metallic, on
+    // both devices: the checker's red differs from its green and blue.
+    d.json["images"][0]["uri"] = json_value(r#""checker.png""#);
+    d.json["materials"][0]["pbrMetallicRoughness"] =
+        json_value(r#"{ "baseColorFactor": [0.9, 0.6, 0.3, 1], "metallicRoughnessTexture": { "index": 0 } }"#);
+    std::fs::write(dir.join("lit.glb"), d.glb()).unwrap();
+    let text = "[camera]\nposition = [0, 2.5, 2.5]\nlook_at = [0, 0, 0]\nfov = 50\nresolution = [24, 24]\n\
+                [materials.lamp]\ntype = \"emissive\"\nradiance = [20, 20, 20]\n\
+                [[objects]]\nmesh = \"lit.glb\"\nrotate = [-90, 0, 0]\nscale = 3\ntranslate = [-1, 0, 1]\n\
+                [[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\ntranslate = [0, 1.5, -2]\nrotate = [45, 0, 0]\nscale = 0.5\n";
+    std::fs::write(dir.join("lit.toml"), text).unwrap();
+    let lit = Scene::load(dir.join("lit.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let devices = devices("roughness_and_metallic_textures_read_their_channels");
+    if devices.len() > 1 {
+        let cpu = render(devices[0], &lit, 128, 3);
+        let gpu = render(devices[1], &lit, 128, 3);
+        crate::environment::assert_agree("roughness and metallic textures, GPU against CPU", &gpu, &cpu, 4.5);
+    }
+}
+
+fn json_value(text: &str) -> serde_json::Value {
+    serde_json::from_str(text).unwrap()
 }

@@ -41,6 +41,10 @@ impl WgslType for [u32; 12] {
     const WGSL: &'static str = "array<u32, 12>";
 }
 
+impl WgslType for [f32; 6] {
+    const WGSL: &'static str = "array<f32, 6>";
+}
+
 impl WgslType for Vec3 {
     const WGSL: &'static str = "vec3<f32>";
 }
@@ -210,8 +214,15 @@ pub struct GpuMaterial {
     /// The tangent-space normal map, packed as the textures above, and the scale of its x and y.
     pub normal_tex: u32,
     pub normal_scale: f32,
+    /// The texture multiplying `emission`, packed as the textures above.
+    pub emission_tex: u32,
+    /// The coated material's roughness and metallic textures, each with its channel
+    /// ([`crate::render::texture::gpu_texture_channel`]).
+    pub roughness_tex: u32,
+    pub metallic_tex: u32,
     pub pad0: u32,
     pub pad1: u32,
+    pub pad2: u32,
 }
 
 /// An emissive triangle ([`crate::render::lights::Lights`]): `cdf` is the running sum of power
@@ -226,9 +237,14 @@ pub struct GpuLight {
     pub two_sided: u32,
     /// Unit geometric normal (the front side).
     pub normal: Vec3,
-    pub pad0: u32,
+    /// The texture multiplying `radiance` (packed, `INVALID_INDEX`: none), at texture
+    /// coordinates interpolated from `uvs` (u, v of each vertex).
+    pub emission_tex: u32,
     pub radiance: Vec3,
+    pub pad0: u32,
+    pub uvs: [f32; 6],
     pub pad1: u32,
+    pub pad2: u32,
 }
 
 /// One pixel's running sums on the device. `exact` is the film's exact sum
@@ -292,8 +308,8 @@ const _: () = assert!(size_of::<GpuAabb>() == 32);
 const _: () = assert!(size_of::<LbvhParams>() == 32);
 const _: () = assert!(size_of::<PrbvhParams>() == 32);
 const _: () = assert!(size_of::<GpuTriangle>() == 48);
-const _: () = assert!(size_of::<GpuMaterial>() == 80);
-const _: () = assert!(size_of::<GpuLight>() == 80);
+const _: () = assert!(size_of::<GpuMaterial>() == 96);
+const _: () = assert!(size_of::<GpuLight>() == 112);
 const _: () = assert!(size_of::<GpuPixel>() == 96);
 const _: () = assert!(size_of::<TraceParams>() == 176);
 

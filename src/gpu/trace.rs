@@ -69,7 +69,7 @@
 use std::ops::Range;
 use std::time::Instant;
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
@@ -87,7 +87,7 @@ use crate::render::environment::EnvironmentMap;
 use crate::render::film::{Film, PixelAccum};
 use crate::render::geometry::Geometry;
 use crate::render::region::Rect;
-use crate::render::texture::{gpu_texture_data, gpu_texture_ref};
+use crate::render::texture::{gpu_texture_channel, gpu_texture_data, gpu_texture_ref};
 use crate::render::{BuildReport, RenderMaterial, RenderScene};
 use crate::scene::Scene;
 
@@ -143,7 +143,7 @@ impl Features {
             thin_lens: scene.camera.parts().lens_radius != 0.0,
             shading_normals: matches!(&scene.geometry, Geometry::Flat(f) if !f.normals.is_empty()),
             env_map: scene.environment_light().is_some(),
-            textures: scene.materials.iter().any(|m| m.base_color.is_some() || m.alpha.is_some() || m.normal.is_some()),
+            textures: scene.materials.iter().any(RenderMaterial::is_textured),
         }
     }
 
@@ -301,6 +301,9 @@ fn gpu_material(m: &RenderMaterial) -> GpuMaterial {
     g.alpha_cutoff = m.alpha.map_or(0.0, |(_, c)| c);
     g.normal_tex = gpu_texture_ref(m.normal.map(|(r, _)| r));
     g.normal_scale = m.normal.map_or(1.0, |(_, s)| s);
+    g.emission_tex = gpu_texture_ref(m.emission_tex);
+    g.roughness_tex = gpu_texture_channel(m.roughness);
+    g.metallic_tex = gpu_texture_channel(m.metallic);
     g
 }
 
@@ -384,17 +387,21 @@ impl GpuScene {
             .lights
             .gpu_arrays()
             .into_iter()
-            .map(|(t, cdf, l)| GpuLight {
-                v0: t.v0,
-                cdf,
-                v1: t.v1,
-                pdf_area: l.pdf_area,
-                v2: t.v2,
-                two_sided: u32::from(l.two_sided),
-                normal: l.normal,
-                pad0: 0,
-                radiance: l.radiance,
-                pad1: 0,
+            .map(|(t, cdf, l, texture)| {
+                let uvs = texture.map_or([Vec2::ZERO; 3], |(_, uvs)| uvs);
+                GpuLight {
+                    v0: t.v0,
+                    cdf,
+                    v1: t.v1,
+                    pdf_area: l.pdf_area,
+                    v2: t.v2,
+                    two_sided: u32::from(l.two_sided),
+                    normal: l.normal,
+                    emission_tex: gpu_texture_ref(texture.map(|(r, _)| r)),
+                    radiance: l.radiance,
+                    uvs: [uvs[0].x, uvs[0].y, uvs[1].x, uvs[1].y, uvs[2].x, uvs[2].y],
+                    ..Default::default()
+                }
             })
             .collect();
         let light_count = lights.len() as u32;

@@ -62,13 +62,17 @@ pub fn first_frame_time(scene: &Scene) -> f32 {
     scene.animation.as_ref().map_or(0.0, |a| scene.frame_time(a.frames.start))
 }
 
+/// An environment map as a light: the map, its scale, and the probability that next-event
+/// estimation picks it ([`RenderScene::environment_light`]).
+pub type EnvLight<'a> = (&'a EnvironmentMap, Vec3, f32);
+
 impl RenderScene {
     /// The environment map to sample for next-event estimation, if any, with the probability
     /// of choosing it over the area lights: 1 without area lights, else one half. (A map's
     /// power against the lights' depends on how much of the scene it reaches, which is unknown
     /// before rendering; one half never starves either.) A constant environment is found by
     /// BSDF sampling alone, as well as light sampling would.
-    pub fn environment_light(&self) -> Option<(&EnvironmentMap, Vec3, f32)> {
+    pub fn environment_light(&self) -> Option<EnvLight<'_>> {
         let env = self.environment.as_ref()?;
         let map = env.map.as_deref()?;
         Some((map, env.radiance, if self.lights.is_empty() { 1.0 } else { 0.5 }))
@@ -102,8 +106,8 @@ impl RenderScene {
         let t = Instant::now();
         let meshes: Vec<MeshBvh> = scene.meshes.iter().map(|m| builder.build_mesh(&m.mesh.triangles())).collect();
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
-        let mut instanced = Instanced::new(scene, meshes, first_frame_time(scene));
-        let lights = instanced.lights(&materials);
+        let mut instanced = Instanced::new(scene, &materials, meshes, first_frame_time(scene));
+        let lights = instanced.lights(&materials, &scene.textures);
         let geometry = Geometry::Instanced(instanced);
         let Geometry::Instanced(g) = &geometry else { unreachable!() };
         let meshes = g.two_level.meshes();
@@ -139,7 +143,8 @@ impl RenderScene {
         let (tracing, collapse_ms, traced_sah) =
             (mesh.tracing(), mesh.collapse_seconds() * 1e3, mesh.traced_sah(&Default::default()));
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
-        let lights = flat_lights(&triangles, &material_of, &materials);
+        let (normals, uvs) = (scene.world_normals_at(time), scene.world_uvs_at(time));
+        let lights = flat_lights(&triangles, &material_of, &uvs, &materials, &scene.textures);
         let report = BuildReport {
             build_ms: start.elapsed().as_secs_f64() * 1e3,
             sah,
@@ -149,8 +154,7 @@ impl RenderScene {
             collapse_ms,
             traced_sah,
         };
-        let (normals, uvs) = (scene.world_normals_at(time), scene.world_uvs_at(time));
-        let cutouts = Cutouts::of(scene);
+        let cutouts = Cutouts::of(&materials, &scene.textures);
         let geometry = Geometry::Flat(Flat { mesh, triangles, material_of, normals, uvs, cutouts });
         (Self::with_geometry(scene, geometry, materials, lights), report)
     }
@@ -184,7 +188,7 @@ impl RenderScene {
         let Geometry::Instanced(g) = &mut self.geometry else { return None };
         let stats = g.set_time(scene, time, how);
         if g.moves_lights(scene) {
-            self.lights = g.lights(&self.materials);
+            self.lights = g.lights(&self.materials, &self.textures);
         }
         Some(stats)
     }

@@ -16,7 +16,7 @@ use std::sync::Arc;
 use glam::{Affine3A, Vec2, Vec3};
 use rayon::prelude::*;
 
-use super::lights::Lights;
+use super::lights::{Emitter, Lights};
 use super::material::RenderMaterial;
 use super::texture::{Texture, TextureRef};
 use crate::bvh::dynamic::UpdateStats;
@@ -86,11 +86,10 @@ pub struct Cutouts {
 }
 
 impl Cutouts {
-    /// The scene's masks, or `None` where no material has one.
-    pub fn of(scene: &Scene) -> Option<Self> {
-        let masks: Vec<_> =
-            scene.materials.iter().map(|m| m.textures.alpha.map(|r| (r, m.textures.alpha_cutoff))).collect();
-        masks.iter().any(Option::is_some).then(|| Self { masks, textures: scene.textures.clone() })
+    /// The masks of `materials`, or `None` where none has one.
+    pub fn of(materials: &[RenderMaterial], textures: &[Arc<Texture>]) -> Option<Self> {
+        let masks: Vec<_> = materials.iter().map(|m| m.alpha).collect();
+        masks.iter().any(Option::is_some).then(|| Self { masks, textures: textures.to_vec() })
     }
 
     /// Whether material `material` is cut out at barycentrics `(u, v)` of a triangle with
@@ -165,7 +164,7 @@ pub fn wants_instancing(scene: &Scene) -> bool {
 impl Instanced {
     /// Instances of `meshes` (BVHs built over each scene mesh's object-space triangles, in
     /// scene order) placed as the scene's objects are at `time`.
-    pub fn new(scene: &Scene, meshes: Vec<MeshBvh>, time: f32) -> Self {
+    pub fn new(scene: &Scene, materials: &[RenderMaterial], meshes: Vec<MeshBvh>, time: f32) -> Self {
         let instances = scene
             .objects
             .iter()
@@ -201,7 +200,7 @@ impl Instanced {
             mesh_materials,
             mesh_normals,
             mesh_uvs,
-            cutouts: Cutouts::of(scene),
+            cutouts: Cutouts::of(materials, &scene.textures),
             instance_material,
             light_base: Vec::new(),
         }
@@ -213,7 +212,7 @@ impl Instanced {
     }
 
     /// The lights: the world-space triangles of every object with an emissive triangle.
-    pub fn lights(&mut self, materials: &[RenderMaterial]) -> Lights {
+    pub fn lights(&mut self, materials: &[RenderMaterial], textures: &[Arc<Texture>]) -> Lights {
         let mut world = Vec::new();
         let mut emission = Vec::new();
         let mut light_base = vec![INVALID_INDEX; self.instance_material.len()];
@@ -228,18 +227,17 @@ impl Instanced {
                 continue;
             }
             let tris = &self.mesh_triangles[inst.mesh as usize];
-            let emits = |p: usize| {
-                let m = &materials[self.material(i, p as u32) as usize];
-                m.emission.map(|e| (e, m.two_sided))
-            };
+            let uvs = &self.mesh_uvs[inst.mesh as usize];
             light_base[i] = world.len() as u32;
             for (p, t) in tris.iter().enumerate() {
                 world.push(t.placed(&inst.world_from_object, inst.mirrors));
-                emission.push(emits(p));
+                // In the placed triangle's vertex order, as `placed` gives it.
+                let uvs = uvs.get(p).map(|&[a, b, c]| if inst.mirrors { [a, c, b] } else { [a, b, c] });
+                emission.push(emitter(&materials[self.material(i, p as u32) as usize], uvs));
             }
         }
         self.light_base = light_base;
-        Lights::new(&world, |k| emission[k])
+        Lights::new(&world, textures, |k| emission[k])
     }
 
     /// Moves the animated objects to their places at `time`.
@@ -420,10 +418,20 @@ fn skip_pair(from: Option<Surface>) -> Option<(u32, u32)> {
     from.map(|s| (s.instance, s.prim))
 }
 
-/// A light's emission in a form [`Lights::new`] takes, for the flat path.
-pub(crate) fn flat_lights(triangles: &[Triangle], material_of: &[u32], materials: &[RenderMaterial]) -> Lights {
-    Lights::new(triangles, |i| {
-        let m = &materials[material_of[i] as usize];
-        m.emission.map(|e: Vec3| (e, m.two_sided))
-    })
+/// What a triangle of material `m` with texture coordinates `uvs` (if any) emits.
+fn emitter(m: &RenderMaterial, uvs: Option<[Vec2; 3]>) -> Option<Emitter> {
+    let texture = m.emission_tex.map(|r| (r, uvs.unwrap_or_default()));
+    m.emission.map(|radiance| Emitter { radiance, two_sided: m.two_sided, texture })
+}
+
+/// The lights of a flat scene: its triangles, their materials and texture coordinates (empty
+/// where no mesh has any).
+pub(crate) fn flat_lights(
+    triangles: &[Triangle],
+    material_of: &[u32],
+    uvs: &[[Vec2; 3]],
+    materials: &[RenderMaterial],
+    textures: &[Arc<Texture>],
+) -> Lights {
+    Lights::new(triangles, textures, |i| emitter(&materials[material_of[i] as usize], uvs.get(i).copied()))
 }

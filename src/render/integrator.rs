@@ -36,6 +36,7 @@
 use glam::Vec3;
 
 use super::RenderScene;
+use super::assembly::EnvLight;
 use super::bsdf::Bsdf;
 use super::geometry::Surface;
 use super::rng::Rng;
@@ -58,13 +59,14 @@ impl RenderScene {
         let mut rays = 0;
         // The surface the ray leaves, which it skips (see `Surface`).
         let mut from = None;
+        let env_light = self.environment_light();
         // The probability that next-event estimation picks an area light, not the map.
-        let area_select = 1.0 - self.environment_light().map_or(0.0, |(_, _, p)| p);
-        let lit = !self.lights.is_empty() || self.environment_light().is_some();
+        let area_select = 1.0 - env_light.map_or(0.0, |(_, _, p)| p);
+        let lit = !self.lights.is_empty() || env_light.is_some();
         for depth in 1..=max_depth {
             rays += 1;
             let Some(hit) = self.geometry.intersect_from(&ray, from) else {
-                l += beta * self.escaped(ray.dir, prev_pdf, prev_delta);
+                l += beta * self.escaped(env_light, ray.dir, prev_pdf, prev_delta);
                 break;
             };
             let tri = &hit.triangle;
@@ -76,7 +78,9 @@ impl RenderScene {
             let wo_world = -ray.dir;
             let front = ng.dot(wo_world) > 0.0;
             let material = &self.materials[hit.material as usize];
-            if let Some(le) = material.emission.filter(|_| front || material.two_sided) {
+            let emitted =
+                if front || material.two_sided { material.emitted(&self.textures, || hit.uv()) } else { None };
+            if let Some(le) = emitted {
                 if prev_delta {
                     l += beta * le;
                 } else {
@@ -105,7 +109,7 @@ impl RenderScene {
             let wo = frame.to_local(wo_world);
             if lit && bsdf.has_non_delta() {
                 let at = (p, p_error, hit.surface);
-                rays += self.direct_light(&bsdf, &frame, at, ng, check, wo, beta, rng, &mut l);
+                rays += self.direct_light(env_light, &bsdf, &frame, at, ng, check, wo, beta, rng, &mut l);
             }
             let Some(s) = bsdf.sample(wo, rng.next_vec2(), rng.next_f32()) else { break };
             if !(s.weight.is_finite() && s.weight.max_element() > 0.0) {
@@ -132,10 +136,11 @@ impl RenderScene {
     }
 
     /// Next-event estimation: one light sample, MIS-weighted against the BSDF. Adds to `l` and
-    /// returns the rays traced (0 or 1).
+    /// returns the rays traced (0 or 1). `env_light` is [`RenderScene::environment_light`].
     #[allow(clippy::too_many_arguments)]
     fn direct_light(
         &self,
+        env_light: Option<EnvLight>,
         bsdf: &Bsdf,
         frame: &Frame,
         (p, p_error, surface): (Vec3, Vec3, Surface),
@@ -149,7 +154,7 @@ impl RenderScene {
         let mut u_select = rng.next_f32();
         let u = rng.next_vec2();
         let mut area_select = 1.0;
-        if let Some((map, scale, p_env)) = self.environment_light() {
+        if let Some((map, scale, p_env)) = env_light {
             if u_select < p_env {
                 let Some((wi_world, pdf)) = map.sample(u) else { return 0 };
                 let le = scale * map.eval(wi_world);
@@ -222,15 +227,13 @@ impl RenderScene {
         *l += beta * f * wi.z.abs() * lp.radiance * (w / p_light);
         1
     }
-}
 
-impl RenderScene {
     /// The radiance arriving along `dir` (unit) from the environment, for a path whose last
     /// bounce was sampled with density `prev_pdf` (`prev_delta`: from a delta lobe): a map's
-    /// radiance is weighted against the light sampling that could have found it.
-    fn escaped(&self, dir: Vec3, prev_pdf: f32, prev_delta: bool) -> Vec3 {
+    /// radiance is weighted against the light sampling (`env_light`) that could have found it.
+    fn escaped(&self, env_light: Option<EnvLight>, dir: Vec3, prev_pdf: f32, prev_delta: bool) -> Vec3 {
         let Some(env) = &self.environment else { return Vec3::ZERO };
-        let Some((map, scale, p_env)) = self.environment_light() else { return env.radiance };
+        let Some((map, scale, p_env)) = env_light else { return env.radiance };
         let le = scale * map.eval(dir);
         if prev_delta { le } else { le * power_heuristic(prev_pdf, p_env * map.pdf(dir)) }
     }

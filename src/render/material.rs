@@ -19,11 +19,17 @@ pub struct RenderMaterial {
     /// Multiplies the diffuse albedo, the conductor's Schlick F0 or the coated material's base
     /// colour at the hit.
     pub base_color: Option<TextureRef>,
-    /// The cut-out mask and its cutoff (the CPU reads them through
-    /// [`super::geometry::Cutouts`], the GPU from here).
+    /// The cut-out mask and its cutoff (the CPU's traversal reads them through
+    /// [`super::geometry::Cutouts`], made from these).
     pub alpha: Option<(TextureRef, f32)>,
     /// A tangent-space normal map and the scale of its x and y.
     pub normal: Option<(TextureRef, f32)>,
+    /// Multiplies `emission` at the hit.
+    pub emission_tex: Option<TextureRef>,
+    /// Multiply the coated material's perceptual roughness (α by its square) and metallic:
+    /// the given channel of each texture.
+    pub roughness: Option<(TextureRef, u8)>,
+    pub metallic: Option<(TextureRef, u8)>,
 }
 
 impl RenderMaterial {
@@ -50,7 +56,31 @@ impl RenderMaterial {
             base_color: m.textures.base_color,
             alpha: m.textures.alpha.map(|r| (r, m.textures.alpha_cutoff)),
             normal: m.textures.normal.map(|r| (r, m.textures.normal_scale)),
+            emission_tex: m.textures.emission,
+            roughness: m.textures.roughness,
+            metallic: m.textures.metallic,
         }
+    }
+
+    /// Whether any texture is read at a hit on this material (the GPU's textured variant).
+    pub fn is_textured(&self) -> bool {
+        self.base_color.is_some()
+            || self.alpha.is_some()
+            || self.normal.is_some()
+            || self.emission_tex.is_some()
+            || self.roughness.is_some()
+            || self.metallic.is_some()
+    }
+
+    /// The radiance emitted at a hit with texture coordinates `uv()` (computed only for a
+    /// textured emission), or `None` for a material that does not emit.
+    #[inline]
+    pub fn emitted(&self, textures: &[Arc<Texture>], uv: impl FnOnce() -> Vec2) -> Option<Vec3> {
+        let e = self.emission?;
+        Some(match self.emission_tex {
+            None => e,
+            Some(r) => e * textures[r.texture as usize].sample(uv(), r.wrap, r.srgb).truncate(),
+        })
     }
 
     /// The shading normal at `hit`: the vertex normals' (or `ng` where there are none), turned
@@ -86,12 +116,26 @@ impl RenderMaterial {
     }
 
     /// The BSDF at a hit with texture coordinates `uv()` (computed only for a textured
-    /// material): the base colour texture applied.
+    /// material): the base colour, roughness and metallic textures applied.
     #[inline]
     pub fn bsdf_at(&self, textures: &[Arc<Texture>], uv: impl FnOnce() -> Vec2) -> Option<Bsdf> {
         let bsdf = self.bsdf?;
+        if self.base_color.is_none() && self.roughness.is_none() && self.metallic.is_none() {
+            return Some(bsdf);
+        }
+        let uv = uv();
+        let channel = |(r, c): (TextureRef, u8)| textures[r.texture as usize].sample(uv, r.wrap, false)[c as usize];
+        let bsdf = match bsdf {
+            Bsdf::Coated { base_color, metallic, alpha, ior } => Bsdf::Coated {
+                base_color,
+                metallic: metallic * self.metallic.map_or(1.0, channel),
+                alpha: alpha * self.roughness.map_or(1.0, |r| channel(r).powi(2)),
+                ior,
+            },
+            other => other,
+        };
         let Some(r) = self.base_color else { return Some(bsdf) };
-        let c = textures[r.texture as usize].sample(uv(), r.wrap, r.srgb).truncate();
+        let c = textures[r.texture as usize].sample(uv, r.wrap, r.srgb).truncate();
         Some(match bsdf {
             Bsdf::Diffuse { albedo } => Bsdf::Diffuse { albedo: albedo * c },
             Bsdf::Conductor { alpha, fresnel: BsdfFresnel::Schlick { f0 } } => {

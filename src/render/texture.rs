@@ -79,68 +79,72 @@ impl Texture {
     /// or EXR or Radiance HDR (f32, linear). Its size is read first and checked against the
     /// memory available.
     pub fn load(path: &Path) -> Result<Self, TextureError> {
-        let read = |error: String| TextureError::Read { path: path.to_owned(), error };
-        let invalid = |message: String| TextureError::Invalid { path: path.to_owned(), message };
         let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        let float = matches!(ext.as_deref(), Some("exr" | "hdr"));
         if !matches!(ext.as_deref(), Some("png" | "jpg" | "jpeg" | "tga" | "bmp" | "exr" | "hdr")) {
-            return Err(invalid("is not a supported image: give a .png, .jpg, .tga, .bmp, .exr or .hdr file".into()));
+            let message = "is not a supported image: give a .png, .jpg, .tga, .bmp, .exr or .hdr file".into();
+            return Err(TextureError::Invalid { path: path.to_owned(), message });
         }
-        let (width, height) = if ext.as_deref() == Some("exr") {
-            exr_size(path)?
-        } else {
-            reader(path)?.into_dimensions().map_err(|e| read(chain(&e)))?
-        };
-        let count = u64::from(width) * u64::from(height);
-        if count == 0 || count > MAX_TEXELS {
-            return Err(invalid(format!("is {width}x{height}: a texture must have 1 to 2^28 texels")));
+        if ext.as_deref() != Some("exr") {
+            return Self::decode(|| reader(path), path, ext.as_deref() == Some("hdr"));
         }
-        // The stored texels, and the decoder's RGBA copy beside them while it converts.
-        let bytes = count as f64 * if float { 16.0 + 16.0 } else { 4.0 + 16.0 };
-        crate::memory::check_fits(&format!("{}: a texture of {width}x{height}", path.display()), bytes)?;
-        let (format, texels, has_alpha) = if ext.as_deref() == Some("exr") {
-            let image = crate::image_io::read_exr(path).map_err(|e| read(chain(&e)))?;
-            (TexelFormat::Rgba32F, float_texels(image.pixels.iter().map(|p| [p[0], p[1], p[2], 1.0])), false)
-        } else {
-            let image = reader(path)?.decode().map_err(|e| read(chain(&e)))?;
-            let has_alpha = image.color().has_alpha();
-            if float {
-                let rgb = image.into_rgb32f();
-                (TexelFormat::Rgba32F, float_texels(rgb.pixels().map(|p| [p[0], p[1], p[2], 1.0])), false)
-            } else {
-                let rgba = image.into_rgba8();
-                (TexelFormat::Rgba8, rgba.pixels().map(|p| u32::from_le_bytes(p.0)).collect(), has_alpha)
-            }
-        };
-        if format == TexelFormat::Rgba32F
-            && let Some(i) = texels.iter().position(|&w| !f32::from_bits(w).is_finite())
-        {
-            let (x, y) = ((i / 4) % width as usize, (i / 4) / width as usize);
-            return Err(invalid(format!("texel ({x}, {y}) is not finite")));
-        }
-        Ok(Self { source: path.to_owned(), width, height, format, texels, has_alpha })
+        let (width, height) = exr_size(path)?;
+        check_size(path, width, height, true)?;
+        let image = crate::image_io::read_exr(path)
+            .map_err(|e| TextureError::Read { path: path.to_owned(), error: chain(&e) })?;
+        let texels = float_texels(image.pixels.iter().map(|p| [p[0], p[1], p[2], 1.0]));
+        Self::finished(path, width, height, TexelFormat::Rgba32F, texels, false)
     }
 
     /// Decodes an image held in memory (a glTF file's embedded PNG or JPEG), 8-bit; `name`
     /// stands for its path in messages.
     pub fn from_bytes(bytes: &[u8], name: &Path) -> Result<Self, TextureError> {
-        let read = |error: String| TextureError::Read { path: name.to_owned(), error };
-        let format = image::guess_format(bytes).map_err(|e| read(chain(&e)))?;
-        let mut r = image::io::Reader::with_format(std::io::Cursor::new(bytes), format);
-        r.limits(decoder_limits());
-        let (width, height) = image::io::Reader::with_format(std::io::Cursor::new(bytes), format)
-            .into_dimensions()
-            .map_err(|e| read(chain(&e)))?;
-        let count = u64::from(width) * u64::from(height);
-        if count == 0 || count > MAX_TEXELS {
-            let message = format!("is {width}x{height}: a texture must have 1 to 2^28 texels");
-            return Err(TextureError::Invalid { path: name.to_owned(), message });
+        let format =
+            image::guess_format(bytes).map_err(|e| TextureError::Read { path: name.to_owned(), error: chain(&e) })?;
+        let open = || {
+            let mut r = image::io::Reader::with_format(std::io::Cursor::new(bytes), format);
+            r.limits(decoder_limits());
+            Ok(r)
+        };
+        Self::decode(open, name, false)
+    }
+
+    /// Decodes through `image` what `open` reads (afresh each call: once for the size, once for
+    /// the texels), as f32 where `float`.
+    fn decode<R: std::io::BufRead + std::io::Seek>(
+        open: impl Fn() -> Result<image::io::Reader<R>, TextureError>,
+        path: &Path,
+        float: bool,
+    ) -> Result<Self, TextureError> {
+        let read = |error: String| TextureError::Read { path: path.to_owned(), error };
+        let (width, height) = open()?.into_dimensions().map_err(|e| read(chain(&e)))?;
+        check_size(path, width, height, float)?;
+        let image = open()?.decode().map_err(|e| read(chain(&e)))?;
+        if float {
+            let texels = float_texels(image.into_rgb32f().pixels().map(|p| [p[0], p[1], p[2], 1.0]));
+            return Self::finished(path, width, height, TexelFormat::Rgba32F, texels, false);
         }
-        crate::memory::check_fits(&format!("{}: a texture of {width}x{height}", name.display()), count as f64 * 20.0)?;
-        let image = r.decode().map_err(|e| read(chain(&e)))?;
         let has_alpha = image.color().has_alpha();
         let texels = image.into_rgba8().pixels().map(|p| u32::from_le_bytes(p.0)).collect();
-        Ok(Self { source: name.to_owned(), width, height, format: TexelFormat::Rgba8, texels, has_alpha })
+        Self::finished(path, width, height, TexelFormat::Rgba8, texels, has_alpha)
+    }
+
+    /// The texture, once its float texels (if any) are known to be finite.
+    fn finished(
+        path: &Path,
+        width: u32,
+        height: u32,
+        format: TexelFormat,
+        texels: Vec<u32>,
+        has_alpha: bool,
+    ) -> Result<Self, TextureError> {
+        if format == TexelFormat::Rgba32F
+            && let Some(i) = texels.iter().position(|&w| !f32::from_bits(w).is_finite())
+        {
+            let (x, y) = ((i / 4) % width as usize, (i / 4) / width as usize);
+            let message = format!("texel ({x}, {y}) is not finite");
+            return Err(TextureError::Invalid { path: path.to_owned(), message });
+        }
+        Ok(Self { source: path.to_owned(), width, height, format, texels, has_alpha })
     }
 
     /// Bytes the texels take.
@@ -194,6 +198,18 @@ pub(crate) fn exr_size(path: &Path) -> Result<(u32, u32), TextureError> {
         .first()
         .ok_or_else(|| TextureError::Invalid { path: path.to_owned(), message: "has no image layer".into() })?;
     Ok((header.layer_size.width() as u32, header.layer_size.height() as u32))
+}
+
+/// An error unless a `width` × `height` texture (f32 where `float`) has 1 to [`MAX_TEXELS`]
+/// texels and fits in memory, with the decoder's RGBA copy beside it while it converts.
+fn check_size(path: &Path, width: u32, height: u32, float: bool) -> Result<(), TextureError> {
+    let count = u64::from(width) * u64::from(height);
+    if count == 0 || count > MAX_TEXELS {
+        let message = format!("is {width}x{height}: a texture must have 1 to 2^28 texels");
+        return Err(TextureError::Invalid { path: path.to_owned(), message });
+    }
+    let bytes = count as f64 * if float { 16.0 + 16.0 } else { 4.0 + 16.0 };
+    Ok(crate::memory::check_fits(&format!("{}: a texture of {width}x{height}", path.display()), bytes)?)
 }
 
 /// Index `i` (an integer-valued f32) wrapped into `0..n`.
@@ -288,6 +304,12 @@ impl TextureCache {
 /// next two, sRGB in bit 26; [`crate::bvh::INVALID_INDEX`] for none.
 pub fn gpu_texture_ref(r: Option<TextureRef>) -> u32 {
     r.map_or(crate::bvh::INVALID_INDEX, |r| r.texture | (r.wrap as u32) << 24 | u32::from(r.srgb) << 26)
+}
+
+/// A texture's channel as the GPU reads it: [`gpu_texture_ref`] with the channel (0 to 3) in
+/// bits 27 and 28.
+pub fn gpu_texture_channel(r: Option<(TextureRef, u8)>) -> u32 {
+    r.map_or(crate::bvh::INVALID_INDEX, |(r, c)| gpu_texture_ref(Some(r)) | u32::from(c & 3) << 27)
 }
 
 /// Every texture as `shaders/trace.wgsl` reads them, one array of words: the 256 values of

@@ -138,7 +138,6 @@ impl Scene {
             meshes: self.meshes.clone(),
             objects,
             animation: None,
-            gltf_materials: self.gltf_materials.clone(),
         }
     }
 }

@@ -99,6 +99,9 @@ pub(super) struct MaterialFile {
     pub texture: Option<S<String>>,
     pub alpha_texture: Option<S<String>>,
     pub normal_texture: Option<S<String>>,
+    pub emission_texture: Option<S<String>>,
+    pub roughness_texture: Option<S<String>>,
+    pub metallic_texture: Option<S<String>>,
 }
 
 #[derive(Deserialize)]

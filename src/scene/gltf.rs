@@ -45,8 +45,8 @@
 //!   sampler, texture coordinate set, normal scale, occlusion strength) are kept as plain data
 //!   ([`GltfMaterial`]); factors must be finite and within the spec's ranges. Textures are not
 //!   read here: the scene loader maps each material's factors to Arbor's coated
-//!   metallic-roughness material ([`GltfMaterial::to_arbor`]) and attaches its base colour
-//!   texture and MASK cut-out. The default material (3.9.6) is [`GltfMaterial::default`].
+//!   metallic-roughness material ([`GltfMaterial::to_arbor`]) and attaches its textures (all but
+//!   occlusion). The default material (3.9.6) is [`GltfMaterial::default`].
 //! - Cameras (3.10): every camera node, with its world matrix; [`GltfFile::projection`] reads a
 //!   camera's projection.
 //!
@@ -250,8 +250,7 @@ pub struct GltfTexture {
     pub tex_coord: u32,
 }
 
-/// A glTF material as the file describes it (3.9), for the renderer's textured
-/// metallic-roughness material to come. Defaults are the spec's (3.9.6, [`Default`]).
+/// A glTF material as the file describes it (3.9). Defaults are the spec's (3.9.6, [`Default`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct GltfMaterial {
     pub name: Option<String>,
@@ -313,9 +312,7 @@ impl GltfMaterial {
     /// `src/render/bsdf.rs` states) of base colour `baseColorFactor` (RGB; its alpha is
     /// ignored), `metallicFactor`, GGX α = `roughnessFactor`² and a coat of index 1.5 (the
     /// specification's F0 = 0.04). A non-zero emission makes it emit, from both sides where the
-    /// material is `doubleSided`. The base colour texture and the MASK cut-out are attached by
-    /// the scene loader; the metallic-roughness, normal, occlusion and emissive textures are
-    /// not applied.
+    /// material is `doubleSided`. The textures are attached by the scene loader.
     pub fn to_arbor(&self, name: String) -> Material {
         let scattering = Scattering::Coated {
             base_color: self.base_color_factor.truncate(),

@@ -24,7 +24,7 @@ use super::gltf::{
 };
 use super::{
     Animation, AnimationSettings, Camera, ConductorFresnel, Environment, Keyframe, Material, MaterialTextures, Object,
-    RenderSettings, Scattering, Scene, SceneError, SceneGltfMaterial, SceneMesh,
+    RenderSettings, Scattering, Scene, SceneError, SceneMesh,
 };
 use crate::geometry::obj::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
@@ -171,25 +171,13 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
         procedural_triangles: 0,
         gltf_files,
         gltf_parts: HashMap::new(),
-        gltf_materials: Vec::new(),
     };
     for (i, o) in parsed.objects.iter().enumerate() {
         object(&ctx, i, o, &env, &mut out)?;
     }
-    let Built { materials, textures, meshes, objects, gltf_materials, .. } = out;
+    let Built { materials, textures, meshes, objects, .. } = out;
     let textures = textures.textures;
-    Ok(Scene {
-        path: file.clone(),
-        camera,
-        render,
-        environment,
-        materials,
-        textures,
-        meshes,
-        objects,
-        animation,
-        gltf_materials,
-    })
+    Ok(Scene { path: file.clone(), camera, render, environment, materials, textures, meshes, objects, animation })
 }
 
 fn animation(ctx: &Ctx, f: &SceneFile) -> Result<Option<AnimationSettings>, SceneError> {
@@ -435,12 +423,22 @@ fn render(ctx: &Ctx, f: &SceneFile) -> Result<RenderSettings, SceneError> {
 fn allowed_keys(kind: &str) -> Option<&'static [&'static str]> {
     Some(match kind {
         "diffuse" => &["albedo", "texture", "alpha_texture", "normal_texture"],
-        "emissive" => &["radiance", "two_sided", "albedo", "texture", "alpha_texture", "normal_texture"],
+        "emissive" => {
+            &["radiance", "two_sided", "albedo", "texture", "alpha_texture", "normal_texture", "emission_texture"]
+        }
         "conductor" => &["roughness", "eta", "k", "base_color", "texture", "alpha_texture", "normal_texture"],
         "dielectric" => &["ior", "roughness", "alpha_texture", "normal_texture"],
-        "metallic-roughness" => {
-            &["base_color", "metallic", "roughness", "ior", "texture", "alpha_texture", "normal_texture"]
-        }
+        "metallic-roughness" => &[
+            "base_color",
+            "metallic",
+            "roughness",
+            "ior",
+            "texture",
+            "alpha_texture",
+            "normal_texture",
+            "roughness_texture",
+            "metallic_texture",
+        ],
         _ => return None,
     })
 }
@@ -462,8 +460,11 @@ fn material(
             format!("unknown type `{kind}`; known: diffuse, emissive, conductor, dielectric, metallic-roughness"),
         )
     })?;
-    let present: [(&str, Option<Range<usize>>); 12] = [
+    let present: [(&str, Option<Range<usize>>); 15] = [
         ("texture", f.texture.as_ref().map(|v| v.span())),
+        ("emission_texture", f.emission_texture.as_ref().map(|v| v.span())),
+        ("roughness_texture", f.roughness_texture.as_ref().map(|v| v.span())),
+        ("metallic_texture", f.metallic_texture.as_ref().map(|v| v.span())),
         ("normal_texture", f.normal_texture.as_ref().map(|v| v.span())),
         ("metallic", f.metallic.as_ref().map(|v| v.span())),
         ("alpha_texture", f.alpha_texture.as_ref().map(|v| v.span())),
@@ -494,8 +495,10 @@ fn material(
         let (kind, k) = (m.get_ref().kind.get_ref(), key.rsplit('.').next().unwrap_or_default().to_owned());
         v.as_ref().ok_or_else(|| ctx.err(m.span(), key, format!("the `{kind}` material type needs `{k}`")))
     }
+    // Beside its texture, a number the texture multiplies defaults to 1.
     let roughness = match &f.roughness {
         Some(r) => ctx.number(r, &key("roughness"), |x| (0.0..=1.0).contains(&x), "in [0, 1]")?,
+        None if f.roughness_texture.is_some() => 1.0,
         None => 0.0,
     };
     let ior = || match &f.ior {
@@ -522,6 +525,9 @@ fn material(
     out.textures.alpha_cutoff = 0.5;
     out.textures.normal = texture(&f.normal_texture, "normal_texture", false)?;
     out.textures.normal_scale = 1.0;
+    out.textures.emission = texture(&f.emission_texture, "emission_texture", true)?;
+    out.textures.roughness = texture(&f.roughness_texture, "roughness_texture", false)?.map(|r| (r, 0));
+    out.textures.metallic = texture(&f.metallic_texture, "metallic_texture", false)?.map(|r| (r, 0));
     // A texture alone gives the colour: `albedo` (or `base_color`) then defaults to white.
     let textured = out.textures.base_color.is_some();
     match kind {
@@ -533,7 +539,10 @@ fn material(
             out.scattering = Scattering::Diffuse { albedo }
         }
         "emissive" => {
-            out.emission = Some(ctx.color(required(ctx, &f.radiance, m, key("radiance"))?, &key("radiance"))?);
+            out.emission = Some(match (&f.radiance, out.textures.emission.is_some()) {
+                (None, true) => Vec3::ONE,
+                _ => ctx.color(required(ctx, &f.radiance, m, key("radiance"))?, &key("radiance"))?,
+            });
             out.two_sided = f.two_sided.as_ref().is_some_and(|b| *b.get_ref());
             if let Some(a) = &f.albedo {
                 out.scattering = Scattering::Diffuse { albedo: ctx.color(a, &key("albedo"))? };
@@ -576,6 +585,7 @@ fn material(
             };
             let metallic = match &f.metallic {
                 Some(v) => ctx.number(v, &key("metallic"), |x| (0.0..=1.0).contains(&x), "in [0, 1]")?,
+                None if f.metallic_texture.is_some() => 1.0,
                 None => 0.0,
             };
             // `roughness` is perceptual here, as in glTF: GGX α is its square.
@@ -610,8 +620,6 @@ struct Built {
     /// Per glTF file (canonical path), the objects it makes: each mesh node's scene mesh and
     /// world matrix.
     gltf_parts: HashMap<PathBuf, Vec<(usize, Option<Mat4>)>>,
-    /// The description of every glTF material appended to `materials`.
-    gltf_materials: Vec<SceneGltfMaterial>,
 }
 
 /// The glTF files opened so far, by canonical path: the camera and the objects naming one file
@@ -760,8 +768,11 @@ fn object(ctx: &Ctx, index: usize, o: &S<ObjectFile>, env: &ObjectEnv, out: &mut
 
 /// The textures of glTF material `index` that Arbor applies: the base colour texture (sRGB),
 /// with `alphaMode` MASK its alpha as a cut-out at `alphaCutoff` (the factor's alpha folded into
-/// the cutoff), and the normal texture with its scale. Only `TEXCOORD_0` is kept, so a texture
-/// reading another set is left out; the wrap is the sampler's `wrapS`.
+/// the cutoff), the normal texture with its scale, the metallic-roughness texture (green:
+/// roughness, blue: metallic, each multiplying its factor) and the emissive texture (sRGB,
+/// multiplying the emissive factor). The occlusion texture is not: a path tracer computes the
+/// occlusion it approximates. Only `TEXCOORD_0` is kept, so a texture reading another set is
+/// left out; the wrap is the sampler's `wrapS`.
 fn gltf_textures(
     file: &GltfFile,
     index: usize,
@@ -800,6 +811,13 @@ fn gltf_textures(
         out.normal = load(t, "normalTexture", false)?;
         out.normal_scale = *scale;
     }
+    if let Some(t) = &m.metallic_roughness_texture {
+        let r = load(t, "pbrMetallicRoughness.metallicRoughnessTexture", false)?;
+        (out.roughness, out.metallic) = (r.map(|r| (r, 1)), r.map(|r| (r, 2)));
+    }
+    if let Some(t) = &m.emissive_texture {
+        out.emission = load(t, "emissiveTexture", true)?;
+    }
     // A texture without an alpha channel has alpha 1 (3.9.2), so only the factor would cut.
     if let Some(r) =
         out.base_color.filter(|r| m.alpha_mode == AlphaMode::Mask && cache.textures[r.texture as usize].has_alpha)
@@ -831,7 +849,6 @@ fn gltf_parts(
     let add_material = |out: &mut Built, name: String, m: &GltfMaterial| {
         let id = out.materials.len() as u32;
         out.materials.push(m.to_arbor(format!("{stem}/{name}")));
-        out.gltf_materials.push(SceneGltfMaterial { material: id, file: path.clone(), description: m.clone() });
         id
     };
     let first = out.materials.len() as u32;
@@ -1012,7 +1029,7 @@ fn obj_mesh(
         if m.diffuse_texture.is_some()
             || m.dissolve_texture.is_some()
             || m.normal_texture.is_some()
-            || m.unknown_param.contains_key("norm")
+            || ["norm", "map_Ke", "map_Pr", "map_Pm"].iter().any(|k| m.unknown_param.contains_key(*k))
         {
             let texts = mtl_texts.get_or_insert_with(|| {
                 obj.mtl_files.iter().map(|f| (f.clone(), std::fs::read(f).unwrap_or_default())).collect::<Vec<_>>()
@@ -1081,7 +1098,10 @@ fn from_mtl(name: &str, m: &tobj::Material) -> Material {
     let v = |a: Option<[f32; 3]>| a.map(Vec3::from).filter(|c| c.is_finite()).map(|c| c.max(Vec3::ZERO));
     // `map_Kd` multiplies `Kd` (the MTL specification), which defaults to white beside a map.
     let kd_default = if m.diffuse_texture.is_some() { Vec3::ONE } else { Vec3::ZERO };
-    let (kd, ks, ke) = (v(m.diffuse).unwrap_or(kd_default), v(m.specular).unwrap_or(Vec3::ZERO), v(m.emissive));
+    let (kd, ks) = (v(m.diffuse).unwrap_or(kd_default), v(m.specular).unwrap_or(Vec3::ZERO));
+    // So does `Ke` beside `map_Ke`, and `Pr` and `Pm` beside theirs (below).
+    let has = |key: &str| m.unknown_param.contains_key(key);
+    let ke = v(m.emissive).or_else(|| has("map_Ke").then_some(Vec3::ONE));
     let roughness = m.shininess.filter(|s| s.is_finite() && *s >= 0.0).map_or(1.0, |ns| (2.0 / (ns + 2.0)).sqrt());
     // The PBR extension's statements, which tobj keeps as unknown: a number in [0, 1], else
     // ignored as if absent.
@@ -1089,7 +1109,8 @@ fn from_mtl(name: &str, m: &tobj::Material) -> Material {
         let x = m.unknown_param.get(key)?.split_whitespace().next()?.parse::<f32>().ok()?;
         x.is_finite().then_some(x.clamp(0.0, 1.0))
     };
-    let (pr, pm) = (pbr("Pr"), pbr("Pm"));
+    let (pr, pm) =
+        (pbr("Pr").or_else(|| has("map_Pr").then_some(1.0)), pbr("Pm").or_else(|| has("map_Pm").then_some(1.0)));
     let glass = m.dissolve.is_some_and(|d| d < 1.0) || matches!(m.illumination_model, Some(4 | 6 | 7 | 9));
     let emission = ke.filter(|e| e.max_element() > 0.0);
     let scattering = if emission.is_some() {
@@ -1108,7 +1129,8 @@ fn from_mtl(name: &str, m: &tobj::Material) -> Material {
     Material { name: name.to_owned(), scattering, emission, two_sided: false, textures: MaterialTextures::default() }
 }
 
-/// The textures of MTL material `m` (`map_Kd`, `map_d`), loaded into `cache`, with paths
+/// The textures of MTL material `m` (`map_Kd`, `map_d`, the normal map, `map_Ke`, `map_Pr`,
+/// `map_Pm`), loaded into `cache`, with paths
 /// relative to the MTL file that defines it (`texts`: each MTL file the OBJ file named, and its
 /// bytes). An error names that file, the statement's line and the texture.
 fn mtl_textures(
@@ -1122,10 +1144,14 @@ fn mtl_textures(
         (Some(t), _) => ("bump", Some(t.clone())),
         (None, n) => ("norm", n.cloned()),
     };
+    let unknown = |k: &str| m.unknown_param.get(k).cloned();
     let textures = [
         ("map_Kd", &m.diffuse_texture, true),
         ("map_d", &m.dissolve_texture, false),
         (normal_statement, &normal, false),
+        ("map_Ke", &unknown("map_Ke"), true),
+        ("map_Pr", &unknown("map_Pr"), false),
+        ("map_Pm", &unknown("map_Pm"), false),
     ];
     for (statement, value, srgb) in textures {
         let Some(value) = value else { continue };
@@ -1147,6 +1173,10 @@ fn mtl_textures(
         match statement {
             "map_Kd" => out.base_color = r,
             "map_d" => out.alpha = r,
+            "map_Ke" => out.emission = r,
+            // Only the coated material has them: `from_mtl` makes it where these are given.
+            "map_Pr" => out.roughness = r.map(|r| (r, 0)),
+            "map_Pm" => out.metallic = r.map(|r| (r, 0)),
             _ => out.normal = r,
         }
     }

@@ -129,6 +129,14 @@ pub struct MaterialTextures {
     /// y scaled by `normal_scale`.
     pub normal: Option<TextureRef>,
     pub normal_scale: f32,
+    /// Multiplies the emitted radiance (`map_Ke`, glTF's `emissiveTexture`; sRGB colour). A
+    /// material with one is a light sampled by its textured power.
+    pub emission: Option<TextureRef>,
+    /// Multiply the coated material's perceptual roughness and its metallic: the given channel
+    /// of each texture (glTF's `metallicRoughnessTexture`: green and blue; MTL `map_Pr` and
+    /// `map_Pm`: red, which is the grey level of a grey image).
+    pub roughness: Option<(TextureRef, u8)>,
+    pub metallic: Option<(TextureRef, u8)>,
 }
 
 /// A mesh with one material per triangle (indices into [`Scene::materials`]). Objects naming the
@@ -183,21 +191,6 @@ pub struct Scene {
     pub objects: Vec<Object>,
     /// The `[animation]` table: the frame clock. Present whenever an object is animated.
     pub animation: Option<AnimationSettings>,
-    /// Every material read from a glTF file, as the file describes it, beside the Arbor
-    /// material standing in for it (textures are not rendered yet). Not part of
-    /// [`Scene::content_hash`] while nothing renders from it.
-    pub gltf_materials: Vec<SceneGltfMaterial>,
-}
-
-/// A glTF material of a scene: the full description ([`gltf::GltfMaterial`]), the file it came
-/// from (texture URIs and buffer views are relative to it), and the Arbor material
-/// approximating it ([`gltf::GltfMaterial::to_arbor`]).
-#[derive(Clone, Debug, PartialEq)]
-pub struct SceneGltfMaterial {
-    /// Index into [`Scene::materials`].
-    pub material: u32,
-    pub file: PathBuf,
-    pub description: gltf::GltfMaterial,
 }
 
 /// What went wrong loading a scene. Each names the file, and where it can the line and key.
@@ -226,6 +219,13 @@ impl Scene {
     /// per object that places it.
     pub fn world_triangle_count(&self) -> u64 {
         self.objects.iter().map(|o| self.meshes[o.mesh].mesh.indices.len() as u64).sum()
+    }
+
+    /// Bytes the scene's texels take: its textures and its environment map's texels and
+    /// sampling tables (a GPU render uploads the same again).
+    pub fn texture_bytes(&self) -> usize {
+        let map = self.environment.as_ref().and_then(|e| e.map.as_ref());
+        self.textures.iter().map(|t| t.bytes()).sum::<usize>() + map.map_or(0, |m| m.bytes())
     }
 
     /// An error where the scene flattened to world-space triangles ([`Scene::world_triangles`])

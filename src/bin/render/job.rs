@@ -154,6 +154,8 @@ pub struct Report {
     /// The sample indices asked for, `[first, end]`.
     pub samples: Option<[u32; 2]>,
     pub load_seconds: Option<f64>,
+    /// Bytes of texels the scene holds: textures and environment map ([`arbor::scene::Scene::texture_bytes`]).
+    pub texture_bytes: Option<u64>,
     pub bvh: Option<BvhReport>,
     pub frames: Vec<FrameReport>,
     /// `merge` only: the pieces merged.

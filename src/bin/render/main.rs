@@ -223,6 +223,7 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
     let load = Instant::now();
     let scene = Scene::load(scene_path)?;
     report.load_seconds = Some(load.elapsed().as_secs_f64());
+    report.texture_bytes = Some(scene.texture_bytes() as u64);
     let (width, height) = (scene.camera.width, scene.camera.height);
     let settings = RenderSettings {
         spp: args.spp.unwrap_or(scene.render.spp),
@@ -389,7 +390,7 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
         sah: build.sah,
     });
     if !args.quiet {
-        print_build(scene_path, build, device.name() == "cpu");
+        print_build(scene_path, build, device.name() == "cpu", scene.texture_bytes());
         if let Some(note) = renderer.kernel_note() {
             outln!("{note}");
         }
@@ -595,7 +596,7 @@ fn merge(args: &Args, report: &mut Report) -> Result<()> {
     Ok(())
 }
 
-fn print_build(scene: &Path, build: &BuildReport, cpu: bool) {
+fn print_build(scene: &Path, build: &BuildReport, cpu: bool, texture_bytes: usize) {
     // What the CPU traces; a GPU render traces its own copy of the binary tree.
     let traced = if cpu && build.tracing.layout != TraceLayout::Binary {
         format!(", traced as a {} (collapse {:.1} ms, SAH {:.2})", build.tracing, build.collapse_ms, build.traced_sah)
@@ -604,14 +605,19 @@ fn print_build(scene: &Path, build: &BuildReport, cpu: bool) {
     } else {
         String::new()
     };
+    let textures = match texture_bytes {
+        0 => String::new(),
+        b => format!(", textures {:.1} MB", b as f64 / 1e6),
+    };
     outln!(
-        "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}{}",
+        "{}: {} triangles, BVH ({}) {:.1} ms, SAH {:.2}{}{}{}",
         scene.display(),
         build.triangles,
         build.builder,
         build.build_ms,
         build.sah,
         traced,
+        textures,
         peak_memory(build.triangles),
     );
 }
