@@ -1857,3 +1857,67 @@ fn valid_maps_load() {
         assert_eq!((map.width, map.height), (6, 3));
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Textures: PNG, JPEG, TGA and BMP files, valid, mutated and random
+
+const TEXTURE_FORMATS: [&str; 4] = ["png", "jpg", "tga", "bmp"];
+
+fn texture_scene(file: &str) -> String {
+    format!(
+        "[camera]\nposition = [0, 0, 4]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\
+         [materials.m]\ntype = \"diffuse\"\ntexture = \"{file}\"\n\
+         [[objects]]\nshape = \"quad\"\nmaterial = \"m\"\n"
+    )
+}
+
+/// A small valid texture in `format` (an extension of [`TEXTURE_FORMATS`]), as bytes.
+fn texture_bytes(format: &str) -> Vec<u8> {
+    let image = image::RgbImage::from_fn(5, 3, |x, y| image::Rgb([(40 * x) as u8, (80 * y) as u8, 200]));
+    let format = image::ImageFormat::from_extension(format).unwrap();
+    let mut bytes = Vec::new();
+    image.write_to(&mut std::io::Cursor::new(&mut bytes), format).unwrap();
+    bytes
+}
+
+proptest! {
+    #![proptest_config(config(300))]
+
+    /// A texture file with bytes changed, cut short or random: the scene loads, or the error
+    /// names the scene's line and key and the texture file. The image decoders are `image`'s;
+    /// this checks that what they refuse (or panic on) reaches the user as an error.
+    #[test]
+    fn mutated_and_random_textures(
+        format in 0..TEXTURE_FORMATS.len(),
+        edits in prop::collection::vec((any::<Index>(), any::<u8>()), 0..6),
+        cut in prop::option::of(any::<Index>()),
+        random in prop::option::of(prop::collection::vec(any::<u8>(), 0..300)),
+    ) {
+        let format = TEXTURE_FORMATS[format];
+        let mut bytes = random.unwrap_or_else(|| texture_bytes(format));
+        for (at, b) in edits {
+            if !bytes.is_empty() {
+                let i = at.index(bytes.len());
+                bytes[i] = b;
+            }
+        }
+        if let Some(at) = cut.filter(|_| !bytes.is_empty()) {
+            bytes.truncate(at.index(bytes.len()));
+        }
+        let name = format!("t.{format}");
+        check(&[("scene.toml", texture_scene(&name).as_bytes()), (&name, &bytes)], &[&name])?;
+    }
+}
+
+/// The valid textures themselves load.
+#[test]
+fn valid_textures_load() {
+    for format in TEXTURE_FORMATS {
+        let name = format!("t.{format}");
+        let (scene, bytes) = (texture_scene(&name), texture_bytes(format));
+        let Outcome::Loaded(scene) = load(&[("scene.toml", scene.as_bytes()), (&name, &bytes)]).0 else {
+            panic!("{name} does not load");
+        };
+        assert_eq!((scene.textures[0].width, scene.textures[0].height), (5, 3), "{name}");
+    }
+}
