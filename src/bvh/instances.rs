@@ -13,7 +13,7 @@
 use glam::{Affine3A, Vec3};
 
 use super::dynamic::{DynamicBvh, DynamicConfig, UpdateStats};
-use super::traverse::{HitFilter, Reject, Skip};
+use super::traverse::{HitFilter, Skip, SkipReject};
 use super::{Bvh, MeshBvh};
 use crate::geometry::{Aabb, Ray};
 
@@ -161,21 +161,28 @@ impl TwoLevel {
         self.any_hit_with(ray, t_max, |i| Skip(skipped(skip, i)))
     }
 
-    /// [`TwoLevel::closest_hit`] leaving out every hit `(instance, prim, u, v)` that `reject`
-    /// refuses (the skipped triangle, cut-out texels).
+    /// [`TwoLevel::closest_hit_skipping`] leaving out as well every hit `(instance, prim, u, v)`
+    /// that `reject` refuses (cut-out texels).
     pub fn closest_hit_filtered<R: Fn(u32, u32, f32, f32) -> bool>(
         &self,
         ray: &Ray,
         t_max: f32,
+        skip: Option<(u32, u32)>,
         reject: &R,
     ) -> Option<InstanceHit> {
-        self.closest_hit_with(ray, t_max, |i| Reject(move |prim, u, v| reject(i, prim, u, v)))
+        self.closest_hit_with(ray, t_max, |i| SkipReject(skipped(skip, i), move |prim, u, v| reject(i, prim, u, v)))
     }
 
-    /// [`TwoLevel::any_hit`] counting only hits `(instance, prim, u, v)` that `reject` does not
-    /// refuse.
-    pub fn any_hit_filtered<R: Fn(u32, u32, f32, f32) -> bool>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
-        self.any_hit_with(ray, t_max, |i| Reject(move |prim, u, v| reject(i, prim, u, v)))
+    /// [`TwoLevel::any_hit_skipping`] counting only hits `(instance, prim, u, v)` that `reject`
+    /// does not refuse.
+    pub fn any_hit_filtered<R: Fn(u32, u32, f32, f32) -> bool>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        skip: Option<(u32, u32)>,
+        reject: &R,
+    ) -> bool {
+        self.any_hit_with(ray, t_max, |i| SkipReject(skipped(skip, i), move |prim, u, v| reject(i, prim, u, v)))
     }
 
     /// The closest hit, each instance `i` traced with the filter `filter(i)`.

@@ -138,7 +138,7 @@ impl MeshBvh {
         let wr = WatertightRay::new(ray);
         self.bvh
             .closest_hit(ray, t_max, |pos, prim, t_limit| {
-                if !R::USES_UV && reject.reject(prim, 0.0, 0.0) {
+                if reject.skips(prim) {
                     return None;
                 }
                 let h = self.triangles[pos as usize].intersect(&wr, t_limit)?;
@@ -154,9 +154,11 @@ impl MeshBvh {
     fn binary_any_filtered<R: HitFilter>(&self, ray: &Ray, t_max: f32, reject: &R) -> bool {
         let wr = WatertightRay::new(ray);
         self.bvh.any_hit(ray, t_max, |pos, prim, t_limit| {
+            if reject.skips(prim) {
+                return false;
+            }
             if !R::USES_UV {
-                return !reject.reject(prim, 0.0, 0.0)
-                    && self.triangles[pos as usize].intersect(&wr, t_limit).is_some();
+                return self.triangles[pos as usize].intersect(&wr, t_limit).is_some();
             }
             self.triangles[pos as usize].intersect(&wr, t_limit).is_some_and(|h| !reject.reject(prim, h.u, h.v))
         })

@@ -24,7 +24,8 @@ pub use node::{Bvh, BvhNode, INVALID_INDEX, NodePair, Nodes, PAD_INDEX};
 pub use sah::{CollapseConfig, SahCosts, collapse_leaves, sah_cost, sah_cost_with};
 pub use simd::{SimdPath, TraceLayout, Tracing};
 pub use traverse::{
-    CULL_ABS_ULPS, CULL_SCALE, Hit, HitFilter, Reject, Skip, brute_force_any, brute_force_closest, hit_point_and_normal,
+    CULL_ABS_ULPS, CULL_SCALE, Hit, HitFilter, Skip, SkipReject, brute_force_any, brute_force_closest,
+    hit_point_and_normal,
 };
 pub use validate::{BvhStats, ValidationError, validate};
 

@@ -67,12 +67,17 @@ pub struct Hit {
 }
 
 /// What a mesh traversal leaves out ([`super::MeshBvh::closest_hit_filtered`]): the primitive a
-/// spawned ray leaves ([`Skip`]), or every hit a predicate refuses ([`Reject`]: cut-out texels).
+/// spawned ray leaves ([`Skip`]), and with it every hit a predicate refuses ([`SkipReject`]:
+/// cut-out texels).
 pub trait HitFilter {
-    /// Whether [`HitFilter::reject`] reads the barycentrics. Where it does not, a shadow ray's
-    /// test need not compute them, and a skipped primitive is not intersected at all.
+    /// Whether [`HitFilter::reject`] reads the barycentrics: where it does not, a shadow ray's
+    /// test need not compute them.
     const USES_UV: bool;
-    /// Whether the hit on primitive `prim` at barycentrics `(u, v)` does not count.
+    /// Whether primitive `prim` is left out before it is intersected (the surface a ray
+    /// leaves: it cannot hit it, and that test is the costliest it would make).
+    fn skips(&self, prim: u32) -> bool;
+    /// Whether the hit on primitive `prim` at barycentrics `(u, v)` does not count; asked only
+    /// where [`HitFilter::USES_UV`].
     fn reject(&self, prim: u32, u: f32, v: f32) -> bool;
 }
 
@@ -83,20 +88,29 @@ pub struct Skip(pub u32);
 impl HitFilter for Skip {
     const USES_UV: bool = false;
     #[inline(always)]
-    fn reject(&self, prim: u32, _: f32, _: f32) -> bool {
+    fn skips(&self, prim: u32) -> bool {
         prim == self.0
+    }
+    #[inline(always)]
+    fn reject(&self, _: u32, _: f32, _: f32) -> bool {
+        false
     }
 }
 
-/// Leaves out every hit `(prim, u, v)` for which the function holds.
+/// Leaves out primitive `.0` ([`super::INVALID_INDEX`]: none), and every hit `(prim, u, v)` for
+/// which the function holds.
 #[derive(Clone, Copy, Debug)]
-pub struct Reject<F>(pub F);
+pub struct SkipReject<F>(pub u32, pub F);
 
-impl<F: Fn(u32, f32, f32) -> bool> HitFilter for Reject<F> {
+impl<F: Fn(u32, f32, f32) -> bool> HitFilter for SkipReject<F> {
     const USES_UV: bool = true;
     #[inline(always)]
+    fn skips(&self, prim: u32) -> bool {
+        prim == self.0
+    }
+    #[inline(always)]
     fn reject(&self, prim: u32, u: f32, v: f32) -> bool {
-        (self.0)(prim, u, v)
+        (self.1)(prim, u, v)
     }
 }
 

@@ -315,7 +315,7 @@ impl<const N: usize> WideMesh<N> {
                         let i = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
                         let prim = p.prim[i];
-                        if !R::USES_UV && skip.reject(prim, 0.0, 0.0) {
+                        if skip.skips(prim) {
                             continue;
                         }
                         let t_limit = best.map_or(t_max, |b| b.t);
@@ -393,11 +393,12 @@ impl<const N: usize> WideMesh<N> {
                     while lanes != 0 {
                         let i = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
+                        if skip.skips(p.prim[i]) {
+                            continue;
+                        }
                         if !R::USES_UV {
                             // The barycentrics unread, the kernel's are left uncomputed.
-                            if !skip.reject(p.prim[i], 0.0, 0.0)
-                                && (hits.accept & (1 << i) != 0 || p.triangle(i).intersect(&pr.wr, t_max).is_some())
-                            {
+                            if hits.accept & (1 << i) != 0 || p.triangle(i).intersect(&pr.wr, t_max).is_some() {
                                 return true;
                             }
                             continue;

@@ -21,7 +21,7 @@ use super::material::RenderMaterial;
 use super::texture::{Texture, TextureRef};
 use crate::bvh::dynamic::UpdateStats;
 use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
-use crate::bvh::{INVALID_INDEX, MeshBvh, Reject};
+use crate::bvh::{INVALID_INDEX, MeshBvh, SkipReject};
 use crate::geometry::{Ray, Triangle};
 use crate::scene::Scene;
 
@@ -332,17 +332,13 @@ impl Geometry {
             Geometry::Flat(f) => match &f.cutouts {
                 None => f.mesh.any_hit_skipping(ray, t_max, skip_prim(from)),
                 Some(c) => {
-                    let skip = skip_prim(from);
-                    f.mesh.any_hit_filtered(ray, t_max, &Reject(|prim, u, v| prim == skip || f.cut(c, prim, u, v)))
+                    f.mesh.any_hit_filtered(ray, t_max, &SkipReject(skip_prim(from), |prim, u, v| f.cut(c, prim, u, v)))
                 }
             },
             Geometry::Instanced(g) => match &g.cutouts {
                 None => g.two_level.any_hit_skipping(ray, t_max, skip_pair(from)),
                 Some(c) => {
-                    let skip = skip_pair(from);
-                    g.two_level.any_hit_filtered(ray, t_max, &|i, prim, u, v| {
-                        skip == Some((i, prim)) || g.cut(c, i, prim, u, v)
-                    })
+                    g.two_level.any_hit_filtered(ray, t_max, skip_pair(from), &|i, prim, u, v| g.cut(c, i, prim, u, v))
                 }
             },
         }
@@ -375,7 +371,7 @@ impl Flat {
             Some(c) => self.mesh.closest_hit_filtered(
                 ray,
                 f32::INFINITY,
-                &Reject(|prim, u, v| prim == skip || self.cut(c, prim, u, v)),
+                &SkipReject(skip, |prim, u, v| self.cut(c, prim, u, v)),
             ),
         }
     }
@@ -392,9 +388,9 @@ impl Instanced {
         let skip = skip_pair(from);
         match &self.cutouts {
             None => self.two_level.closest_hit_skipping(ray, f32::INFINITY, skip),
-            Some(c) => self.two_level.closest_hit_filtered(ray, f32::INFINITY, &|i, prim, u, v| {
-                skip == Some((i, prim)) || self.cut(c, i, prim, u, v)
-            }),
+            Some(c) => self
+                .two_level
+                .closest_hit_filtered(ray, f32::INFINITY, skip, &|i, prim, u, v| self.cut(c, i, prim, u, v)),
         }
     }
 

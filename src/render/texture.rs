@@ -152,13 +152,15 @@ impl Texture {
         self.texels.len() * 4
     }
 
-    /// The texel at column `x`, row `y` (row 0 at the top), RGB decoded from sRGB if `srgb`.
-    fn texel(&self, x: u32, y: u32, srgb: bool) -> Vec4 {
-        let i = (y * self.width + x) as usize;
+    /// The texel at index `i` (row-major, row 0 at the top), its RGB decoded by `srgb` (the
+    /// table of [`srgb_table`]) where given.
+    #[inline(always)]
+    fn texel(&self, i: u32, srgb: Option<&[f32; 256]>) -> Vec4 {
+        let i = i as usize;
         match self.format {
             TexelFormat::Rgba8 => {
                 let [r, g, b, a] = self.texels[i].to_le_bytes();
-                let c = |v: u8| if srgb { crate::image_io::srgb_decode(v) } else { f32::from(v) / 255.0 };
+                let c = |v: u8| srgb.map_or(f32::from(v) / 255.0, |t| t[v as usize]);
                 Vec4::new(c(r), c(g), c(b), f32::from(a) / 255.0)
             }
             TexelFormat::Rgba32F => {
@@ -172,12 +174,14 @@ impl Texture {
     pub fn sample(&self, uv: Vec2, wrap: Wrap, srgb: bool) -> Vec4 {
         // Wrapped in f32 first, so that huge coordinates do not overflow the integer index.
         let (x, y) = (uv.x * self.width as f32 - 0.5, (1.0 - uv.y) * self.height as f32 - 0.5);
-        let (x0, y0) = (x.floor(), y.floor());
+        let (x0, y0) = (floor(x), floor(y));
         let (fx, fy) = (x - x0, y - y0);
-        let (c0, c1) = (wrap_index(x0, self.width, wrap), wrap_index(x0 + 1.0, self.width, wrap));
-        let (r0, r1) = (wrap_index(y0, self.height, wrap), wrap_index(y0 + 1.0, self.height, wrap));
-        let top = self.texel(c0, r0, srgb) * (1.0 - fx) + self.texel(c1, r0, srgb) * fx;
-        let bottom = self.texel(c0, r1, srgb) * (1.0 - fx) + self.texel(c1, r1, srgb) * fx;
+        let (c0, c1) = wrap_pair(x0, self.width, wrap);
+        let (r0, r1) = wrap_pair(y0, self.height, wrap);
+        let table = srgb.then(srgb_table);
+        let (w0, w1) = (r0 * self.width, r1 * self.width);
+        let top = self.texel(w0 + c0, table) * (1.0 - fx) + self.texel(w0 + c1, table) * fx;
+        let bottom = self.texel(w1 + c0, table) * (1.0 - fx) + self.texel(w1 + c1, table) * fx;
         top * (1.0 - fy) + bottom * fy
     }
 
@@ -187,6 +191,14 @@ impl Texture {
         let t = self.sample(uv, wrap, false);
         if self.has_alpha { t.w } else { t.x }
     }
+}
+
+/// [`crate::image_io::srgb_decode`] of every code, computed once: a lookup reads 12 of them,
+/// and the curve's `powf` would cost more than the rest of the lookup.
+fn srgb_table() -> &'static [f32; 256] {
+    static TABLE: std::sync::LazyLock<[f32; 256]> =
+        std::sync::LazyLock::new(|| std::array::from_fn(|c| crate::image_io::srgb_decode(c as u8)));
+    &TABLE
 }
 
 /// An EXR file's size, from its header (its first layer's).
@@ -212,19 +224,45 @@ fn check_size(path: &Path, width: u32, height: u32, float: bool) -> Result<(), T
     Ok(crate::memory::check_fits(&format!("{}: a texture of {width}x{height}", path.display()), bytes)?)
 }
 
-/// Index `i` (an integer-valued f32) wrapped into `0..n`.
+/// `x.floor()` without the call to libm's `floorf` that baseline x86-64 (no SSE4.1 `roundss`)
+/// compiles it to: a float of magnitude 2^23 or more is an integer already, and one below
+/// converts to `i32` exactly. NaN stays NaN.
+#[inline(always)]
+fn floor(x: f32) -> f32 {
+    if x.abs() < 8_388_608.0 {
+        let t = x as i32 as f32;
+        if t > x { t - 1.0 } else { t }
+    } else {
+        x
+    }
+}
+
+/// Indices `i` and `i + 1` (`i` an integer-valued f32) wrapped into `0..n`.
+#[inline(always)]
+fn wrap_pair(i: f32, n: u32, wrap: Wrap) -> (u32, u32) {
+    let a = wrap_index(i, n, wrap);
+    match wrap {
+        // The next column is the first past the last: no second remainder to take.
+        Wrap::Repeat => (a, if a + 1 == n { 0 } else { a + 1 }),
+        _ => (a, wrap_index(i + 1.0, n, wrap)),
+    }
+}
+
+/// Index `i` (an integer-valued f32) wrapped into `0..n`, as `shaders/trace.wgsl` wraps it: by
+/// `floor`, which is cheaper than a remainder (`fmodf`) and rounds alike on both devices.
+#[inline(always)]
 fn wrap_index(i: f32, n: u32, wrap: Wrap) -> u32 {
     let nf = n as f32;
     let k = match wrap {
         Wrap::Clamp => i.clamp(0.0, nf - 1.0),
-        Wrap::Repeat => i.rem_euclid(nf),
+        Wrap::Repeat => i - nf * floor(i / nf),
         Wrap::Mirror => {
-            let m = i.rem_euclid(2.0 * nf);
+            let m = i - 2.0 * nf * floor(i / (2.0 * nf));
             if m >= nf { 2.0 * nf - 1.0 - m } else { m }
         }
     };
-    // rem_euclid of a tiny negative can round up to `n`.
-    (k as u32).min(n - 1)
+    // The rounding of a huge or tiny `i` can leave `k` just outside `0..n`.
+    (k.max(0.0) as u32).min(n - 1)
 }
 
 fn float_texels(pixels: impl Iterator<Item = [f32; 4]>) -> Vec<u32> {
@@ -319,7 +357,7 @@ pub fn gpu_texture_channel(r: Option<(TextureRef, u8)>) -> u32 {
 pub fn gpu_texture_data(textures: &[Arc<Texture>]) -> Vec<u32> {
     let mut data =
         Vec::with_capacity(256 + 4 * textures.len() + textures.iter().map(|t| t.texels.len()).sum::<usize>());
-    data.extend((0..=255u8).map(|c| crate::image_io::srgb_decode(c).to_bits()));
+    data.extend(srgb_table().iter().map(|c| c.to_bits()));
     let mut offset = 256 + 4 * textures.len() as u32;
     for t in textures {
         let flags = u32::from(t.format == TexelFormat::Rgba32F) | u32::from(t.has_alpha) << 1;
@@ -380,6 +418,35 @@ mod tests {
         assert!((s.x - 150.0 / 255.0).abs() < 1e-6, "{s}");
         let far = t.sample(Vec2::new(1e6, 0.5), Wrap::Repeat, false);
         assert!(far.is_finite());
+    }
+
+    /// The libm-free floor is `f32::floor`, and the pair of wrapped indices each index wrapped
+    /// alone, for every wrap, across several periods either side of zero and at large values.
+    #[test]
+    fn fast_floor_and_wrapped_pairs_match_the_plain_forms() {
+        let xs = (-3000..3000).map(|i| i as f32 * 0.37).chain([8388607.5, -8388607.5, 1e9, -1e9, 0.0, -0.0, -1e-30]);
+        for x in xs {
+            assert_eq!(floor(x), x.floor(), "{x}"); // (the sign of a zero aside)
+        }
+        assert!(floor(f32::NAN).is_nan());
+        for wrap in [Wrap::Repeat, Wrap::Clamp, Wrap::Mirror] {
+            for n in [1, 2, 5] {
+                for i in -40..40 {
+                    let i = i as f32;
+                    let pair = wrap_pair(i, n, wrap);
+                    assert_eq!(pair, (wrap_index(i, n, wrap), wrap_index(i + 1.0, n, wrap)), "{wrap:?} {n} {i}");
+                    let want = match wrap {
+                        Wrap::Repeat => i.rem_euclid(n as f32) as u32,
+                        Wrap::Clamp => i.clamp(0.0, n as f32 - 1.0) as u32,
+                        Wrap::Mirror => {
+                            let m = i.rem_euclid(2.0 * n as f32) as u32;
+                            if m >= n { 2 * n - 1 - m } else { m }
+                        }
+                    };
+                    assert_eq!(pair.0, want, "{wrap:?} {n} {i}");
+                }
+            }
+        }
     }
 
     #[test]
