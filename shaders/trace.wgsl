@@ -375,9 +375,10 @@ fn closest_hit(ray: Ray) -> Hit {
     loop {
         if node.prim_count > 0u {
             for (var i = node.first; i < node.first + node.prim_count; i++) {
-                let h = intersect_triangle(triangles[i], r, best.t);
+                let tri = triangles[i];
+                let h = intersect_triangle(tri, r, best.t);
                 if h.x > 0.0 && (h.x < best.t || (h.x == best.t && i < best.index))
-                    && !(HAS_TEXTURES && cut_out(i, h.y, h.z)) {
+                    && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
                     best = Hit(h.x, i, h.y, h.z);
                     limit = best.t * CULL_SCALE + slack;
                 }
@@ -445,8 +446,9 @@ fn occluded(ray: Ray, t_max: f32) -> bool {
     loop {
         if node.prim_count > 0u {
             for (var i = node.first; i < node.first + node.prim_count; i++) {
-                let h = intersect_triangle(triangles[i], r, t_max);
-                if h.x > 0.0 && !(HAS_TEXTURES && cut_out(i, h.y, h.z)) {
+                let tri = triangles[i];
+                let h = intersect_triangle(tri, r, t_max);
+                if h.x > 0.0 && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
                     return true;
                 }
             }
@@ -584,14 +586,11 @@ fn triangle_uv(index: u32, u: f32, v: f32) -> vec2<f32> {
     return (1.0 - u - v) * a + u * c1 + v * c2;
 }
 
-// Cutouts::cut: whether leaf triangle `index` is cut out at (u, v) by its material's mask
-// (the alpha channel where the texture has one, else its first channel).
-fn cut_out(index: u32, u: f32, v: f32) -> bool {
-    let tri = triangles[index];
-    if tri.cutout == 0u {
-        return false;
-    }
-    let mat = materials[tri.material];
+// Cutouts::cut: whether leaf triangle `index`, of a masked material `material`, is cut out
+// at (u, v) by the mask (the alpha channel where the texture has one, else its first channel).
+// The caller tests the triangle's `cutout` flag first, from the copy it intersected.
+fn cut_out(index: u32, material: u32, u: f32, v: f32) -> bool {
+    let mat = materials[material];
     let t = tex_sample(mat.alpha_tex, triangle_uv(index, u, v));
     let header = 256u + 4u * (mat.alpha_tex & 0xffffffu);
     let coverage = select(t.x, t.w, (textures[header + 3u] & 2u) != 0u);

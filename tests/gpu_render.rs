@@ -206,7 +206,8 @@ fn specialized_and_general_variants_agree() {
             thin_lens: false,
             shading_normals: false,
             env_map: false,
-            textures: false
+            textures: false,
+            cutouts: false
         }
     );
     let mut gpu = GpuScene::upload(ctx, &rs).unwrap();

@@ -12,10 +12,10 @@
 //!
 //! **Specialization.** Each scene gets a shader variant: `HAS_DIELECTRIC`, `HAS_CONDUCTOR`,
 //! `HAS_COATED`, `HAS_ENVIRONMENT`, `HAS_LIGHTS`, `HAS_THIN_LENS`, `HAS_SHADING_NORMALS`,
-//! `HAS_ENV_MAP` and `HAS_TEXTURES` are generated as `const` bools in front of the source
-//! ([`Features`]), and code behind a false one (a material's BSDF, the environment, next-event
-//! estimation and shadow rays, the thin lens, vertex normals, the environment map's sampling,
-//! texture lookups and the traversal's cut-out test) is removed by the compiler. The pipeline
+//! `HAS_ENV_MAP`, `HAS_TEXTURES` and `HAS_CUTOUTS` are generated as `const` bools in front of
+//! the source ([`Features`]), and code behind a false one (a material's BSDF, the environment,
+//! next-event estimation and shadow rays, the thin lens, vertex normals, the environment map's
+//! sampling, texture lookups, the traversal's cut-out test) is removed by the compiler. The pipeline
 //! cache key names the variant. `ARBOR_GPU_NO_SPECIALIZE=1` compiles every scene with all
 //! features, for measuring what specialization saves.
 //!
@@ -113,8 +113,11 @@ pub struct Features {
     pub shading_normals: bool,
     /// An environment map, sampled for next-event estimation.
     pub env_map: bool,
-    /// Image textures: base colours and cut-out masks.
+    /// Image textures.
     pub textures: bool,
+    /// Cut-out masks, tested in the traversal (only with `textures`). Apart from `textures`,
+    /// since the test slows the traversal loop even where no triangle is masked.
+    pub cutouts: bool,
 }
 
 impl Features {
@@ -129,6 +132,7 @@ impl Features {
         shading_normals: true,
         env_map: true,
         textures: true,
+        cutouts: true,
     };
 
     /// What `scene` uses.
@@ -144,6 +148,7 @@ impl Features {
             shading_normals: matches!(&scene.geometry, Geometry::Flat(f) if !f.normals.is_empty()),
             env_map: scene.environment_light().is_some(),
             textures: scene.materials.iter().any(RenderMaterial::is_textured),
+            cutouts: scene.materials.iter().any(|m| m.alpha.is_some()),
         }
     }
 
@@ -151,7 +156,7 @@ impl Features {
     pub fn key(&self) -> String {
         let b = |x: bool| u8::from(x);
         format!(
-            "trace[dielectric={} conductor={} coated={} environment={} lights={} thin_lens={} shading_normals={} env_map={} textures={}]",
+            "trace[dielectric={} conductor={} coated={} environment={} lights={} thin_lens={} shading_normals={} env_map={} textures={} cutouts={}]",
             b(self.dielectric),
             b(self.conductor),
             b(self.coated),
@@ -160,13 +165,15 @@ impl Features {
             b(self.thin_lens),
             b(self.shading_normals),
             b(self.env_map),
-            b(self.textures)
+            b(self.textures),
+            b(self.cutouts)
         )
     }
 
-    /// Every combination, for tests that validate each variant.
+    /// Every combination (cut-outs only with textures), for tests that validate each variant.
     pub fn every() -> Vec<Features> {
-        (0..512u32)
+        (0..1024u32)
+            .filter(|m| m & 512 == 0 || m & 128 != 0)
             .map(|m| Features {
                 dielectric: m & 1 != 0,
                 conductor: m & 2 != 0,
@@ -177,6 +184,7 @@ impl Features {
                 env_map: m & 64 != 0,
                 textures: m & 128 != 0,
                 coated: m & 256 != 0,
+                cutouts: m & 512 != 0,
             })
             .collect()
     }
@@ -189,7 +197,7 @@ pub fn shader_source(features: Features) -> String {
         "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_COATED: bool = {};\n\
          const HAS_ENVIRONMENT: bool = {};\n\
          const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\nconst HAS_SHADING_NORMALS: bool = {};\n\
-         const HAS_ENV_MAP: bool = {};\nconst HAS_TEXTURES: bool = {};\n",
+         const HAS_ENV_MAP: bool = {};\nconst HAS_TEXTURES: bool = {};\nconst HAS_CUTOUTS: bool = {};\n",
         features.dielectric,
         features.conductor,
         features.coated,
@@ -198,7 +206,8 @@ pub fn shader_source(features: Features) -> String {
         features.thin_lens,
         features.shading_normals,
         features.env_map,
-        features.textures
+        features.textures,
+        features.textures && features.cutouts
     );
     with_prelude(&format!(
         "{flags}\n{}\n{}",
