@@ -105,6 +105,17 @@ pub(crate) fn quadrant_means(film: &Film) -> Vec<([f64; 3], [f64; 3])> {
     out
 }
 
+/// The quadrant means of the sum of two independent estimates, from theirs: the means add, and
+/// the variances.
+pub(crate) fn quadrant_sums(a: &[([f64; 3], [f64; 3])], b: &[([f64; 3], [f64; 3])]) -> Vec<([f64; 3], [f64; 3])> {
+    a.iter()
+        .zip(b)
+        .map(|((ma, sa), (mb, sb))| {
+            (std::array::from_fn(|c| ma[c] + mb[c]), std::array::from_fn(|c| sa[c].hypot(sb[c])))
+        })
+        .collect()
+}
+
 /// Fails unless every quadrant of `a` and `b` agrees within `z` combined standard errors.
 pub(crate) fn assert_agree(what: &str, a: &Film, b: &Film, z: f64) {
     assert_quadrants_agree(what, quadrant_means(a), quadrant_means(b), z);
@@ -328,14 +339,7 @@ fn a_map_and_a_lamp_add_up() {
     for device in devices("a_map_and_a_lamp_add_up") {
         let map = quadrant_means(&render(device, &map_only, 128, 3, 11));
         let lamp = quadrant_means(&render(device, &lamp_only, 128, 3, 12));
-        // Independent estimates add: their means, and their variances.
-        let sum = map
-            .iter()
-            .zip(&lamp)
-            .map(|((ma, sa), (mb, sb))| {
-                (std::array::from_fn(|c| ma[c] + mb[c]), std::array::from_fn(|c| sa[c].hypot(sb[c])))
-            })
-            .collect();
+        let sum = quadrant_sums(&map, &lamp);
         let together = quadrant_means(&render(device, &both, 128, 3, 13));
         assert_quadrants_agree(&format!("{}: map + lamp against each alone", device.name()), together, sum, 4.5);
     }

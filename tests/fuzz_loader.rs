@@ -1800,6 +1800,20 @@ fn map_scene(file: &str) -> String {
     )
 }
 
+/// `bytes` with `edits` (position, new byte) made, then cut short at `cut`.
+fn mutated(mut bytes: Vec<u8>, edits: Vec<(Index, u8)>, cut: Option<Index>) -> Vec<u8> {
+    for (at, b) in edits {
+        if !bytes.is_empty() {
+            let i = at.index(bytes.len());
+            bytes[i] = b;
+        }
+    }
+    if let Some(at) = cut.filter(|_| !bytes.is_empty()) {
+        bytes.truncate(at.index(bytes.len()));
+    }
+    bytes
+}
+
 /// A small valid map in `format` ("exr" or "hdr"), as bytes.
 fn map_bytes(format: &str) -> Vec<u8> {
     let (w, h) = (6u32, 3u32);
@@ -1829,16 +1843,7 @@ proptest! {
         random in prop::option::of(prop::collection::vec(any::<u8>(), 0..300)),
     ) {
         let format = if exr { "exr" } else { "hdr" };
-        let mut bytes = random.unwrap_or_else(|| map_bytes(format));
-        for (at, b) in edits {
-            if !bytes.is_empty() {
-                let i = at.index(bytes.len());
-                bytes[i] = b;
-            }
-        }
-        if let Some(at) = cut.filter(|_| !bytes.is_empty()) {
-            bytes.truncate(at.index(bytes.len()));
-        }
+        let bytes = mutated(random.unwrap_or_else(|| map_bytes(format)), edits, cut);
         let name = format!("m.{format}");
         check(&[("scene.toml", map_scene(&name).as_bytes()), (&name, &bytes)], &[&name])?;
     }
@@ -1894,16 +1899,7 @@ proptest! {
         random in prop::option::of(prop::collection::vec(any::<u8>(), 0..300)),
     ) {
         let format = TEXTURE_FORMATS[format];
-        let mut bytes = random.unwrap_or_else(|| texture_bytes(format));
-        for (at, b) in edits {
-            if !bytes.is_empty() {
-                let i = at.index(bytes.len());
-                bytes[i] = b;
-            }
-        }
-        if let Some(at) = cut.filter(|_| !bytes.is_empty()) {
-            bytes.truncate(at.index(bytes.len()));
-        }
+        let bytes = mutated(random.unwrap_or_else(|| texture_bytes(format)), edits, cut);
         let name = format!("t.{format}");
         check(&[("scene.toml", texture_scene(&name).as_bytes()), (&name, &bytes)], &[&name])?;
     }

@@ -377,7 +377,7 @@ fn a_normal_map_shades_as_the_vertex_normals_it_encodes() {
 /// two triangles, so the texture varies within each triangle.
 #[test]
 fn an_emission_texture_lights_as_it_looks() {
-    use crate::environment::{assert_quadrants_agree, quadrant_means};
+    use crate::environment::{assert_quadrants_agree, quadrant_means, quadrant_sums};
     use arbor::image_io::{Image, write_image};
     let dir = temp_dir("emission");
     let ramp = |rising: bool| Image {
@@ -425,13 +425,7 @@ fn an_emission_texture_lights_as_it_looks() {
     for device in devices("an_emission_texture_lights_as_it_looks") {
         let name = device.name();
         let (a, b) = (quadrant_means(&render(device, &up, 64, 3)), quadrant_means(&render(device, &down, 64, 3)));
-        let sum = a
-            .iter()
-            .zip(&b)
-            .map(|((ma, sa), (mb, sb))| {
-                (std::array::from_fn(|c| ma[c] + mb[c]), std::array::from_fn(|c| sa[c].hypot(sb[c])))
-            })
-            .collect();
+        let sum = quadrant_sums(&a, &b);
         let whole = quadrant_means(&render(device, &plain, 64, 3));
         assert_quadrants_agree(&format!("{name}: rising + falling ramps against no texture"), sum, whole, 4.5);
         // Quadrants 0 and 2 are the left (-x) half of the image, where the rising ramp is dark.
