@@ -876,7 +876,7 @@ fn direct_light(
         return vec4<f32>(0.0);
     }
     let f = bsdf_eval(mat, wo, wi);
-    if max3(f) <= 0.0 {
+    if max3(f) <= 0.0 || max3(radiance) <= 0.0 {
         return vec4<f32>(0.0);
     }
     // As on the CPU: the shadow ray stays on the line from p to the light point, starting just

@@ -181,8 +181,8 @@ impl MeshBvh {
         }
     }
 
-    /// [`MeshBvh::closest_hit`] leaving out every hit `(prim, u, v)` that `reject` refuses: the
-    /// skipped triangle, cut-out texels.
+    /// [`MeshBvh::closest_hit`] leaving out what `reject` leaves out: the triangle it skips
+    /// (before intersecting it), and the hits `(prim, u, v)` it refuses (cut-out texels).
     #[inline]
     pub fn closest_hit_filtered<R: HitFilter>(&self, ray: &Ray, t_max: f32, reject: &R) -> Option<Hit> {
         match &self.wide {

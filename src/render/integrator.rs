@@ -197,7 +197,8 @@ impl RenderScene {
             return 0;
         }
         let f = bsdf.eval(wo, wi);
-        if f.max_element() <= 0.0 {
+        // (A textured light's point may emit nothing: no shadow ray for it.)
+        if f.max_element() <= 0.0 || lp.radiance.max_element() <= 0.0 {
             return 0;
         }
         // Neither end is moved sideways, off the line from `p` to the sampled point: that would

@@ -3,7 +3,7 @@
 //!
 //! A textured emitter's power is its radiance times the texture's mean over the triangle,
 //! estimated from lookups at the centroids of a regular subdivision of the triangle, finer the
-//! more texels it covers. Any positive estimate keeps the sampling unbiased, since the density
+//! more texels its edges span. Any positive estimate keeps the sampling unbiased, since the density
 //! used is the one sampled with (selection probability over area) and the radiance is the
 //! texture's at the sampled point; a better estimate only lowers the variance. A triangle whose
 //! estimate is zero is no light: where it does emit, BSDF sampling alone finds it, with full
@@ -170,10 +170,12 @@ impl Lights {
 }
 
 /// The mean of texture use `r` over a triangle with texture coordinates `uvs`: the lookups at
-/// the centroids of its k² equal sub-triangles, k growing with the texels it covers.
+/// the centroids of its k² equal sub-triangles, k the texels along its longest edge (so that a
+/// sliver across many texels is not judged by one lookup), at most [`MAX_SUBDIVISION`].
 fn mean_over(texture: &Texture, r: TextureRef, [a, b, c]: [Vec2; 3]) -> Vec3 {
-    let texels = ((b - a).perp_dot(c - a) / 2.0).abs() * texture.width as f32 * texture.height as f32;
-    let k = (texels.sqrt().ceil() as u32).clamp(1, MAX_SUBDIVISION);
+    let size = Vec2::new(texture.width as f32, texture.height as f32);
+    let longest = [b - a, c - b, a - c].map(|e| (e * size).length()).into_iter().fold(0.0, f32::max);
+    let k = (longest.ceil() as u32).clamp(1, MAX_SUBDIVISION);
     let kf = k as f32;
     let mut sum = Vec3::ZERO;
     let mut at = |u: f32, v: f32| sum += texture.sample(a * (1.0 - u - v) + b * u + c * v, r.wrap, r.srgb).truncate();

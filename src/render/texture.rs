@@ -345,9 +345,13 @@ pub fn gpu_texture_ref(r: Option<TextureRef>) -> u32 {
 }
 
 /// A texture's channel as the GPU reads it: [`gpu_texture_ref`] with the channel (0 to 3) in
-/// bits 27 and 28.
+/// bits 27 and 28, read as stored (no sRGB decoding), as [`RenderMaterial::bsdf_at`] reads it.
+///
+/// [`RenderMaterial::bsdf_at`]: super::RenderMaterial::bsdf_at
 pub fn gpu_texture_channel(r: Option<(TextureRef, u8)>) -> u32 {
-    r.map_or(crate::bvh::INVALID_INDEX, |(r, c)| gpu_texture_ref(Some(r)) | u32::from(c & 3) << 27)
+    r.map_or(crate::bvh::INVALID_INDEX, |(r, c)| {
+        gpu_texture_ref(Some(TextureRef { srgb: false, ..r })) | u32::from(c & 3) << 27
+    })
 }
 
 /// Every texture as `shaders/trace.wgsl` reads them, one array of words: the 256 values of

@@ -154,7 +154,7 @@ pub struct Report {
     /// The sample indices asked for, `[first, end]`.
     pub samples: Option<[u32; 2]>,
     pub load_seconds: Option<f64>,
-    /// Bytes of texels the scene holds: textures and environment map ([`arbor::scene::Scene::texture_bytes`]).
+    /// Bytes the scene's textures and environment map hold ([`arbor::scene::Scene::texture_bytes`]).
     pub texture_bytes: Option<u64>,
     pub bvh: Option<BvhReport>,
     pub frames: Vec<FrameReport>,
