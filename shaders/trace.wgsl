@@ -622,7 +622,8 @@ fn normal_mapped(index: u32, u: f32, v: f32, tri: GpuTriangle, mat: GpuMaterial,
     if dot(bt, bitangent) < 0.0 {
         bt = -bt;
     }
-    let m = tex_sample(mat.normal_tex, triangle_uv(index, u, v)).xyz * 2.0 - vec3<f32>(1.0);
+    // The hit's coordinates from the ones read above, not read again (triangle_uv's value).
+    let m = tex_sample(mat.normal_tex, uv0 + u * duv1 + v * duv2).xyz * 2.0 - vec3<f32>(1.0);
     let mapped = normalize_or_zero(tangent * (m.x * mat.normal_scale) + bt * (m.y * mat.normal_scale) + n * m.z);
     return select(mapped, -mapped, dot(mapped, ng) < 0.0);
 }
@@ -857,7 +858,8 @@ fn direct_light(
     let lp = point_with_error(light.v0, light.v1, light.v2, b.y, b.z);
     var radiance = light.radiance;
     if HAS_TEXTURES && light.emission_tex != INVALID_INDEX {
-        let uv = b.x * vec2<f32>(light.uvs[0], light.uvs[1]) + b.y * vec2<f32>(light.uvs[2], light.uvs[3])
+        // As triangle_uv interpolates (Lights::sample on the CPU).
+        let uv = (1.0 - b.y - b.z) * vec2<f32>(light.uvs[0], light.uvs[1]) + b.y * vec2<f32>(light.uvs[2], light.uvs[3])
             + b.z * vec2<f32>(light.uvs[4], light.uvs[5]);
         radiance *= tex_sample(light.emission_tex, uv).xyz;
     }

@@ -70,8 +70,10 @@ impl SurfaceHit {
     }
 }
 
+/// The texture coordinates at barycentrics `(u, v)` (the weights of the second and third
+/// vertex) of a triangle whose vertices have `uvs`.
 #[inline]
-fn interpolate(uvs: &[Vec2; 3], u: f32, v: f32) -> Vec2 {
+pub(crate) fn interpolate(uvs: &[Vec2; 3], u: f32, v: f32) -> Vec2 {
     (1.0 - u - v) * uvs[0] + u * uvs[1] + v * uvs[2]
 }
 

@@ -13,6 +13,7 @@ use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
 
+use super::geometry::interpolate;
 use super::sampling::uniform_triangle;
 use super::texture::{Texture, TextureRef};
 use crate::geometry::Triangle;
@@ -124,9 +125,9 @@ impl Lights {
         let e = &l.emitter;
         let radiance = match e.texture {
             None => e.radiance,
-            Some((r, [a, b1, b2])) => {
-                let uv = a * b.x + b1 * b.y + b2 * b.z;
-                e.radiance * self.textures[r.texture as usize].sample(uv, r.wrap, r.srgb).truncate()
+            Some((r, uvs)) => {
+                e.radiance
+                    * self.textures[r.texture as usize].sample(interpolate(&uvs, b.y, b.z), r.wrap, r.srgb).truncate()
             }
         };
         Some(LightPoint {
@@ -172,13 +173,14 @@ impl Lights {
 /// The mean of texture use `r` over a triangle with texture coordinates `uvs`: the lookups at
 /// the centroids of its k² equal sub-triangles, k the texels along its longest edge (so that a
 /// sliver across many texels is not judged by one lookup), at most [`MAX_SUBDIVISION`].
-fn mean_over(texture: &Texture, r: TextureRef, [a, b, c]: [Vec2; 3]) -> Vec3 {
+fn mean_over(texture: &Texture, r: TextureRef, uvs: [Vec2; 3]) -> Vec3 {
+    let [a, b, c] = uvs;
     let size = Vec2::new(texture.width as f32, texture.height as f32);
     let longest = [b - a, c - b, a - c].map(|e| (e * size).length()).into_iter().fold(0.0, f32::max);
     let k = (longest.ceil() as u32).clamp(1, MAX_SUBDIVISION);
     let kf = k as f32;
     let mut sum = Vec3::ZERO;
-    let mut at = |u: f32, v: f32| sum += texture.sample(a * (1.0 - u - v) + b * u + c * v, r.wrap, r.srgb).truncate();
+    let mut at = |u: f32, v: f32| sum += texture.sample(interpolate(&uvs, u, v), r.wrap, r.srgb).truncate();
     for i in 0..k {
         for j in 0..k - i {
             at((i as f32 + 1.0 / 3.0) / kf, (j as f32 + 1.0 / 3.0) / kf);
