@@ -16,7 +16,7 @@
 // The environment map (HAS_ENV_MAP), src/gpu/trace.rs's env_map_data: RGB texels, then the
 // sampling density per texel, the marginal CDF and the rows' conditional CDFs.
 @group(0) @binding(7) var<storage, read> env_map: array<f32>;
-// Textures (HAS_TEXTURES), src/render/texture.rs's gpu_texture_data: the sRGB decoding table,
+// Textures (HAS_TEXTURES), src/gpu/texture.rs's gpu_texture_data: the sRGB decoding table,
 // four header words a texture, the texels; and each triangle's texture coordinates, six floats
 // in leaf order.
 @group(0) @binding(8) var<storage, read> textures: array<u32>;
@@ -488,7 +488,7 @@ fn occluded(ray: Ray, t_max: f32) -> bool {
     return false;
 }
 
-// ---- textures: src/render/texture.rs ----
+// ---- textures: src/texture/mod.rs ----
 
 // Index `i` (integer-valued) wrapped into 0..n: 0 repeat, 1 clamp, 2 mirror.
 fn tex_wrap(i: f32, n: u32, wrap: u32) -> u32 {

@@ -69,6 +69,7 @@ pub mod image_io;
 pub mod memory;
 pub mod render;
 pub mod scene;
+pub mod texture;
 
 /// The vector maths crate of Arbor's public types (`Vec3` in [`geometry::Triangle`], ...).
 pub use glam;

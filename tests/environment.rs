@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use arbor::device::{BuilderChoice, Device, Renderer};
 use arbor::image_io::{Image, write_image};
-use arbor::render::environment::Sampling;
+use arbor::texture::environment::Sampling;
 use arbor::render::film::Film;
 use arbor::scene::{RenderSettings, Scene};
 use glam::Vec3;

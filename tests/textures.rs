@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use arbor::device::{BuilderChoice, Device, Renderer};
 use arbor::render::film::Film;
-use arbor::render::texture::{Texture, Wrap};
+use arbor::texture::{Texture, Wrap};
 use arbor::scene::{RenderSettings, Scene};
 use glam::Vec2;
 

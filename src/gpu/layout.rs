@@ -206,7 +206,7 @@ pub struct GpuMaterial {
     /// `MAT_EMITS | MAT_TWO_SIDED | MAT_COMPLEX_FRESNEL`.
     pub flags: u32,
     /// The base colour texture and the cut-out mask, packed
-    /// ([`crate::render::texture::gpu_texture_ref`]; `INVALID_INDEX`: none), and the mask's
+    /// ([`crate::gpu::texture::gpu_texture_ref`]; `INVALID_INDEX`: none), and the mask's
     /// cutoff.
     pub base_color_tex: u32,
     pub alpha_tex: u32,
@@ -217,7 +217,7 @@ pub struct GpuMaterial {
     /// The texture multiplying `emission`, packed as the textures above.
     pub emission_tex: u32,
     /// The coated material's roughness and metallic textures, each with its channel
-    /// ([`crate::render::texture::gpu_texture_channel`]).
+    /// ([`crate::gpu::texture::gpu_texture_channel`]).
     pub roughness_tex: u32,
     pub metallic_tex: u32,
     pub pad0: u32,

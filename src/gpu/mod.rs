@@ -5,6 +5,7 @@
 //! - [`layout`]: the structs and constants shared with WGSL, and the prelude generated from them;
 //! - [`lbvh`]: the LBVH build, the same tree as the CPU's `lbvh::build_karras`;
 //! - [`prbvh`]: parallel reinsertion, the paper's six kernels per iteration;
+//! - [`texture`]: textures packed for the shaders;
 //! - [`trace`]: path tracing, the CPU's integrator in one kernel per scene variant.
 //!
 //! On machines without a GPU, wgpu runs on Mesa's lavapipe (Vulkan on the CPU).
@@ -13,6 +14,7 @@ pub mod context;
 pub mod layout;
 pub mod lbvh;
 pub mod prbvh;
+pub mod texture;
 pub mod trace;
 
 pub use context::{AdapterPolicy, GpuContext, GpuError};

@@ -73,6 +73,7 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
+use super::texture::{gpu_texture_channel, gpu_texture_data, gpu_texture_ref};
 use super::layout::{
     BvhNode, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COATED, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
     MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP, TraceParams,
@@ -83,13 +84,12 @@ use crate::bvh::builders::Builder;
 use crate::bvh::prbvh::PrbvhConfig;
 use crate::geometry::{Aabb, Triangle};
 use crate::render::bsdf::{Bsdf, ConductorFresnel};
-use crate::render::environment::EnvironmentMap;
 use crate::render::film::{Film, PixelAccum};
 use crate::render::geometry::Geometry;
 use crate::render::region::Rect;
-use crate::render::texture::{gpu_texture_channel, gpu_texture_data, gpu_texture_ref};
 use crate::render::{BuildReport, RenderMaterial, RenderScene};
 use crate::scene::Scene;
+use crate::texture::environment::EnvironmentMap;
 
 /// The shader files concatenated (after the variant's constants and the prelude) into the
 /// path tracer, in order. `tests/gpu_layout.rs` validates them together, every variant.

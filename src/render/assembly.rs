@@ -9,17 +9,17 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::camera::CameraModel;
-use super::environment::EnvironmentMap;
 use super::geometry::{Cutouts, Flat, Geometry, Instanced, flat_lights, wants_instancing};
 use super::lights::Lights;
 use super::material::RenderMaterial;
-use super::texture::Texture;
 use crate::bvh::builders::Builder;
 use crate::bvh::instances::TopLevelUpdate;
 use crate::bvh::prbvh::PrbvhConfig;
 use crate::bvh::{CollapseConfig, MeshBvh, Tracing, collapse_leaves, sah_cost};
 use crate::geometry::Triangle;
 use crate::scene::{Environment, Scene};
+use crate::texture::Texture;
+use crate::texture::environment::EnvironmentMap;
 
 /// Everything a render reads: geometry and its BVH, materials, lights, camera.
 pub struct RenderScene {

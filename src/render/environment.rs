@@ -26,130 +26,12 @@
 //! (`shaders/trace.wgsl` reads the same arrays).
 
 use std::f32::consts::PI;
-use std::path::{Path, PathBuf};
 
-use glam::{Mat3, Vec2, Vec3};
+use glam::{Vec2, Vec3};
 
-use super::lights::luminance;
-use super::texture::{chain, exr_size};
-use crate::image_io::Image;
-
-/// An environment map with its sampling distribution.
-#[derive(Clone, Debug, PartialEq)]
-pub struct EnvironmentMap {
-    /// The file it came from (for messages and the scene's hash).
-    pub source: PathBuf,
-    pub width: u32,
-    pub height: u32,
-    /// Linear RGB radiance, row-major, row 0 at the top (straight up). Finite, non-negative.
-    pub texels: Vec<[f32; 3]>,
-    /// The map's frame from the world's (the inverse of the scene's `rotate`).
-    pub map_from_world: Mat3,
-    pub world_from_map: Mat3,
-    pub distribution: Distribution,
-}
-
-/// How directions are drawn from a map: [`Sampling::Luminance`] renders use; the uniform one is
-/// the baseline the tests and benchmarks compare it with.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Sampling {
-    /// In proportion to luminance × sin θ (the module docs).
-    Luminance,
-    /// Uniformly over the sphere (every texel weighted by its solid angle only).
-    Uniform,
-}
-
-/// A piecewise-constant density over the unit square, one constant per texel, and the CDFs that
-/// sample it.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Distribution {
-    /// The density over `(u, v)` in each texel, row-major: it integrates to 1 over the square.
-    pub pdf: Vec<f32>,
-    /// The rows' CDF: `height + 1` values rising from 0 to exactly 1.
-    pub marginal: Vec<f32>,
-    /// Each row's CDF over its texels: `width + 1` values a row, from 0 to exactly 1 (all 0 in a
-    /// row of no weight, which the marginal never picks).
-    pub conditional: Vec<f32>,
-}
-
-/// Why a map cannot be used: each names the file (the error of any image file).
-pub type EnvironmentError = super::texture::TextureError;
-
-/// Bytes a map holds per texel once loaded: its radiance, its density and its row CDF, and the
-/// decoder's own copy while it is read.
-pub const BYTES_PER_TEXEL: f64 = 12.0 + 4.0 + 4.0 + 16.0;
-
-/// Texels at most: 2^28 (a 23170² map), well past the 16k × 8k of the largest skies published.
-const MAX_TEXELS: u64 = 1 << 28;
+use crate::texture::environment::{Distribution, EnvironmentMap};
 
 impl EnvironmentMap {
-    /// Reads an EXR (`.exr`) or Radiance HDR (`.hdr`) file, turned by `world_from_map` (a
-    /// rotation), sampled as `sampling` says.
-    pub fn load(path: &Path, world_from_map: Mat3, sampling: Sampling) -> Result<Self, EnvironmentError> {
-        let invalid = |message: String| EnvironmentError::Invalid { path: path.to_owned(), message };
-        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        let (width, height) = match ext.as_deref() {
-            Some("exr") => exr_size(path)?,
-            Some("hdr") => hdr_size(path)?,
-            _ => return Err(invalid("is not an environment map: give an .exr or .hdr file".into())),
-        };
-        let texels = u64::from(width) * u64::from(height);
-        if texels == 0 || texels > MAX_TEXELS {
-            return Err(invalid(format!("is {width}x{height}: a map must have 1 to 2^28 texels")));
-        }
-        crate::memory::check_fits(
-            &format!("{}: an environment map of {width}x{height}", path.display()),
-            texels as f64 * BYTES_PER_TEXEL,
-        )?;
-        let image = match ext.as_deref() {
-            Some("exr") => crate::image_io::read_exr(path)
-                .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: chain(&e) })?,
-            _ => read_hdr(path)?,
-        };
-        Self::new(path.to_owned(), image, world_from_map, sampling).map_err(invalid)
-    }
-
-    /// A map of `image` (row 0 at the top), checked: every texel finite; negative components
-    /// (left by some HDR tools' filtering) are taken as 0.
-    pub fn new(source: PathBuf, image: Image, world_from_map: Mat3, sampling: Sampling) -> Result<Self, String> {
-        let Image { width, height, pixels } = image;
-        if width == 0 || height == 0 || pixels.len() != width as usize * height as usize {
-            return Err(format!("has {} pixels for {width}x{height}", pixels.len()));
-        }
-        if let Some(i) = pixels.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
-            let (x, y) = (i % width as usize, i / width as usize);
-            return Err(format!("pixel ({x}, {y}) is {:?}: radiance must be finite", pixels[i]));
-        }
-        let texels: Vec<[f32; 3]> = pixels.into_iter().map(|p| p.map(|c| c.max(0.0))).collect();
-        let distribution = Distribution::new(width, height, &texels, sampling);
-        Ok(Self {
-            source,
-            width,
-            height,
-            texels,
-            map_from_world: world_from_map.transpose(),
-            world_from_map,
-            distribution,
-        })
-    }
-
-    /// The same map drawn from as `sampling` says (the tests' and benchmarks' baseline).
-    pub fn with_sampling(&self, sampling: Sampling) -> Self {
-        Self { distribution: Distribution::new(self.width, self.height, &self.texels, sampling), ..self.clone() }
-    }
-
-    /// Whether the map is black everywhere: it lights nothing and is never sampled.
-    pub fn is_black(&self) -> bool {
-        self.distribution.marginal.last() != Some(&1.0)
-    }
-
-    /// Bytes the map holds (its texels and distribution).
-    pub fn bytes(&self) -> usize {
-        self.texels.len() * 12
-            + (self.distribution.pdf.len() + self.distribution.marginal.len()) * 4
-            + self.distribution.conditional.len() * 4
-    }
-
     /// The radiance arriving from world direction `dir` (unit), before the scene's `scale`.
     pub fn eval(&self, dir: Vec3) -> Vec3 {
         let uv = direction_to_uv(self.map_from_world * dir);
@@ -194,64 +76,6 @@ impl EnvironmentMap {
 }
 
 impl Distribution {
-    /// The distribution of a `width` x `height` map's `texels` (module docs).
-    pub fn new(width: u32, height: u32, texels: &[[f32; 3]], sampling: Sampling) -> Self {
-        let (w, h) = (width as usize, height as usize);
-        let lum: Vec<f32> = texels.iter().map(|&t| luminance(Vec3::from(t)).max(0.0)).collect();
-        let mut weights = vec![0.0f64; w * h];
-        for r in 0..h {
-            let sin_theta = (PI * (r as f32 + 0.5) / height as f32).sin().max(0.0);
-            for c in 0..w {
-                let value = match sampling {
-                    Sampling::Uniform => 1.0,
-                    Sampling::Luminance => {
-                        // The mean over the texel of the bilinear interpolant: the texel and its
-                        // neighbours weighted by 1/8, 6/8, 1/8 along each axis (rows held at
-                        // the poles, columns wrapped, as `eval` reads them).
-                        const K: [f32; 3] = [0.125, 0.75, 0.125];
-                        let mut m = 0.0f32;
-                        for (dr, kr) in K.iter().enumerate() {
-                            let rr = (r + dr).saturating_sub(1).min(h - 1);
-                            for (dc, kc) in K.iter().enumerate() {
-                                m += kr * kc * lum[rr * w + (c + w + dc - 1) % w];
-                            }
-                        }
-                        m
-                    }
-                };
-                weights[r * w + c] = f64::from(value) * f64::from(sin_theta);
-            }
-        }
-        let row_sums: Vec<f64> = weights.chunks(w).map(|row| row.iter().sum()).collect();
-        let total: f64 = row_sums.iter().sum();
-        let mut conditional = vec![0.0f32; h * (w + 1)];
-        let mut marginal = vec![0.0f32; h + 1];
-        let mut pdf = vec![0.0f32; w * h];
-        if !(total > 0.0 && total.is_finite()) {
-            return Self { pdf, marginal, conditional };
-        }
-        let scale = (w * h) as f64 / total;
-        for r in 0..h {
-            let cdf = &mut conditional[r * (w + 1)..(r + 1) * (w + 1)];
-            if row_sums[r] > 0.0 {
-                let mut acc = 0.0;
-                for c in 0..w {
-                    acc += weights[r * w + c];
-                    cdf[c + 1] = (acc / row_sums[r]) as f32;
-                    pdf[r * w + c] = (weights[r * w + c] * scale) as f32;
-                }
-                cdf[w] = 1.0;
-            }
-        }
-        let mut acc = 0.0;
-        for r in 0..h {
-            acc += row_sums[r];
-            marginal[r + 1] = (acc / total) as f32;
-        }
-        marginal[h] = 1.0;
-        Self { pdf, marginal, conditional }
-    }
-
     /// A point of the unit square drawn with `u`, and its density; `None` where nothing has
     /// weight.
     pub fn sample(&self, width: u32, height: u32, u: Vec2) -> Option<(Vec2, f32)> {
@@ -308,32 +132,12 @@ pub fn uv_to_direction(uv: Vec2) -> (Vec3, f32) {
     (Vec3::new(sin_phi * sin_theta, cos_theta, -cos_phi * sin_theta), sin_theta)
 }
 
-fn open(path: &Path) -> Result<std::io::BufReader<std::fs::File>, EnvironmentError> {
-    let file = std::fs::File::open(path)
-        .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: e.to_string() })?;
-    Ok(std::io::BufReader::new(file))
-}
-
-/// A Radiance HDR file's size, from its header.
-fn hdr_size(path: &Path) -> Result<(u32, u32), EnvironmentError> {
-    let decoder = image::codecs::hdr::HdrDecoder::new(open(path)?)
-        .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: chain(&e) })?;
-    let meta = decoder.metadata();
-    Ok((meta.width, meta.height))
-}
-
-/// A Radiance HDR (RGBE) file, row 0 at the top.
-fn read_hdr(path: &Path) -> Result<Image, EnvironmentError> {
-    let err = |e: image::ImageError| EnvironmentError::Read { path: path.to_owned(), error: chain(&e) };
-    let decoder = image::codecs::hdr::HdrDecoder::new(open(path)?).map_err(err)?;
-    let meta = decoder.metadata();
-    let pixels = decoder.read_image_hdr().map_err(err)?;
-    Ok(Image { width: meta.width, height: meta.height, pixels: pixels.into_iter().map(|p| p.0).collect() })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::image_io::Image;
+    use crate::texture::environment::Sampling;
+    use glam::Mat3;
 
     fn map(width: u32, height: u32, f: impl Fn(u32, u32) -> [f32; 3], sampling: Sampling) -> EnvironmentMap {
         let pixels = (0..height).flat_map(|y| (0..width).map(move |x| (x, y))).map(|(x, y)| f(x, y)).collect();

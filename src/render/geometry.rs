@@ -18,12 +18,12 @@ use rayon::prelude::*;
 
 use super::lights::{Emitter, Lights};
 use super::material::RenderMaterial;
-use super::texture::{Texture, TextureRef};
 use crate::bvh::dynamic::UpdateStats;
 use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
 use crate::bvh::{INVALID_INDEX, MeshBvh, SkipReject};
 use crate::geometry::{Ray, Triangle};
 use crate::scene::Scene;
+use crate::texture::{Texture, TextureRef};
 
 /// A hit, resolved to what shading needs.
 #[derive(Clone, Copy, Debug)]

@@ -15,7 +15,7 @@ use glam::{Vec2, Vec3};
 
 use super::geometry::interpolate;
 use super::sampling::uniform_triangle;
-use super::texture::{Texture, TextureRef};
+use crate::texture::{Texture, TextureRef, luminance};
 use crate::geometry::Triangle;
 
 /// What a triangle emits: its radiance, whether from both faces, and the texture multiplying
@@ -192,11 +192,6 @@ fn mean_over(texture: &Texture, r: TextureRef, uvs: [Vec2; 3]) -> Vec3 {
     sum / (kf * kf)
 }
 
-/// Rec. 709 luminance.
-pub fn luminance(c: Vec3) -> f32 {
-    c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -230,7 +225,7 @@ mod tests {
     /// which are (x, 0.5) on `b` (barycentrics map x to u).
     #[test]
     fn textured_emitters_are_chosen_by_textured_power() {
-        use super::super::texture::{TexelFormat, Wrap};
+        use crate::texture::{TexelFormat, Wrap};
         let ramp = [0.0f32, 0.0, 0.25, 0.5, 1.0];
         let texels = ramp.iter().flat_map(|&t| [t, t, t, 1.0]).map(f32::to_bits).collect();
         let texture = Texture {

@@ -6,7 +6,7 @@ use glam::{Vec2, Vec3};
 
 use super::bsdf::{Bsdf, ConductorFresnel as BsdfFresnel};
 use super::geometry::SurfaceHit;
-use super::texture::{Texture, TextureRef};
+use crate::texture::{Texture, TextureRef};
 use crate::scene::{ConductorFresnel, Scattering};
 
 /// A material as the integrator uses it.

@@ -20,7 +20,6 @@ pub mod refine;
 pub mod region;
 pub mod rng;
 pub mod sampling;
-pub mod texture;
 pub mod tiles;
 
 pub use assembly::{BuildReport, RenderScene, first_frame_time};

@@ -28,8 +28,8 @@ use super::{
 };
 use crate::geometry::obj::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
-use crate::render::environment::{EnvironmentMap, Sampling};
-use crate::render::texture::{TextureCache, TextureRef, Wrap};
+use crate::texture::environment::{EnvironmentMap, Sampling};
+use crate::texture::{TextureCache, TextureRef, Wrap};
 
 /// Most subdivisions of a built-in sphere: 20 · 4^8 ≈ 1.3 M triangles.
 const MAX_SUBDIVISIONS: u32 = 8;

@@ -18,8 +18,8 @@ use std::sync::Arc;
 use glam::{Mat4, Vec3};
 
 use crate::geometry::{Triangle, TriangleMesh};
-use crate::render::environment::EnvironmentMap;
-use crate::render::texture::{Texture, TextureRef};
+use crate::texture::environment::EnvironmentMap;
+use crate::texture::{Texture, TextureRef};
 
 /// A pinhole or thin-lens camera.
 #[derive(Clone, Debug, PartialEq)]

@@ -3,7 +3,7 @@
 //!
 //! A texture keeps one stored form for both devices: 8-bit RGBA packed in one `u32` a texel
 //! (images of 8 or 16 bits a channel), or f32 RGBA in four (EXR and HDR files). The GPU gets the
-//! same words ([`gpu_texture_data`]) and `shaders/trace.wgsl` reads them as [`Texture::sample`]
+//! same words (`gpu::texture::gpu_texture_data`) and `shaders/trace.wgsl` reads them as [`Texture::sample`]
 //! does, so the devices agree. 8-bit colour is decoded from sRGB at lookup time when the use
 //! asks for it (a base colour), and read as is for data (an alpha mask): one file may be both,
 //! and is loaded once ([`TextureCache`]).
@@ -17,7 +17,14 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use glam::{Vec2, Vec4};
+use glam::{Vec2, Vec3, Vec4};
+
+pub mod environment;
+
+/// Rec. 709 luminance.
+pub fn luminance(c: Vec3) -> f32 {
+    c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
+}
 
 /// How a texture's coordinates outside [0, 1] map into it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -195,7 +202,7 @@ impl Texture {
 
 /// [`crate::image_io::srgb_decode`] of every code, computed once: a lookup reads 12 of them,
 /// and the curve's `powf` would cost more than the rest of the lookup.
-fn srgb_table() -> &'static [f32; 256] {
+pub(crate) fn srgb_table() -> &'static [f32; 256] {
     static TABLE: std::sync::LazyLock<[f32; 256]> =
         std::sync::LazyLock::new(|| std::array::from_fn(|c| crate::image_io::srgb_decode(c as u8)));
     &TABLE
@@ -338,42 +345,6 @@ impl TextureCache {
     }
 }
 
-/// [`TextureRef`] packed for the GPU: the texture's index in the low 24 bits, the wrap in the
-/// next two, sRGB in bit 26; [`crate::bvh::INVALID_INDEX`] for none.
-pub fn gpu_texture_ref(r: Option<TextureRef>) -> u32 {
-    r.map_or(crate::bvh::INVALID_INDEX, |r| r.texture | (r.wrap as u32) << 24 | u32::from(r.srgb) << 26)
-}
-
-/// A texture's channel as the GPU reads it: [`gpu_texture_ref`] with the channel (0 to 3) in
-/// bits 27 and 28, read as stored (no sRGB decoding), as [`RenderMaterial::bsdf_at`] reads it.
-///
-/// [`RenderMaterial::bsdf_at`]: super::RenderMaterial::bsdf_at
-pub fn gpu_texture_channel(r: Option<(TextureRef, u8)>) -> u32 {
-    r.map_or(crate::bvh::INVALID_INDEX, |(r, c)| {
-        gpu_texture_ref(Some(TextureRef { srgb: false, ..r })) | u32::from(c & 3) << 27
-    })
-}
-
-/// Every texture as `shaders/trace.wgsl` reads them, one array of words: the 256 values of
-/// [`crate::image_io::srgb_decode`] as f32 bits (so both devices decode alike), four header
-/// words a texture (offset of its texels in the array, width, height, flags: bit 0 f32 texels,
-/// bit 1 an alpha channel), then the texels.
-pub fn gpu_texture_data(textures: &[Arc<Texture>]) -> Vec<u32> {
-    let mut data =
-        Vec::with_capacity(256 + 4 * textures.len() + textures.iter().map(|t| t.texels.len()).sum::<usize>());
-    data.extend(srgb_table().iter().map(|c| c.to_bits()));
-    let mut offset = 256 + 4 * textures.len() as u32;
-    for t in textures {
-        let flags = u32::from(t.format == TexelFormat::Rgba32F) | u32::from(t.has_alpha) << 1;
-        data.extend([offset, t.width, t.height, flags]);
-        offset += t.texels.len() as u32;
-    }
-    for t in textures {
-        data.extend(&t.texels);
-    }
-    data
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -460,16 +431,5 @@ mod tests {
         assert!((s.x - crate::image_io::srgb_decode(128)).abs() < 1e-7, "{s}");
         assert!((s.w - 128.0 / 255.0).abs() < 1e-7, "{s}");
         assert!((t.coverage(Vec2::splat(0.5), Wrap::Repeat) - 128.0 / 255.0).abs() < 1e-7);
-    }
-
-    #[test]
-    fn gpu_data_has_headers_then_texels() {
-        let (a, b) = (Arc::new(texture(2, 1, |x, _| [x as u8, 0, 0, 0])), Arc::new(texture(1, 1, |_, _| [9, 0, 0, 0])));
-        let data = gpu_texture_data(&[a, b]);
-        assert_eq!(f32::from_bits(data[255]), 1.0);
-        assert_eq!(&data[256..264], &[264, 2, 1, 2, 266, 1, 1, 2]);
-        assert_eq!(data.len(), 267);
-        let r = TextureRef { texture: 5, wrap: Wrap::Mirror, srgb: true };
-        assert_eq!(gpu_texture_ref(Some(r)), 5 | 2 << 24 | 1 << 26);
     }
 }
