@@ -18,6 +18,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 use std::time::Instant;
 
+use crate::bvh::Tracing;
 use crate::bvh::builders::{Builder, UnknownBuilder};
 use crate::bvh::dynamic::DynamicConfig;
 use crate::bvh::instances::TopLevelUpdate;
@@ -272,11 +273,14 @@ impl Renderer {
     /// be rendered ([`first_frame_time`] for a still): the GPU's flat scene is built there, while
     /// the CPU builds at the scene's first frame and moves with [`Renderer::set_time`].
     /// `settings` and `frames` (the number of frames to come) tell `auto` how long the render
-    /// will be; `settings.clamp` is applied.
+    /// will be; `settings.clamp` is applied. On the CPU the trees are traced as `tracing` says
+    /// (`render --trace` and `ARBOR_SIMD`, read once by the caller); a GPU traces its own copy
+    /// of the binary tree, and the CPU keeps that tree alone ([`Tracing::gpu`]).
     pub fn new(
         device: Device,
         scene: &Scene,
         builder: &BuilderChoice,
+        tracing: Tracing,
         settings: &RenderSettings,
         frames: usize,
         time: f32,
@@ -292,12 +296,12 @@ impl Renderer {
         let mut refiner = None;
         let (mut render_scene, build) = match device {
             Device::Cpu => match builder {
-                BuilderChoice::Fixed(b) => RenderScene::build(scene, b),
+                BuilderChoice::Fixed(b) => RenderScene::build(scene, b, tracing),
                 BuilderChoice::Auto if wants_instancing(scene) => {
-                    RenderScene::build(scene, &crate::render::auto::instanced_builder())
+                    RenderScene::build(scene, &crate::render::auto::instanced_builder(), tracing)
                 }
                 BuilderChoice::Auto => {
-                    let (rs, report, r) = Refiner::start(scene, crate::bvh::Tracing::current());
+                    let (rs, report, r) = Refiner::start(scene, tracing);
                     refiner = Some(r);
                     (rs, report)
                 }
@@ -350,7 +354,7 @@ impl Renderer {
             };
             match (built_on_gpu, builder) {
                 (Some(built), _) => built,
-                (None, BuilderChoice::Fixed(b)) => RenderScene::build_traced(scene, b, crate::bvh::Tracing::gpu()),
+                (None, BuilderChoice::Fixed(b)) => RenderScene::build(scene, b, Tracing::gpu()),
                 (None, BuilderChoice::Auto) => {
                     let (rs, report, partial) = trace::build_auto(ctx, scene, settings, frames);
                     timed = partial;

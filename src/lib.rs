@@ -3,6 +3,7 @@
 //! Build a BVH over triangles and trace a ray through it:
 //!
 //! ```
+//! use arbor::bvh::Tracing;
 //! use arbor::bvh::builders::Builder;
 //! use arbor::geometry::{Ray, Triangle};
 //! use arbor::glam::Vec3;
@@ -14,7 +15,7 @@
 //! // LBVH (Karras 2012), optimised by parallel reinsertion (Meister & Bittner 2018), then the
 //! // leaf collapse; the triangles are stored in leaf order.
 //! let builder: Builder = "lbvh+prbvh".parse()?;
-//! let bvh = builder.build_mesh(&triangles);
+//! let bvh = builder.build_mesh(&triangles, Tracing::best());
 //! let ray = Ray::new(Vec3::new(0.0, 0.0, -1.0), Vec3::Z);
 //! let hit = bvh.closest_hit(&ray, f32::INFINITY).expect("the ray meets the first triangle");
 //! assert_eq!((hit.prim_id, hit.t), (0, 1.0));
@@ -25,6 +26,7 @@
 //! Render a scene file to an image, on the CPU ([`device::Device::Gpu`] renders on a GPU):
 //!
 //! ```no_run
+//! use arbor::bvh::Tracing;
 //! use arbor::device::{BuilderChoice, Device, Renderer};
 //! use arbor::render::first_frame_time;
 //! use arbor::scene::Scene;
@@ -32,7 +34,9 @@
 //! let scene = Scene::load("scenes/cornell-box.toml")?;
 //! let settings = arbor::scene::RenderSettings { spp: 16, ..scene.render };
 //! let time = first_frame_time(&scene);
-//! let mut renderer = Renderer::new(Device::Cpu, &scene, &BuilderChoice::Auto, &settings, 1, time)?;
+//! // The trace form: the best this CPU has, or as `ARBOR_SIMD` says.
+//! let tracing = Tracing::from_env(None)?;
+//! let mut renderer = Renderer::new(Device::Cpu, &scene, &BuilderChoice::Auto, tracing, &settings, 1, time)?;
 //! let frame = renderer.render(&settings, &|_| {})?;
 //! arbor::image_io::write_image("cornell.png", &frame.film.mean())?;
 //! # Ok::<(), Box<dyn std::error::Error>>(())

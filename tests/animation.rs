@@ -118,7 +118,7 @@ fn animated_frame_equals_the_static_scene_at_that_time() {
     let scene = Scene::parse(SCENE, "animated.toml").unwrap();
     assert!(scene.is_animated());
     let builder: Builder = "lbvh+prbvh".parse().unwrap();
-    let (mut animated, _) = RenderScene::build(&scene, &builder);
+    let (mut animated, _) = RenderScene::build(&scene, &builder, crate::common::tracing());
     assert!(matches!(animated.geometry, Geometry::Instanced(_)));
     // Walk the animation frame by frame to 30, as a sequence render does, keeping the tree.
     let update = TopLevelUpdate::Dynamic(Default::default());
@@ -128,7 +128,7 @@ fn animated_frame_equals_the_static_scene_at_that_time() {
         g.two_level.top_level().validate(g.two_level.instance_boxes()).unwrap();
     }
     let t = scene.frame_time(30);
-    let (fixed, _) = RenderScene::build(&scene.at_time(t), &builder);
+    let (fixed, _) = RenderScene::build(&scene.at_time(t), &builder, crate::common::tracing());
     assert!(matches!(fixed.geometry, Geometry::Flat(_)), "a static scene takes the flat path");
     let spp = 256;
     let a = render(&animated, 1, spp);
@@ -138,7 +138,7 @@ fn animated_frame_equals_the_static_scene_at_that_time() {
     let z = max_block_z(&a, &b);
     assert!(z <= 4.3, "animated frame 30 differs from the static scene at its time: max |z| {z:.2}");
     // The check has power: the static scene at frame 0 is rejected.
-    let (start, _) = RenderScene::build(&scene.at_time(0.0), &builder);
+    let (start, _) = RenderScene::build(&scene.at_time(0.0), &builder, crate::common::tracing());
     let z0 = max_block_z(&a, &render(&start, 3, spp));
     assert!(z0 > 4.3, "frame 30 against frame 0 should differ, max |z| {z0:.2}");
 }

@@ -301,7 +301,7 @@ fn degenerate_triangles_for_every_builder() {
             failures.push(format!("{name}: invalid tree after leaf collapse: {e}"));
             continue;
         }
-        let mesh = MeshBvh::new(collapsed, &tris);
+        let mesh = MeshBvh::new(collapsed, &tris, common::tracing());
         let mismatches: Vec<String> = rays
             .par_iter()
             .zip(&expected)

@@ -27,7 +27,7 @@ fn temp_dir(name: &str) -> PathBuf {
 fn render(device: Device, scene: &Scene, spp: u32, max_depth: u32, seed: u64) -> Film {
     let settings = RenderSettings { spp, max_depth, seed, time: None, clamp: None };
     let choice = BuilderChoice::Fixed("lbvh".parse().unwrap());
-    let mut r = Renderer::new(device, scene, &choice, &settings, 1, 0.0).unwrap();
+    let mut r = Renderer::new(device, scene, &choice, crate::common::tracing(), &settings, 1, 0.0).unwrap();
     let film = r.render(&settings, &|_| {}).unwrap().film;
     assert_eq!(film.non_finite_count(), 0);
     film

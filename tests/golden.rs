@@ -111,7 +111,7 @@ struct Estimate {
 /// An animated scene is rendered at the middle of its frame range, reached frame by frame through
 /// the kept top-level tree, as a sequence render gets there.
 fn render(scene: &Scene, seed: u64) -> Estimate {
-    let (mut rs, _) = RenderScene::build(scene, &"lbvh".parse::<Builder>().unwrap());
+    let (mut rs, _) = RenderScene::build(scene, &"lbvh".parse::<Builder>().unwrap(), common::tracing());
     if let Some(a) = &scene.animation {
         let update = arbor::bvh::instances::TopLevelUpdate::Dynamic(Default::default());
         for f in a.frames.start + 1..=a.frames.start + a.frames.len() as u32 / 2 {
@@ -134,7 +134,7 @@ fn render_gpu(scene: &Scene, seed: u64) -> Estimate {
             scene.animation.as_ref().map_or(0.0, |a| scene.frame_time(a.frames.start + a.frames.len() as u32 / 2));
         gpu_trace::flatten(scene, time, &lbvh)
     } else {
-        RenderScene::build(scene, &lbvh)
+        RenderScene::build(scene, &lbvh, common::tracing())
     };
     let gpu = GpuScene::upload(ctx, &rs).unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
     let out = gpu_trace::render(ctx, &gpu, seed, scene.render.max_depth, SPP, &mut |_| true)

@@ -94,7 +94,7 @@ fn a_sky_box_gets_the_cpu_lbvh_for_rendering() {
             |n: &&arbor::bvh::BvhNode| n.aabb().max.abs().max_element().max(n.aabb().min.abs().max_element()) < 2.0;
         b.nodes.iter().filter(|n| !n.is_leaf()).filter(inside).map(|n| f64::from(n.aabb().half_area())).sum()
     };
-    let cpu = RenderScene::build(&scene, &"lbvh".parse::<Builder>().unwrap());
+    let cpu = RenderScene::build(&scene, &"lbvh".parse::<Builder>().unwrap(), common::tracing());
     let gpu = arbor::gpu::build_render_scene(ctx, &scene, false).unwrap().unwrap();
     assert!(gpu.1.builder.contains("on the CPU"), "{}", gpu.1.builder);
     assert!(tree(&gpu).nodes[..] == tree(&cpu).nodes[..], "{}: not the CPU's tree", gpu.1.builder);

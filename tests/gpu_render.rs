@@ -57,7 +57,7 @@ fn furnace_sphere_is_exactly_its_albedo_on_the_gpu() {
     let unit = Scene::load(scene_path("furnace.toml")).unwrap();
     for s in [1.0f32, 1e12, 1e-12, 1e16, 1e-16, 1e18, 1e-18] {
         analytic::check_furnace("gpu", &unit, s, 1e-5, |scene| {
-            let (rs, _) = RenderScene::build(scene, &lbvh());
+            let (rs, _) = RenderScene::build(scene, &lbvh(), common::tracing());
             render_gpu(ctx, &rs, scene.render.seed, 16, scene.render.max_depth)
         });
     }
@@ -69,7 +69,7 @@ fn closed_shell_sums_the_geometric_series_on_the_gpu() {
     let Some(ctx) = gpu_or_skip("closed_shell_sums_the_geometric_series_on_the_gpu") else { return };
     for s in [1.0, 1e12, 1e-12, 1e16, 1e-16] {
         analytic::check_closed_shell("gpu", s, |scene, depth| {
-            let (rs, _) = RenderScene::build(scene, &lbvh());
+            let (rs, _) = RenderScene::build(scene, &lbvh(), common::tracing());
             render_gpu(ctx, &rs, 0, 64, depth)
         });
     }
@@ -88,7 +88,7 @@ fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
         Scene::parse(&analytic::irradiance_scene_text(), std::env::temp_dir().join("arbor-gpu-irradiance.toml"))
             .unwrap();
     let render = |s: f32| {
-        let (rs, _) = RenderScene::build(&analytic::scaled_scene(&scene, s), &lbvh());
+        let (rs, _) = RenderScene::build(&analytic::scaled_scene(&scene, s), &lbvh(), common::tracing());
         render_gpu(ctx, &rs, 0, 256, 2)
     };
     let unit = render(1.0);
@@ -107,7 +107,7 @@ fn irradiance_under_a_square_light_matches_the_closed_form_on_the_gpu() {
 fn a_light_at_1e20_lights_as_its_solid_angle_says_on_the_gpu() {
     let Some(ctx) = gpu_or_skip("a_light_at_1e20_lights_as_its_solid_angle_says_on_the_gpu") else { return };
     analytic::check_distant_lights("gpu", |scene| {
-        let (rs, _) = RenderScene::build(scene, &lbvh());
+        let (rs, _) = RenderScene::build(scene, &lbvh(), common::tracing());
         render_gpu(ctx, &rs, 0, 256, 2)
     });
 }
@@ -147,7 +147,7 @@ fn gpu_matches_cpu(name: &str, mut scene: Scene, spp: u32, clamp: Option<f32>) {
     let longest = w.max(h);
     scene.camera.width = (w * 64).div_ceil(longest);
     scene.camera.height = (h * 64).div_ceil(longest);
-    let (mut rs, _) = RenderScene::build(&scene, &lbvh());
+    let (mut rs, _) = RenderScene::build(&scene, &lbvh(), common::tracing());
     rs.sample_clamp = clamp;
     let depth = scene.render.max_depth;
     let gpu = render_gpu(ctx, &rs, 1, spp, depth);
@@ -194,7 +194,7 @@ fn specialized_and_general_variants_agree() {
     let mut scene = Scene::load(scene_path("furnace.toml")).unwrap();
     scene.camera.width = 32;
     scene.camera.height = 32;
-    let (rs, _) = RenderScene::build(&scene, &lbvh());
+    let (rs, _) = RenderScene::build(&scene, &lbvh(), common::tracing());
     assert_eq!(
         Features::of(&rs),
         Features {
@@ -264,7 +264,7 @@ fn auto_hands_its_timed_samples_to_the_render() {
 fn a_tree_deeper_than_the_stack_is_refused() {
     let Some(ctx) = gpu_or_skip("a_tree_deeper_than_the_stack_is_refused") else { return };
     let scene = Scene::load(scene_path("furnace.toml")).unwrap();
-    let (mut rs, _) = RenderScene::build(&scene, &lbvh());
+    let (mut rs, _) = RenderScene::build(&scene, &lbvh(), common::tracing());
     // A caterpillar: internal node k has leaf k on the left and the next internal node on the
     // right, 100 levels deep.
     let n = 100u32;
@@ -284,7 +284,7 @@ fn a_tree_deeper_than_the_stack_is_refused() {
         parents.extend([if k == 0 { 0 } else { pair - 1 }; 2]);
     }
     let bvh = arbor::bvh::Bvh { nodes: nodes.into(), parents, prim_ids: (0..n).collect() };
-    let mesh = arbor::bvh::MeshBvh::new(bvh, &tris);
+    let mesh = arbor::bvh::MeshBvh::new(bvh, &tris, common::tracing());
     rs.geometry = arbor::render::geometry::Geometry::Flat(arbor::render::geometry::Flat {
         mesh,
         triangles: tris,
@@ -395,7 +395,7 @@ fn specialization_speedup() {
     let Some(ctx) = gpu_or_skip("specialization_speedup") else { return };
     for (name, spp) in [("furnace.toml", 64), ("cornell-box.toml", 16), ("showcase.toml", 16)] {
         let scene = Scene::load(scene_path(name)).unwrap();
-        let (rs, _) = RenderScene::build(&scene, &lbvh());
+        let (rs, _) = RenderScene::build(&scene, &lbvh(), common::tracing());
         let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
         let specialized = Features::of(&rs);
         let (mut wall, mut cpu, mut rays) = ([f64::INFINITY; 2], [f64::INFINITY; 2], [0u64; 2]);

@@ -16,7 +16,7 @@ use arbor::render::film::Film;
 use arbor::scene::Scene;
 
 fn render(scene: &Scene, spp: u32, max_depth: u32) -> Film {
-    let (rs, _) = RenderScene::build(scene, &"lbvh".parse::<Builder>().unwrap());
+    let (rs, _) = RenderScene::build(scene, &"lbvh".parse::<Builder>().unwrap(), common::tracing());
     let mut film = Film::new(rs.width, rs.height);
     rs.render(&mut film, scene.render.seed, max_depth, 0..spp, &|_| {});
     assert_eq!(film.non_finite_count(), 0, "non-finite samples");
@@ -267,7 +267,7 @@ fn mirrored_lamps_and_floors_face_where_the_file_put_them() {
     let mean_and_error = |scene: &Scene, device: Device| {
         let settings = arbor::scene::RenderSettings { spp: 16, max_depth: 2, seed: 3, time: None, clamp: None };
         let choice = BuilderChoice::Fixed("lbvh".parse().unwrap());
-        let mut r = Renderer::new(device, scene, &choice, &settings, 1, first_frame_time(scene)).unwrap();
+        let mut r = Renderer::new(device, scene, &choice, common::tracing(), &settings, 1, first_frame_time(scene)).unwrap();
         let film = r.render(&settings, &|_| {}).unwrap().film;
         assert_eq!(film.non_finite_count(), 0);
         let (mean, stderr) = (film.mean(), film.stderr());
@@ -327,7 +327,7 @@ fn render_on(device: arbor::device::Device, scene: &Scene, spp: u32, max_depth: 
     use arbor::device::{BuilderChoice, Renderer};
     let settings = arbor::scene::RenderSettings { spp, max_depth, seed: 5, time: None, clamp: None };
     let choice = BuilderChoice::Fixed("lbvh".parse().unwrap());
-    let mut r = Renderer::new(device, scene, &choice, &settings, 1, arbor::render::first_frame_time(scene)).unwrap();
+    let mut r = Renderer::new(device, scene, &choice, common::tracing(), &settings, 1, arbor::render::first_frame_time(scene)).unwrap();
     let film = r.render(&settings, &|_| {}).unwrap().film;
     assert_eq!(film.non_finite_count(), 0);
     film

@@ -181,8 +181,8 @@ fn auto_builder_scales_optimisation_with_the_ray_budget() {
         let after = label.split("+prbvh, ").nth(1).unwrap();
         after.split(' ').next().unwrap().parse().unwrap()
     };
-    let (_, small) = RenderScene::build_auto(&showcase, 1.0);
-    let (_, large) = RenderScene::build_auto(&showcase, 1e13);
+    let (_, small) = RenderScene::build_auto(&showcase, 1.0, common::tracing());
+    let (_, large) = RenderScene::build_auto(&showcase, 1e13, common::tracing());
     assert!(iterations(&small.builder) <= 2 && small.builder.starts_with("auto: lbvh+"), "{}", small.builder);
     assert!(iterations(&large.builder) > iterations(&small.builder), "{} / {}", small.builder, large.builder);
     assert!(large.sah < small.sah, "{} vs {}", large.sah, small.sah);
@@ -259,7 +259,7 @@ fn cpu_auto_optimises_while_it_renders() {
         |spp: u32, time: Option<f64>| arbor::scene::RenderSettings { spp, max_depth: 6, seed: 7, time, clamp: None };
     let run = |builder: &str, s: &arbor::scene::RenderSettings| {
         let choice: BuilderChoice = builder.parse().unwrap();
-        let mut r = Renderer::new(Device::Cpu, &showcase, &choice, s, 1, 0.0).unwrap();
+        let mut r = Renderer::new(Device::Cpu, &showcase, &choice, common::tracing(), s, 1, 0.0).unwrap();
         let frame = r.render(s, &|_| {}).unwrap();
         (frame.film.mean(), frame.samples, r.refine_report().cloned())
     };
@@ -285,10 +285,10 @@ fn cpu_auto_optimises_while_it_renders() {
     (wide.camera.width, wide.camera.height) = (256, 64);
     let sliced = one_thread.install(|| {
         let s = settings(64, None);
-        let mut r = Renderer::new(Device::Cpu, &wide, &BuilderChoice::Auto, &s, 1, 0.0).unwrap();
+        let mut r = Renderer::new(Device::Cpu, &wide, &BuilderChoice::Auto, common::tracing(), &s, 1, 0.0).unwrap();
         let image = r.render(&s, &|_| {}).unwrap().film.mean();
         let lbvh: BuilderChoice = "lbvh".parse().unwrap();
-        let mut fixed = Renderer::new(Device::Cpu, &wide, &lbvh, &s, 1, 0.0).unwrap();
+        let mut fixed = Renderer::new(Device::Cpu, &wide, &lbvh, common::tracing(), &s, 1, 0.0).unwrap();
         (image, fixed.render(&s, &|_| {}).unwrap().film.mean(), r.refine_report().cloned().unwrap())
     });
     assert!(sliced.2.iterations > 0, "{}", sliced.2);

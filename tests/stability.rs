@@ -103,7 +103,7 @@ fn render_with(scene: &Scene, builder_name: &str, seed: u64, spp: u32, max_depth
     let device = GPU.get().map_or(Device::Cpu, Device::Gpu);
     let settings = RenderSettings { spp, max_depth, seed, time: None, clamp: None };
     let choice = BuilderChoice::Fixed(builder(builder_name));
-    let mut renderer = Renderer::new(device, scene, &choice, &settings, 1, first_frame_time(scene))
+    let mut renderer = Renderer::new(device, scene, &choice, common::tracing(), &settings, 1, first_frame_time(scene))
         .unwrap_or_else(|e| panic!("{e:#}"));
     let film = renderer.render(&settings, &|_| {}).unwrap_or_else(|e| panic!("{e:#}")).film;
     assert_finite(&film, &format!("{} (seed {seed}, {builder_name}, {})", scene.path.display(), device.name()));
@@ -442,7 +442,7 @@ fn no_leaks_through_the_render_geometry() {
     let mut total = 0;
 
     let flat_scene = scene.at_time(t0);
-    let (flat, _) = RenderScene::build(&flat_scene, &builder("lbvh+prbvh"));
+    let (flat, _) = RenderScene::build(&flat_scene, &builder("lbvh+prbvh"), common::tracing());
     assert!(matches!(flat.geometry, Geometry::Flat(_)), "a static scene renders flat");
     let leaks = count_leaks(&flat, RAYS, 1, |r| {
         let k = r.random_range(0..objects);
@@ -451,7 +451,7 @@ fn no_leaks_through_the_render_geometry() {
     report.push(format!("flat: {leaks} leaks in {RAYS} rays"));
     total += leaks;
 
-    let (mut instanced, _) = RenderScene::build(&scene, &builder("lbvh+prbvh"));
+    let (mut instanced, _) = RenderScene::build(&scene, &builder("lbvh+prbvh"), common::tracing());
     assert!(matches!(instanced.geometry, Geometry::Instanced(_)), "an animated scene renders with two levels");
     for frame in [0, 12] {
         let t = scene.frame_time(frame);
@@ -493,7 +493,7 @@ fn leak_counter_sees_a_hole() {
     };
     for animated in [false, true] {
         let scene = scene_in(&dir, &text(animated));
-        let (rs, _) = RenderScene::build(&scene, &builder("lbvh"));
+        let (rs, _) = RenderScene::build(&scene, &builder("lbvh"), common::tracing());
         assert_eq!(matches!(rs.geometry, Geometry::Instanced(_)), animated);
         let o = &scene.objects[0];
         let m = o.world_from_object_at(0.0);
@@ -863,7 +863,7 @@ fn grazing_light_has_no_acne() {
 #[test]
 fn grazing_shadow_rays_need_the_offset() {
     let scene = grazing_scene();
-    let (rs, _) = RenderScene::build(&scene, &builder("lbvh"));
+    let (rs, _) = RenderScene::build(&scene, &builder("lbvh"), common::tracing());
     let lamp = scene.objects[1].material.unwrap();
     let light = scene.objects[1].world_from_object;
     let light_normal = light.transform_vector3(Vec3::Z).normalize();

@@ -81,7 +81,7 @@ fn check(name: &str, tris: &[Triangle], rays: &[Ray]) -> usize {
         // path this CPU has.
         let prims = aabbs(tris);
         for tracing in tracings() {
-            let mesh_bvh = MeshBvh::with_tracing(bvh.clone(), tris, tracing);
+            let mesh_bvh = MeshBvh::new(bvh.clone(), tris, tracing);
             mesh_bvh.validate_wide(&prims).unwrap_or_else(|e| panic!("{name}/{tree_name}, {tracing}: {e}"));
             let bad_ordered = rays
                 .par_iter()

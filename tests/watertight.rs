@@ -64,7 +64,7 @@ fn tree(tris: &[Triangle]) -> Bvh {
 fn count_leaks(c: &Closed, world_from_object: Mat4, n: usize, seed: u64, tracing: Tracing) -> usize {
     let mesh = c.mesh.transformed(world_from_object);
     let tris = mesh.triangles();
-    let bvh = MeshBvh::with_tracing(tree(&tris), &tris, tracing);
+    let bvh = MeshBvh::new(tree(&tris), &tris, tracing);
     let edges: Vec<(Vec3, Vec3)> = mesh
         .indices
         .iter()
@@ -139,7 +139,7 @@ fn leak_test_detects_a_hole() {
 fn placed_sphere(m: Mat4) -> (Vec<Triangle>, Bvh, Vec<MeshBvh>, Vec3) {
     let tris = TriangleMesh::uv_sphere(Vec3::ZERO, 1.0, 32, 64).transformed(m).triangles();
     let bvh = tree(&tris);
-    let traced = tracings().into_iter().map(|t| MeshBvh::with_tracing(bvh.clone(), &tris, t)).collect();
+    let traced = tracings().into_iter().map(|t| MeshBvh::new(bvh.clone(), &tris, t)).collect();
     (tris, bvh, traced, m.transform_point3(Vec3::ZERO))
 }
 

@@ -187,7 +187,7 @@ fn trace_dragon(c: &mut Criterion) {
     // The leaf-ordered binary tree, and the wide forms on every SIMD path this CPU has.
     let mut ordered = vec![(
         "lbvh-ordered".to_string(),
-        MeshBvh::with_tracing(
+        MeshBvh::new(
             trees[0].1.clone(),
             &tris,
             Tracing { layout: TraceLayout::Binary, simd: SimdPath::Scalar },
@@ -196,7 +196,7 @@ fn trace_dragon(c: &mut Criterion) {
     for simd in SimdPath::available() {
         for layout in [TraceLayout::Wide4, TraceLayout::Wide8] {
             let name = format!("lbvh-{}-{}", layout.name(), simd.name());
-            ordered.push((name, MeshBvh::with_tracing(trees[0].1.clone(), &tris, Tracing { layout, simd })));
+            ordered.push((name, MeshBvh::new(trees[0].1.clone(), &tris, Tracing { layout, simd })));
         }
     }
     let theirs = arbor_bench::peers::to_obvhs_triangles(&tris);

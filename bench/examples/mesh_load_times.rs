@@ -55,7 +55,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     report("load GLB, normals and uvs", runs, || load_glb(&glb_attributes).map(drop))?;
     report("load OBJ", runs, || TriangleMesh::load_obj(&obj).map(drop))?;
     report("LBVH build", runs, || {
-        std::hint::black_box(lbvh.build_mesh(&triangles));
+        std::hint::black_box(lbvh.build_mesh(&triangles, arbor::bvh::Tracing::best()));
         Ok::<_, std::convert::Infallible>(())
     })?;
     std::fs::remove_dir_all(&dir)?;

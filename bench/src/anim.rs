@@ -27,7 +27,7 @@ use serde::Serialize;
 use arbor::bvh::builders::Builder;
 use arbor::bvh::dynamic::{DynamicBvh, DynamicConfig};
 use arbor::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
-use arbor::bvh::{MeshBvh, binned_sah, sah_cost};
+use arbor::bvh::{MeshBvh, Tracing, binned_sah, sah_cost};
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
 use arbor::render::rng::Rng;
 use arbor::scene::Scene;
@@ -172,6 +172,8 @@ pub struct AnimBenchConfig {
     /// 250,000.
     pub single_level_max_triangles: usize,
     pub single_level_max_moving_triangles: usize,
+    /// The form each mesh's tree is traced in. Default: the best this CPU has.
+    pub tracing: Tracing,
 }
 
 impl Default for AnimBenchConfig {
@@ -183,6 +185,7 @@ impl Default for AnimBenchConfig {
             mesh_builder: "lbvh+prbvh".parse().expect("a builder name"),
             single_level_max_triangles: 2_000_000,
             single_level_max_moving_triangles: 250_000,
+            tracing: Tracing::best(),
         }
     }
 }
@@ -239,7 +242,7 @@ impl Track {
 
 /// Runs every strategy over `frames` frames of `anim`.
 pub fn run(anim: &AnimatedInstances, config: &AnimBenchConfig) -> AnimReport {
-    let meshes: Vec<MeshBvh> = anim.meshes.iter().map(|m| config.mesh_builder.build_mesh(&m.triangles())).collect();
+    let meshes: Vec<MeshBvh> = anim.meshes.iter().map(|m| config.mesh_builder.build_mesh(&m.triangles(), config.tracing)).collect();
     let instances: Vec<Instance> = anim.instances.iter().map(|&(m, t)| Instance::new(m, t)).collect();
     let mut no_prbvh = config.dynamic;
     no_prbvh.prbvh_rounds = 0;

@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use arbor::bvh::builders::{Builder, UnknownBuilder};
 use arbor::bvh::prbvh::PrbvhConfig;
-use arbor::bvh::{CollapseConfig, MeshBvh, TraceLayout, collapse_leaves, lbvh, sah_cost, validate};
+use arbor::bvh::{CollapseConfig, MeshBvh, TraceLayout, Tracing, collapse_leaves, lbvh, sah_cost, validate};
 use arbor::geometry::{Aabb, Ray, Triangle};
 
 use crate::median;
@@ -100,6 +100,9 @@ pub struct BenchConfig {
     pub resolution: u32,
     pub prbvh: PrbvhConfig,
     pub collapse: CollapseConfig,
+    /// The form Arbor's trees are traced in. Default: the best this CPU has
+    /// ([`Tracing::best`]); `bvh-bench` passes what `ARBOR_SIMD` says.
+    pub tracing: Tracing,
 }
 
 impl Default for BenchConfig {
@@ -110,6 +113,7 @@ impl Default for BenchConfig {
             resolution: 512,
             prbvh: PrbvhConfig::default(),
             collapse: CollapseConfig::default(),
+            tracing: Tracing::best(),
         }
     }
 }
@@ -328,7 +332,7 @@ pub fn run_with_progress(
     progress("tracing the reference rays");
     let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let rays = ray_sets(triangles, &prim_aabbs, config.resolution);
-    let tracing = arbor::bvh::Tracing::current();
+    let tracing = config.tracing;
     let mut report = Report {
         triangles: triangles.len(),
         threads: rayon::current_num_threads(),
@@ -429,7 +433,7 @@ pub fn run_with_progress(
             Some(b) => (report.builders[b].name.clone(), first_codes[b].take().expect("kept in round 0")),
             None => {
                 // Only peers listed: compare them with the tree the rays were made with.
-                let mesh = Traced::Arbor(Box::new(MeshBvh::new(reference_lbvh(&prim_aabbs), triangles)));
+                let mesh = Traced::Arbor(Box::new(MeshBvh::new(reference_lbvh(&prim_aabbs), triangles, tracing)));
                 ("lbvh".to_string(), sets.map(|(set, t_max)| mesh.trace(set, t_max).1))
             }
         };
@@ -493,7 +497,7 @@ fn measure(
         error,
     })?;
     let sah = sah_cost(&collapsed);
-    let traced = MeshBvh::new(collapsed, triangles);
+    let traced = MeshBvh::new(collapsed, triangles, config.tracing);
     let wide = traced.tracing().layout != TraceLayout::Binary;
     let report = BuilderReport {
         optimize_ms: Some(median_ms(optimizations)),

@@ -41,6 +41,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use arbor::bvh::Tracing;
 use arbor::device::{BuilderChoice, Device, DeviceError, RenderedFrame, Renderer};
 use arbor::image_io::Image;
 use arbor::render::film::Film;
@@ -58,11 +59,13 @@ pub struct ConvergeConfig {
     /// The renders: `spp` is the last point's, `max_depth` and `seed` (the scene's usually)
     /// every point's (the rendered reference takes another seed); no time limit.
     pub render: RenderSettings,
+    /// The form the CPU traces in. Default: the best this CPU has.
+    pub tracing: Tracing,
 }
 
 impl Default for ConvergeConfig {
     fn default() -> Self {
-        Self { start_spp: 1, render: RenderSettings { spp: 64, ..Default::default() } }
+        Self { start_spp: 1, render: RenderSettings { spp: 64, ..Default::default() }, tracing: Tracing::best() }
     }
 }
 
@@ -172,13 +175,19 @@ pub fn image_error(image: &Image, reference: &Image) -> (f64, f64) {
     (sq / n, abs / n)
 }
 
-/// Renders `scene` at `spp` samples with `seed` (a reference) on the CPU; returns it and the
-/// seconds taken.
-pub fn render_reference(scene: &Scene, spp: u32, max_depth: u32, seed: u64) -> Result<(Image, f64), DeviceError> {
+/// Renders `scene` at `spp` samples with `seed` (a reference) on the CPU, traced as `tracing`
+/// says; returns it and the seconds taken.
+pub fn render_reference(
+    scene: &Scene,
+    spp: u32,
+    max_depth: u32,
+    seed: u64,
+    tracing: Tracing,
+) -> Result<(Image, f64), DeviceError> {
     let t = Instant::now();
     let settings = RenderSettings { spp, max_depth, seed, ..Default::default() };
     let builder = BuilderChoice::Fixed("lbvh+prbvh".parse().expect("a builder name"));
-    let mut renderer = Renderer::new(Device::Cpu, scene, &builder, &settings, 1, first_frame_time(scene))?;
+    let mut renderer = Renderer::new(Device::Cpu, scene, &builder, tracing, &settings, 1, first_frame_time(scene))?;
     let frame = renderer.render(&settings, &|_| {})?;
     Ok((frame.film.mean(), t.elapsed().as_secs_f64()))
 }
@@ -202,7 +211,7 @@ pub fn measure_curve(
     let time = first_frame_time(scene);
     let build = |spp: u32| -> Result<(Renderer, f64), DeviceError> {
         let t = Instant::now();
-        let renderer = Renderer::new(device, scene, choice, &config.at(spp), 1, time)?;
+        let renderer = Renderer::new(device, scene, choice, config.tracing, &config.at(spp), 1, time)?;
         let build_s = (t.elapsed().as_secs_f64() - renderer.compile_seconds()).max(0.0);
         Ok((renderer, build_s))
     };
@@ -547,7 +556,7 @@ mod tests {
 
     #[test]
     fn spp_steps_double_up_to_the_maximum() {
-        let c = ConvergeConfig { start_spp: 1, render: RenderSettings { spp: 20, ..Default::default() } };
+        let c = ConvergeConfig { start_spp: 1, render: RenderSettings { spp: 20, ..Default::default() }, ..Default::default() };
         assert_eq!(c.spp_steps(), vec![1, 2, 4, 8, 16]);
     }
 }

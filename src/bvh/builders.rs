@@ -25,7 +25,7 @@ use rayon::prelude::*;
 
 use super::ploc::{self, PlocConfig};
 use super::rbvh::{self, RbvhConfig, RbvhStats};
-use super::{Bvh, CollapseConfig, MeshBvh, binned_sah, collapse_leaves, lbvh};
+use super::{Bvh, CollapseConfig, MeshBvh, Tracing, binned_sah, collapse_leaves, lbvh};
 use crate::geometry::{Aabb, Triangle};
 
 /// A builder, optionally followed by an optimiser.
@@ -220,11 +220,11 @@ impl Builder {
     }
 
     /// A mesh's traceable BVH: built over `triangles` with the default PRBVH settings, then the
-    /// default leaf collapse, triangles stored in leaf order.
-    pub fn build_mesh(&self, triangles: &[Triangle]) -> MeshBvh {
+    /// default leaf collapse, triangles stored in leaf order, traced as `tracing` says.
+    pub fn build_mesh(&self, triangles: &[Triangle], tracing: Tracing) -> MeshBvh {
         let prims: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
         let built = self.build(triangles, &prims, &PrbvhConfig { collapse: None, ..Default::default() });
-        MeshBvh::new(collapse_leaves(&built.bvh, &CollapseConfig::default()), triangles)
+        MeshBvh::new(collapse_leaves(&built.bvh, &CollapseConfig::default()), triangles, tracing)
     }
 }
 

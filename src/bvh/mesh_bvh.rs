@@ -4,10 +4,11 @@
 //! mesh; storing them in leaf order makes a leaf's triangles contiguous, one or two cache lines
 //! instead of one miss each. Hits still report the mesh's own triangle ids.
 //!
-//! The binary tree stays what builders, PRBVH and refits work on. Unless told otherwise
-//! ([`Tracing::current`]) a mesh is traced through a wide tree collapsed from it, with its
-//! triangles in packets ([`WideMesh`]): 8 wide on AVX2, 4 wide on SSE4.1 and NEON; the portable path
-//! traces the binary tree. Every form returns the same hits, bit for bit.
+//! The binary tree stays what builders, PRBVH and refits work on. The caller says how a mesh is
+//! traced ([`Tracing`], chosen once at the edge: `render --trace`, `ARBOR_SIMD`): through the
+//! binary tree, or through a wide tree collapsed from it, with its triangles in packets
+//! ([`WideMesh`]): by default 8 wide on AVX2, 4 wide on SSE4.1 and NEON, and the binary tree on
+//! the portable path ([`Tracing::best`]). Every form returns the same hits, bit for bit.
 
 use rayon::prelude::*;
 
@@ -41,22 +42,18 @@ impl PartialEq for MeshBvh {
     }
 }
 
+/// The empty tree, traced as the binary form (there is nothing to collapse).
 impl Default for MeshBvh {
     fn default() -> Self {
-        Self::with_tracing(Bvh::default(), &[], Tracing::current())
+        Self::new(Bvh::default(), &[], Tracing::gpu())
     }
 }
 
 impl MeshBvh {
     /// Pairs `bvh`, built over `triangles` (indexed by id), with a leaf-ordered copy of them, and
-    /// derives the form [`Tracing::current`] names.
-    pub fn new(bvh: Bvh, triangles: &[Triangle]) -> Self {
-        Self::with_tracing(bvh, triangles, Tracing::current())
-    }
-
-    /// [`MeshBvh::new`] traced as `tracing` says (a path this CPU lacks is replaced by the best
-    /// one it has).
-    pub fn with_tracing(bvh: Bvh, triangles: &[Triangle], tracing: Tracing) -> Self {
+    /// derives the form `tracing` names (a path this CPU lacks is replaced by the best one it
+    /// has).
+    pub fn new(bvh: Bvh, triangles: &[Triangle], tracing: Tracing) -> Self {
         let ordered: Vec<Triangle> =
             bvh.prim_ids.par_iter().with_min_len(4096).map(|&p| triangles[p as usize]).collect();
         let start = std::time::Instant::now();

@@ -28,7 +28,6 @@
 //!   to underflow); so `t` above it is above the scalar bound too. *Checked*: every other lane (a ray through an edge, a `t` near zero: the
 //!   scalar test's f64 paths) goes to the scalar test. Hits are exactly the scalar test's.
 
-use std::sync::atomic::{AtomicU8, Ordering};
 
 use crate::geometry::{ROBUST_SLAB_SCALE, RayInv, WatertightRay};
 
@@ -171,10 +170,6 @@ impl std::fmt::Display for Tracing {
     }
 }
 
-/// The process's choice, set by [`Tracing::set_default`]; 0 while unset.
-static DEFAULT_LAYOUT: AtomicU8 = AtomicU8::new(0);
-static DEFAULT_SIMD: AtomicU8 = AtomicU8::new(0);
-
 impl Tracing {
     /// The best path this CPU has with its layout.
     pub fn best() -> Self {
@@ -188,35 +183,12 @@ impl Tracing {
         Self { layout: TraceLayout::Binary, simd: SimdPath::Scalar }
     }
 
-    /// `layout` (or the path's default) on the path `ARBOR_SIMD` names (or the best).
+    /// `layout` (or the path's default) on the path `ARBOR_SIMD` names (or the best). The
+    /// library never calls it: the tools read the environment once, at their edge, and pass the
+    /// result down to every tree they build ([`super::MeshBvh::new`], `device::Renderer::new`).
     pub fn from_env(layout: Option<TraceLayout>) -> Result<Self, SimdError> {
         let simd = SimdPath::from_env()?;
         Ok(Self { layout: layout.unwrap_or(TraceLayout::default_for(simd)), simd })
-    }
-
-    /// What trees built from now on trace with, unless told otherwise
-    /// ([`super::MeshBvh::with_tracing`]): as [`Tracing::set_default`] last set it, else as
-    /// `ARBOR_SIMD` says (a bad value there falls back to the best path; `render` reports it as
-    /// an error before it builds anything), else the best this CPU has.
-    pub fn current() -> Self {
-        let (l, s) = (DEFAULT_LAYOUT.load(Ordering::Relaxed), DEFAULT_SIMD.load(Ordering::Relaxed));
-        if l != 0 && s != 0 {
-            return Self { layout: TraceLayout::ALL[l as usize - 1], simd: SimdPath::ALL[s as usize - 1] };
-        }
-        // The environment is read once: every mesh built asks.
-        static FROM_ENV: std::sync::OnceLock<Tracing> = std::sync::OnceLock::new();
-        *FROM_ENV.get_or_init(|| Self::from_env(None).unwrap_or_else(|_| Self::best()))
-    }
-
-    /// Sets what [`Tracing::current`] returns for the rest of the process. A path this CPU lacks
-    /// is replaced by the best one it has.
-    pub fn set_default(self) {
-        let simd = if self.simd.is_available() { self.simd } else { SimdPath::best() };
-        let index = |k: usize| k as u8 + 1;
-        let l = TraceLayout::ALL.iter().position(|&x| x == self.layout).unwrap_or(0);
-        let s = SimdPath::ALL.iter().position(|&x| x == simd).unwrap_or(0);
-        DEFAULT_LAYOUT.store(index(l), Ordering::Relaxed);
-        DEFAULT_SIMD.store(index(s), Ordering::Relaxed);
     }
 }
 

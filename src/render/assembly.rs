@@ -83,16 +83,11 @@ impl RenderScene {
     /// A static scene is flattened to world-space triangles under one BVH built with `builder`,
     /// then the default leaf collapse. An animated or heavily instanced scene
     /// ([`wants_instancing`]) gets one such BVH per distinct mesh, in object space, under a
-    /// top-level tree of its objects.
-    pub fn build(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
-        Self::build_traced(scene, builder, Tracing::current())
-    }
-
-    /// [`RenderScene::build`] with a flat scene's tree traced as `tracing` says
-    /// ([`Tracing::gpu`] for a GPU render, which traces its own copy of the binary tree).
-    pub fn build_traced(scene: &Scene, builder: &Builder, tracing: Tracing) -> (Self, BuildReport) {
+    /// top-level tree of its objects. The trees are traced as `tracing` says ([`Tracing::gpu`]
+    /// for a GPU render, which traces its own copy of the binary tree).
+    pub fn build(scene: &Scene, builder: &Builder, tracing: Tracing) -> (Self, BuildReport) {
         if wants_instancing(scene) {
-            return Self::build_instanced(scene, builder);
+            return Self::build_instanced(scene, builder, tracing);
         }
         let t = Instant::now();
         let (triangles, material_of) = scene.world_triangles();
@@ -102,9 +97,9 @@ impl RenderScene {
     }
 
     /// The two-level build (see [`RenderScene::build`]).
-    pub(super) fn build_instanced(scene: &Scene, builder: &Builder) -> (Self, BuildReport) {
+    pub(super) fn build_instanced(scene: &Scene, builder: &Builder, tracing: Tracing) -> (Self, BuildReport) {
         let t = Instant::now();
-        let meshes: Vec<MeshBvh> = scene.meshes.iter().map(|m| builder.build_mesh(&m.mesh.triangles())).collect();
+        let meshes: Vec<MeshBvh> = scene.meshes.iter().map(|m| builder.build_mesh(&m.mesh.triangles(), tracing)).collect();
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
         let mut instanced = Instanced::new(scene, &materials, meshes, first_frame_time(scene));
         let lights = instanced.lights(&materials, &scene.textures);
@@ -113,7 +108,7 @@ impl RenderScene {
         let meshes = g.two_level.meshes();
         let largest = meshes.iter().max_by_key(|m| m.triangles.len());
         let report = BuildReport {
-            tracing: largest.map_or_else(Tracing::current, MeshBvh::tracing),
+            tracing: largest.map_or(tracing, MeshBvh::tracing),
             collapse_ms: meshes.iter().map(MeshBvh::collapse_seconds).sum::<f64>() * 1e3,
             traced_sah: largest.map_or(0.0, |m| m.traced_sah(&Default::default())),
             build_ms: t.elapsed().as_secs_f64() * 1e3,
@@ -139,7 +134,7 @@ impl RenderScene {
     ) -> (Self, BuildReport) {
         let bvh = collapse_leaves(leaf1, &CollapseConfig::default());
         let sah = sah_cost(&bvh);
-        let mesh = MeshBvh::with_tracing(bvh, &triangles, tracing);
+        let mesh = MeshBvh::new(bvh, &triangles, tracing);
         let (tracing, collapse_ms, traced_sah) =
             (mesh.tracing(), mesh.collapse_seconds() * 1e3, mesh.traced_sah(&Default::default()));
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();

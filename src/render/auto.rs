@@ -32,8 +32,9 @@ pub fn total_budget(settings: &RenderSettings, frames: usize) -> Option<f64> {
 /// The device a render for [`RenderScene::build_auto_for`] runs on.
 pub enum AutoDevice<'a> {
     /// The CPU, whose speed the camera-ray probes measure. (`render` on the CPU does not build
-    /// ahead of the render: it optimises while rendering, [`super::refine`].)
-    Cpu,
+    /// ahead of the render: it optimises while rendering, [`super::refine`].) The probes trace
+    /// the form the render will.
+    Cpu(Tracing),
     /// Another device (a GPU), timed by rendering a little of the LBVH scene: `measure` returns
     /// the seconds one sample per pixel takes there and the time to leave out of the build (a
     /// kernel's compilation, paid once per process), or `None` to fall back on the CPU's
@@ -55,7 +56,7 @@ impl AutoDevice<'_> {
     /// collapse).
     fn tracing(&self) -> Tracing {
         match self {
-            AutoDevice::Cpu => Tracing::current(),
+            AutoDevice::Cpu(tracing) => *tracing,
             AutoDevice::Measured { .. } | AutoDevice::Unmeasured => Tracing::gpu(),
         }
     }
@@ -69,7 +70,7 @@ fn probe_trace_speed(
     camera: &crate::scene::Camera,
     tracing: Tracing,
 ) -> f64 {
-    let mesh = MeshBvh::with_tracing(collapse_leaves(bvh, &CollapseConfig::default()), triangles, tracing);
+    let mesh = MeshBvh::new(collapse_leaves(bvh, &CollapseConfig::default()), triangles, tracing);
     let model = CameraModel::new(camera);
     let (w, h) = (camera.width as f32 / 64.0, camera.height as f32 / 64.0);
     let rays: Vec<Ray> = (0..64 * 64)
@@ -195,8 +196,8 @@ impl RenderScene {
     ///
     /// An instanced scene builds its meshes' BVHs with `lbvh+prbvh`: they are built once and
     /// serve every frame.
-    pub fn build_auto(scene: &Scene, rays: f64) -> (Self, BuildReport) {
-        Self::build_auto_for(scene, rays, AutoDevice::Cpu)
+    pub fn build_auto(scene: &Scene, rays: f64, tracing: Tracing) -> (Self, BuildReport) {
+        Self::build_auto_for(scene, rays, AutoDevice::Cpu(tracing))
     }
 
     /// [`RenderScene::build_auto`] for a render on `device`.
@@ -214,7 +215,7 @@ impl RenderScene {
     /// does not double a large scene's peak memory.
     pub fn build_auto_for(scene: &Scene, rays: f64, device: AutoDevice<'_>) -> (Self, BuildReport) {
         if wants_instancing(scene) {
-            return Self::build_instanced(scene, &instanced_builder());
+            return Self::build_instanced(scene, &instanced_builder(), device.tracing());
         }
         let mut t = Instant::now();
         let (triangles, material_of) = scene.world_triangles();
@@ -295,7 +296,7 @@ impl RenderScene {
         };
         let tracing = device.tracing();
         match device {
-            AutoDevice::Cpu => {}
+            AutoDevice::Cpu(_) => {}
             AutoDevice::Unmeasured => return None,
             AutoDevice::Measured { samples, budget, measure } => {
                 let cpu_seconds = rays / probe_trace_speed(bvh, triangles, &scene.camera, tracing);

@@ -239,6 +239,6 @@ impl Refiner {
     fn retree(&self, rs: &mut RenderScene) {
         let Geometry::Flat(flat) = &mut rs.geometry else { return };
         let leaves = collapse_leaves(&self.bvh, &CollapseConfig::default());
-        flat.mesh = MeshBvh::with_tracing(leaves, &flat.triangles, self.tracing);
+        flat.mesh = MeshBvh::new(leaves, &flat.triangles, self.tracing);
     }
 }

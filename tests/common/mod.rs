@@ -225,3 +225,10 @@ pub fn tracings() -> Vec<arbor::bvh::Tracing> {
     }
     all
 }
+
+/// The trace form the tests build their trees with: as `ARBOR_SIMD` says (CI renders the golden
+/// images once per SIMD path), else the best this CPU has. Read here, at the tests' edge, as
+/// `render` reads it at its own.
+pub fn tracing() -> arbor::bvh::Tracing {
+    arbor::bvh::Tracing::from_env(None).expect("ARBOR_SIMD names a SIMD path this CPU has")
+}

@@ -218,8 +218,8 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
     let named: Option<BuilderChoice> =
         args.builder.as_deref().map(str::parse).transpose().map_err(|e| bad(format!("--builder (or auto): {e}")))?;
     cli::init_threads(args.threads).map_err(|e| bad(e.to_string()))?;
-    // Before any tree is built: meshes take the form current when they are built.
-    Tracing::from_env(args.trace).map_err(|e| bad(e.to_string()))?.set_default();
+    // The one place the trace form is chosen: every tree this render builds is given it.
+    let tracing = Tracing::from_env(args.trace).map_err(|e| bad(e.to_string()))?;
     let load = Instant::now();
     let scene = Scene::load(scene_path)?;
     report.load_seconds = Some(load.elapsed().as_secs_f64());
@@ -377,11 +377,11 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
     }
     // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
     if device.name() == "gpu" || !wants_instancing(&scene) {
-        let binary = device.name() == "gpu" || Tracing::current().layout == TraceLayout::Binary;
+        let binary = device.name() == "gpu" || tracing.layout == TraceLayout::Binary;
         scene.check_flat_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
     }
     let builder = named.unwrap_or_else(|| BuilderChoice::default_for(device, &scene));
-    let mut renderer = Renderer::new(device, &scene, &builder, &settings, outputs.len(), outputs[0].time)?;
+    let mut renderer = Renderer::new(device, &scene, &builder, tracing, &settings, outputs.len(), outputs[0].time)?;
     let build = renderer.build_report();
     report.bvh = Some(BvhReport {
         builder: build.builder.clone(),

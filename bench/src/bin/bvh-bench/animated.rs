@@ -10,7 +10,7 @@ use crate::plot::Series;
 use crate::report::write_outputs;
 
 /// `--animated` / `--procedural-animated`.
-pub(crate) fn run_animated(args: &Args) -> Result<()> {
+pub(crate) fn run_animated(args: &Args, tracing: arbor::bvh::Tracing) -> Result<()> {
     let frames = args.frames.unwrap_or(300);
     if frames == 0 {
         bail!("--frames must be at least 1");
@@ -44,7 +44,7 @@ pub(crate) fn run_animated(args: &Args) -> Result<()> {
         frames,
         rayon::current_num_threads()
     );
-    let config = AnimBenchConfig { frames, resolution: args.resolution.min(256), ..Default::default() };
+    let config = AnimBenchConfig { frames, resolution: args.resolution.min(256), tracing, ..Default::default() };
     let report = anim_bench::run(&anim, &config);
     outln!(
         "{} instances, {} moving, {} triangles, {} frames, {} threads",

@@ -14,7 +14,7 @@ use crate::{Args, default_builders};
 
 /// The builder comparison (the default mode): every builder builds the same triangles and
 /// traces the same rays; a table, and JSON, CSV and a plot where asked.
-pub(crate) fn run(args: &Args) -> Result<()> {
+pub(crate) fn run(args: &Args, tracing: arbor::bvh::Tracing) -> Result<()> {
     let builders = args
         .builders
         .clone()
@@ -31,6 +31,7 @@ pub(crate) fn run(args: &Args) -> Result<()> {
         runs: args.runs,
         resolution: args.resolution,
         prbvh: PrbvhConfig { mu: args.mu, epsilon: args.epsilon, ..Default::default() },
+        tracing,
         ..Default::default()
     };
     // On a terminal, a spinner says what runs: large meshes take minutes.

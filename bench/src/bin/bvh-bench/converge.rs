@@ -10,7 +10,7 @@ use crate::plot::Series;
 use crate::report::{ConvergeReport, NotCompared, ReferenceInfo, write_outputs};
 
 /// `--converge`.
-pub(crate) fn run_converge(args: &Args) -> Result<()> {
+pub(crate) fn run_converge(args: &Args, tracing: arbor::bvh::Tracing) -> Result<()> {
     use arbor::device::{BuilderChoice, Device, DeviceChoice};
     use arbor_bench::converge::{self, ConvergeConfig};
     let path = args.converge.as_ref().expect("checked by the caller");
@@ -37,7 +37,7 @@ pub(crate) fn run_converge(args: &Args) -> Result<()> {
         (scene.camera.width, scene.camera.height) = (w, h);
     }
     let render = RenderSettings { spp: max_spp, time: None, clamp: None, ..scene.render };
-    let config = ConvergeConfig { render, ..Default::default() };
+    let config = ConvergeConfig { render, tracing, ..Default::default() };
     let (w, h) = (scene.camera.width, scene.camera.height);
     let (reference, reference_info) = match &args.reference {
         Some(file) => {
@@ -59,7 +59,7 @@ pub(crate) fn run_converge(args: &Args) -> Result<()> {
             }
             let seed = config.render.seed ^ 0x5eed_0f5e;
             eprintln!("rendering the reference: {w}x{h}, {spp} spp ...");
-            let (image, secs) = converge::render_reference(&scene, spp, config.render.max_depth, seed)?;
+            let (image, secs) = converge::render_reference(&scene, spp, config.render.max_depth, seed, tracing)?;
             eprintln!("  {secs:.1} s");
             (image, ReferenceInfo::Rendered { spp, seed, time_s: secs })
         }

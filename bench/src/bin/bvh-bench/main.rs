@@ -140,14 +140,15 @@ fn run() -> Result<()> {
     let args = Args::parse();
     arbor_bench::peers::register();
     cli::init_threads(args.threads)?;
-    // A bad ARBOR_SIMD fails here, before any tree is built.
-    arbor::bvh::Tracing::from_env(None)?.set_default();
+    // The one place the trace form is chosen: a bad ARBOR_SIMD fails here, before any tree is
+    // built, and every mode is given the result.
+    let tracing = arbor::bvh::Tracing::from_env(None)?;
     if let Some(builder) = &args.memory_child {
-        return memory_child(&args, builder);
+        return memory_child(&args, builder, tracing);
     }
     check_options(&args)?;
     if args.converge.is_some() {
-        return run_converge(&args);
+        return run_converge(&args, tracing);
     }
     if args.memory {
         return run_memory(&args);
@@ -156,7 +157,7 @@ fn run() -> Result<()> {
         return run_gpu(&args);
     }
     if args.animated.is_some() || args.procedural_animated.is_some() {
-        return run_animated(&args);
+        return run_animated(&args, tracing);
     }
-    compare::run(&args)
+    compare::run(&args, tracing)
 }

@@ -89,7 +89,7 @@ pub(crate) fn run_memory(args: &Args) -> Result<()> {
 /// One builder's `--memory` process: builds what tracing needs and prints a [`MemoryReport`].
 /// Ours: the leaf-collapsed BVH and its leaf-ordered triangles (the renderer's `MeshBvh`).
 /// obvhs: its `Bvh2` and triangles, built exactly as its preset ships.
-pub(crate) fn memory_child(args: &Args, name: &str) -> Result<()> {
+pub(crate) fn memory_child(args: &Args, name: &str, tracing: arbor::bvh::Tracing) -> Result<()> {
     let builder: Builder = name.parse().context("--memory-child")?;
     let (_, mesh) = load_input(args)?;
     let triangles = mesh.triangles();
@@ -102,7 +102,7 @@ pub(crate) fn memory_child(args: &Args, name: &str) -> Result<()> {
         }
         _ => {
             // The binary tree, the leaf-ordered triangles and the wide form `render` traces.
-            let m = builder.build_mesh(&triangles);
+            let m = builder.build_mesh(&triangles, tracing);
             (m.memory_bytes(), m.wide_memory_bytes())
         }
     };
