@@ -19,7 +19,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (device, _) = device.select()?;
     // The form the CPU traces: the best this CPU has, or the path `ARBOR_SIMD` names.
     let tracing = arbor::bvh::Tracing::from_env(None)?;
-    let mut renderer = Renderer::new(device, &scene, &BuilderChoice::Auto, tracing, &settings, 1, first_frame_time(&scene))?;
+    let mut renderer =
+        Renderer::new(device, &scene, &BuilderChoice::Auto, tracing, &settings, 1, first_frame_time(&scene))?;
     println!("BVH: {}", renderer.build_report().builder);
     let frame = renderer.render(&settings, &|_| {})?;
     // Written to a temporary file and renamed: never a half-written image.

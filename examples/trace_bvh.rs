@@ -2,7 +2,7 @@
 //!
 //! `cargo run --release --example trace_bvh`
 
-use arbor::bvh::builders::Builder;
+use arbor::bvh::build::Builder;
 use arbor::bvh::{Tracing, brute_force_closest, sah_cost};
 use arbor::geometry::{Ray, Triangle, procedural};
 use arbor::glam::Vec3;

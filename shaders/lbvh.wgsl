@@ -1,4 +1,4 @@
-// LBVH on the GPU (Karras 2012), the same algorithm and the same tree as src/bvh/lbvh.rs:
+// LBVH on the GPU (Karras 2012), the same algorithm and the same tree as src/bvh/build/lbvh.rs:
 // centroid bounds, 63-bit Morton codes split in two u32 halves (sorted by two stable passes of
 // lampshade's radix sort: low half, then high half), the radix tree with each internal node's
 // children written as one sibling pair, and boxes bottom-up with atomic visit counters.

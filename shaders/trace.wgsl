@@ -1,6 +1,6 @@
 // The path tracer's megakernel: one thread per pixel, looping over the pass's samples. The same
 // integrator as src/render/integrator.rs (RenderScene::radiance and direct_light), with the
-// traversal of src/bvh/traverse.rs over the leaf-collapsed tree (triangles in leaf order, as in
+// traversal of src/bvh/trace/mod.rs over the leaf-collapsed tree (triangles in leaf order, as in
 // MeshBvh), the watertight test of src/geometry/triangle.rs with its conservative t, and the
 // error-bound ray offsets of src/geometry/ray.rs. Concatenated after bsdf.wgsl (src/gpu/trace.rs); the HAS_* constants choose what
 // this variant compiles.

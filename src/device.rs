@@ -19,9 +19,9 @@ use std::time::Duration;
 use std::time::Instant;
 
 use crate::bvh::Tracing;
-use crate::bvh::builders::{Builder, UnknownBuilder};
+use crate::bvh::build::{Builder, UnknownBuilder};
 use crate::bvh::dynamic::DynamicConfig;
-use crate::bvh::instances::TopLevelUpdate;
+use crate::bvh::dynamic::instances::TopLevelUpdate;
 #[cfg(feature = "gpu")]
 use crate::gpu::{GpuContext, GpuError, trace};
 use crate::render::film::Film;

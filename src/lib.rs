@@ -4,7 +4,7 @@
 //!
 //! ```
 //! use arbor::bvh::Tracing;
-//! use arbor::bvh::builders::Builder;
+//! use arbor::bvh::build::Builder;
 //! use arbor::geometry::{Ray, Triangle};
 //! use arbor::glam::Vec3;
 //!

@@ -1,8 +1,8 @@
 //! Animated scenes: a frame rendered through the kept-alive two-level BVH equals, within Monte
 //! Carlo noise, the static scene with every object placed at that frame's transform.
 
-use arbor::bvh::builders::Builder;
-use arbor::bvh::instances::TopLevelUpdate;
+use arbor::bvh::build::Builder;
+use arbor::bvh::dynamic::instances::TopLevelUpdate;
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
 use arbor::render::geometry::Geometry;

@@ -4,11 +4,11 @@
 
 use crate::common;
 
-use arbor::bvh::builders::{BaseBuilder, Builder};
-use arbor::bvh::prbvh::PrbvhConfig;
+use arbor::bvh::build::prbvh::PrbvhConfig;
+use arbor::bvh::build::{BaseBuilder, Builder};
 use arbor::bvh::{
-    self, Bvh, BvhNode, CollapseConfig, INVALID_INDEX, MeshBvh, ValidationError, binned_sah, brute_force_closest,
-    collapse_leaves, lbvh, ploc, refit_sequential, sah_cost, validate,
+    self, Bvh, BvhNode, CollapseConfig, INVALID_INDEX, MeshBvh, ValidationError, brute_force_closest,
+    build::binned_sah, build::lbvh, build::ploc, collapse_leaves, refit_sequential, sah_cost, validate,
 };
 use arbor::geometry::{Aabb, Triangle};
 use bytemuck::Zeroable;
@@ -248,7 +248,7 @@ fn a_reused_builder_equals_fresh_builds() {
 
 #[test]
 fn every_named_builder_gives_a_valid_tree() {
-    use arbor::bvh::builders::Builder;
+    use arbor::bvh::build::Builder;
     let mut r = rng(14);
     let inputs =
         [random_triangles(1, 0.1, &mut r), random_triangles(2, 0.1, &mut r), random_triangles(5000, 0.05, &mut r)];

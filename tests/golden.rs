@@ -38,7 +38,7 @@ use common::{two_sided_p, z_for_two_sided_p};
 
 use std::path::{Path, PathBuf};
 
-use arbor::bvh::builders::Builder;
+use arbor::bvh::build::Builder;
 use arbor::gpu::trace::{self as gpu_trace, GpuScene};
 use arbor::image_io::{Image, read_exr, write_image};
 use arbor::render::RenderScene;
@@ -113,7 +113,7 @@ struct Estimate {
 fn render(scene: &Scene, seed: u64) -> Estimate {
     let (mut rs, _) = RenderScene::build(scene, &"lbvh".parse::<Builder>().unwrap(), common::tracing());
     if let Some(a) = &scene.animation {
-        let update = arbor::bvh::instances::TopLevelUpdate::Dynamic(Default::default());
+        let update = arbor::bvh::dynamic::instances::TopLevelUpdate::Dynamic(Default::default());
         for f in a.frames.start + 1..=a.frames.start + a.frames.len() as u32 / 2 {
             rs.set_time(scene, scene.frame_time(f), &update);
         }

@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use arbor::bvh::{lbvh, validate};
+use arbor::bvh::{build::lbvh, validate};
 use arbor::geometry::{Aabb, Triangle};
 use arbor::gpu::lbvh as gpu_lbvh;
 use common::gpu_or_skip;
@@ -73,7 +73,7 @@ fn dragon_gives_the_cpu_tree() {
 /// has several times the sphere's interior area.
 #[test]
 fn a_sky_box_gets_the_cpu_lbvh_for_rendering() {
-    use arbor::bvh::builders::Builder;
+    use arbor::bvh::build::Builder;
     use arbor::bvh::{Bvh, collapse_leaves};
     use arbor::render::geometry::Geometry;
     use arbor::render::{BuildReport, RenderScene};

@@ -4,8 +4,8 @@
 
 use crate::common;
 
-use arbor::bvh::prbvh::{self, PrbvhConfig};
-use arbor::bvh::{lbvh, sah_cost, validate};
+use arbor::bvh::build::prbvh::{self, PrbvhConfig};
+use arbor::bvh::{build::lbvh, sah_cost, validate};
 use arbor::geometry::{Aabb, Triangle};
 use arbor::gpu::prbvh::{self as gpu_prbvh, LockScheme};
 use common::gpu_or_skip;

@@ -11,7 +11,7 @@ use crate::common;
 use std::path::PathBuf;
 use std::process::Command;
 
-use arbor::bvh::builders::Builder;
+use arbor::bvh::build::Builder;
 use arbor::geometry::Triangle;
 use arbor::gpu::GpuContext;
 use arbor::gpu::trace::{self, Features, GpuScene};

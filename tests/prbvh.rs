@@ -3,8 +3,8 @@
 
 use crate::common;
 
-use arbor::bvh::prbvh::{self, LockStrategy, PrbvhConfig, find_best_output, reinsert};
-use arbor::bvh::{Bvh, BvhNode, INVALID_INDEX, binned_sah, lbvh, refit_sequential, sah_cost, validate};
+use arbor::bvh::build::prbvh::{self, LockStrategy, PrbvhConfig, find_best_output, reinsert};
+use arbor::bvh::{Bvh, BvhNode, INVALID_INDEX, build::binned_sah, build::lbvh, refit_sequential, sah_cost, validate};
 use arbor::geometry::{Aabb, Triangle};
 use bytemuck::Zeroable;
 use common::*;

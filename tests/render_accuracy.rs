@@ -9,7 +9,7 @@ use common::analytic::{self, region};
 
 use std::path::{Path, PathBuf};
 
-use arbor::bvh::builders::Builder;
+use arbor::bvh::build::Builder;
 use arbor::image_io::read_exr;
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
@@ -267,7 +267,8 @@ fn mirrored_lamps_and_floors_face_where_the_file_put_them() {
     let mean_and_error = |scene: &Scene, device: Device| {
         let settings = arbor::scene::RenderSettings { spp: 16, max_depth: 2, seed: 3, time: None, clamp: None };
         let choice = BuilderChoice::Fixed("lbvh".parse().unwrap());
-        let mut r = Renderer::new(device, scene, &choice, common::tracing(), &settings, 1, first_frame_time(scene)).unwrap();
+        let mut r =
+            Renderer::new(device, scene, &choice, common::tracing(), &settings, 1, first_frame_time(scene)).unwrap();
         let film = r.render(&settings, &|_| {}).unwrap().film;
         assert_eq!(film.non_finite_count(), 0);
         let (mean, stderr) = (film.mean(), film.stderr());
@@ -327,7 +328,9 @@ fn render_on(device: arbor::device::Device, scene: &Scene, spp: u32, max_depth: 
     use arbor::device::{BuilderChoice, Renderer};
     let settings = arbor::scene::RenderSettings { spp, max_depth, seed: 5, time: None, clamp: None };
     let choice = BuilderChoice::Fixed("lbvh".parse().unwrap());
-    let mut r = Renderer::new(device, scene, &choice, common::tracing(), &settings, 1, arbor::render::first_frame_time(scene)).unwrap();
+    let mut r =
+        Renderer::new(device, scene, &choice, common::tracing(), &settings, 1, arbor::render::first_frame_time(scene))
+            .unwrap();
     let film = r.render(&settings, &|_| {}).unwrap().film;
     assert_eq!(film.non_finite_count(), 0);
     film

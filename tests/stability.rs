@@ -52,8 +52,8 @@ use crate::common;
 
 use std::path::{Path, PathBuf};
 
-use arbor::bvh::builders::Builder;
-use arbor::bvh::instances::TopLevelUpdate;
+use arbor::bvh::build::Builder;
+use arbor::bvh::dynamic::instances::TopLevelUpdate;
 use arbor::device::{BuilderChoice, Device, Renderer};
 use arbor::geometry::{Ray, TriangleMesh, offset_ray_origin};
 use arbor::image_io::Image;

@@ -4,9 +4,10 @@
 
 use crate::common;
 
-use arbor::bvh::wide::{Bvh4, Bvh8, WideBvh};
+use arbor::bvh::trace::wide::{Bvh4, Bvh8, WideBvh};
 use arbor::bvh::{
-    Bvh, CollapseConfig, Hit, MeshBvh, binned_sah, brute_force_any, brute_force_closest, collapse_leaves, lbvh,
+    Bvh, CollapseConfig, Hit, MeshBvh, brute_force_any, brute_force_closest, build::binned_sah, build::lbvh,
+    collapse_leaves,
 };
 use arbor::geometry::{Ray, Triangle};
 use common::*;

@@ -11,7 +11,8 @@
 use crate::common;
 
 use arbor::bvh::{
-    Bvh, CollapseConfig, Hit, INVALID_INDEX, MeshBvh, TraceLayout, Tracing, collapse_leaves, hit_point_and_normal, lbvh,
+    Bvh, CollapseConfig, Hit, INVALID_INDEX, MeshBvh, TraceLayout, Tracing, build::lbvh, collapse_leaves,
+    hit_point_and_normal,
 };
 use arbor::geometry::{Ray, Triangle, TriangleMesh, spawn_ray};
 use common::*;

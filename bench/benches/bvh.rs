@@ -28,10 +28,10 @@
 
 use std::path::Path;
 
-use arbor::bvh::lbvh::LbvhBuilder;
-use arbor::bvh::prbvh::{self, PrbvhConfig};
+use arbor::bvh::build::lbvh::LbvhBuilder;
+use arbor::bvh::build::prbvh::{self, PrbvhConfig};
 use arbor::bvh::{
-    self, Bvh, CollapseConfig, MeshBvh, SimdPath, TraceLayout, Tracing, binned_sah, collapse_leaves, lbvh,
+    self, Bvh, CollapseConfig, MeshBvh, SimdPath, TraceLayout, Tracing, build::binned_sah, build::lbvh, collapse_leaves,
 };
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
 use arbor_bench::rays as bench_rays;
@@ -187,11 +187,7 @@ fn trace_dragon(c: &mut Criterion) {
     // The leaf-ordered binary tree, and the wide forms on every SIMD path this CPU has.
     let mut ordered = vec![(
         "lbvh-ordered".to_string(),
-        MeshBvh::new(
-            trees[0].1.clone(),
-            &tris,
-            Tracing { layout: TraceLayout::Binary, simd: SimdPath::Scalar },
-        ),
+        MeshBvh::new(trees[0].1.clone(), &tris, Tracing { layout: TraceLayout::Binary, simd: SimdPath::Scalar }),
     )];
     for simd in SimdPath::available() {
         for layout in [TraceLayout::Wide4, TraceLayout::Wide8] {
@@ -222,8 +218,8 @@ fn trace_dragon(c: &mut Criterion) {
 /// of four triangles against 4096 prepared rays (the dragon's nodes and packets, its primary
 /// rays), and the wide collapse.
 fn kernels(c: &mut Criterion) {
-    use arbor::bvh::simd::{BoxRay, PacketRay, test_boxes, test_triangles};
-    use arbor::bvh::wide_mesh::WideMesh;
+    use arbor::bvh::trace::simd::{BoxRay, PacketRay, test_boxes, test_triangles};
+    use arbor::bvh::trace::wide_mesh::WideMesh;
     use arbor::geometry::WatertightRay;
     let Some(mesh) = dragon() else { return };
     let tris = mesh.triangles();

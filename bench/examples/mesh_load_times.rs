@@ -7,7 +7,7 @@
 use std::io::Write as _;
 use std::time::Instant;
 
-use arbor::bvh::builders::Builder;
+use arbor::bvh::build::Builder;
 use arbor::geometry::TriangleMesh;
 use arbor::glam::Vec3;
 use arbor::scene::gltf::GltfFile;

@@ -24,10 +24,10 @@ use glam::{Affine3A, Quat, Vec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use arbor::bvh::builders::Builder;
+use arbor::bvh::build::Builder;
+use arbor::bvh::dynamic::instances::{Instance, TopLevelUpdate, TwoLevel};
 use arbor::bvh::dynamic::{DynamicBvh, DynamicConfig};
-use arbor::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
-use arbor::bvh::{MeshBvh, Tracing, binned_sah, sah_cost};
+use arbor::bvh::{MeshBvh, Tracing, build::binned_sah, sah_cost};
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh};
 use arbor::render::rng::Rng;
 use arbor::scene::Scene;
@@ -242,7 +242,8 @@ impl Track {
 
 /// Runs every strategy over `frames` frames of `anim`.
 pub fn run(anim: &AnimatedInstances, config: &AnimBenchConfig) -> AnimReport {
-    let meshes: Vec<MeshBvh> = anim.meshes.iter().map(|m| config.mesh_builder.build_mesh(&m.triangles(), config.tracing)).collect();
+    let meshes: Vec<MeshBvh> =
+        anim.meshes.iter().map(|m| config.mesh_builder.build_mesh(&m.triangles(), config.tracing)).collect();
     let instances: Vec<Instance> = anim.instances.iter().map(|&(m, t)| Instance::new(m, t)).collect();
     let mut no_prbvh = config.dynamic;
     no_prbvh.prbvh_rounds = 0;

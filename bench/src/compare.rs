@@ -16,9 +16,9 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use arbor::bvh::builders::{Builder, UnknownBuilder};
-use arbor::bvh::prbvh::PrbvhConfig;
-use arbor::bvh::{CollapseConfig, MeshBvh, TraceLayout, Tracing, collapse_leaves, lbvh, sah_cost, validate};
+use arbor::bvh::build::prbvh::PrbvhConfig;
+use arbor::bvh::build::{Builder, UnknownBuilder};
+use arbor::bvh::{CollapseConfig, MeshBvh, TraceLayout, Tracing, build::lbvh, collapse_leaves, sah_cost, validate};
 use arbor::geometry::{Aabb, Ray, Triangle};
 
 use crate::median;

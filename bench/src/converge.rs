@@ -556,7 +556,11 @@ mod tests {
 
     #[test]
     fn spp_steps_double_up_to_the_maximum() {
-        let c = ConvergeConfig { start_spp: 1, render: RenderSettings { spp: 20, ..Default::default() }, ..Default::default() };
+        let c = ConvergeConfig {
+            start_spp: 1,
+            render: RenderSettings { spp: 20, ..Default::default() },
+            ..Default::default()
+        };
         assert_eq!(c.spp_steps(), vec![1, 2, 4, 8, 16]);
     }
 }

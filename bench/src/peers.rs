@@ -1,6 +1,6 @@
 //! External builders as peers for comparison: the obvhs crate's presets, converted into Arbor's
 //! layout so that they are traced by the same traversal as ours. [`register`] adds them to the
-//! builder names (`obvhs-medium`, ...) through [`arbor::bvh::builders::register_external`].
+//! builder names (`obvhs-medium`, ...) through [`arbor::bvh::build::register_external`].
 //!
 //! The presets run with `max_prims_per_leaf = 1` (no leaf collapse of their own): callers apply
 //! Arbor's leaf collapse to every builder alike. They also run with `pre_split = false`: spatial
@@ -12,7 +12,7 @@
 use obvhs::BvhBuildParams;
 use obvhs::bvh2::Bvh2;
 
-use arbor::bvh::builders::{ExternalBuilder, register_external};
+use arbor::bvh::build::{ExternalBuilder, register_external};
 use arbor::bvh::{Bvh, BvhNode, INVALID_INDEX, refit};
 use arbor::geometry::{Aabb, Triangle};
 

@@ -17,7 +17,7 @@ use std::process::Command;
 
 use glam::Vec3;
 
-use arbor::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh};
+use arbor::bvh::{CollapseConfig, MeshBvh, build::lbvh, collapse_leaves};
 use arbor::geometry::{Aabb, Ray, Triangle, TriangleMesh, procedural};
 use arbor_bench::compare::{self, BenchConfig};
 use arbor_bench::embree::{Device, Quality, Scene};
@@ -104,7 +104,11 @@ fn compare_hits(mesh_name: &str, triangles: &[Triangle], quality: Quality) -> [D
     let primary = rays::primary_rays(&bounds, 256, 256);
     let shadow = rays::shadow_rays(&bvh, triangles, &primary, rays::light_position(&bounds));
     let diffuse = rays::diffuse_rays(&bvh, triangles, &primary);
-    let arbor = MeshBvh::new(collapse_leaves(&bvh, &CollapseConfig::default()), triangles, arbor::bvh::Tracing::from_env(None).expect("ARBOR_SIMD names a path this CPU has"));
+    let arbor = MeshBvh::new(
+        collapse_leaves(&bvh, &CollapseConfig::default()),
+        triangles,
+        arbor::bvh::Tracing::from_env(None).expect("ARBOR_SIMD names a path this CPU has"),
+    );
     let device = Device::new(2).unwrap();
     let (embree, _) = Scene::build(&device, triangles, quality).unwrap();
     assert!(primary.len() == 65_536 && shadow.len() > 1000 && diffuse.len() > 1000, "{mesh_name}: the camera misses");

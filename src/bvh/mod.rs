@@ -1,31 +1,28 @@
-//! The bounding volume hierarchy: layout, builders, cost, validation and traversal.
+//! The bounding volume hierarchy, in rooms by family:
+//!
+//! - here: the node layout shared with the GPU ([`Bvh`], [`BvhNode`]), SAH cost and the leaf
+//!   collapse ([`sah`]), validation, refits, and the memory layouts;
+//! - [`build`]: the builders (LBVH, binned SAH, PLOC, parallel and sequential reinsertion) and
+//!   the builders by name;
+//! - [`trace`]: traversal of the binary tree, the wide trees and their SIMD kernels, and
+//!   [`MeshBvh`], a mesh's tree with the form it is traced in;
+//! - [`dynamic`]: the BVH kept alive while its primitives move, and the two-level BVH of
+//!   instances.
 
-pub mod binned_sah;
-pub mod builders;
+pub mod build;
 pub mod dynamic;
-pub mod instances;
 mod layout;
-pub mod lbvh;
-mod mesh_bvh;
 mod node;
 mod parallel;
-pub mod ploc;
-pub mod prbvh;
-pub mod rbvh;
 pub mod sah;
-pub mod simd;
-mod traverse;
+pub mod trace;
 mod validate;
-pub mod wide;
-pub mod wide_mesh;
 
-pub use mesh_bvh::MeshBvh;
 pub use node::{Bvh, BvhNode, INVALID_INDEX, NodePair, Nodes, PAD_INDEX};
 pub use sah::{CollapseConfig, SahCosts, collapse_leaves, sah_cost, sah_cost_with};
-pub use simd::{SimdPath, TraceLayout, Tracing};
-pub use traverse::{
-    CULL_ABS_ULPS, CULL_SCALE, Hit, HitFilter, Skip, SkipReject, brute_force_any, brute_force_closest,
-    hit_point_and_normal,
+pub use trace::{
+    CULL_ABS_ULPS, CULL_SCALE, Hit, HitFilter, MeshBvh, SimdPath, Skip, SkipReject, TraceLayout, Tracing,
+    brute_force_any, brute_force_closest, hit_point_and_normal,
 };
 pub use validate::{BvhStats, ValidationError, validate};
 

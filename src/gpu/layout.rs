@@ -331,7 +331,7 @@ pub fn prelude() -> String {
          const MORTON_BITS: u32 = {}u;\n\
          const SEARCH_MAX_VISITS: u32 = {}u;\n{}\n{structs}\n{}",
         crate::geometry::morton::MORTON_BITS,
-        crate::bvh::prbvh::MAX_VISITS,
+        crate::bvh::build::prbvh::MAX_VISITS,
         trace_constants(),
         include_str!("../../shaders/prelude.wgsl")
     )

@@ -1,6 +1,6 @@
-//! LBVH on the GPU: the CPU builder's algorithm ([`crate::bvh::lbvh`], Karras 2012), kernel by
+//! LBVH on the GPU: the CPU builder's algorithm ([`crate::bvh::build::lbvh`], Karras 2012), kernel by
 //! kernel in `shaders/lbvh.wgsl`, building the same tree bit for bit as the CPU's
-//! [`crate::bvh::lbvh::build_karras`] (tested), Karras' algorithm as published: without the CPU
+//! [`crate::bvh::build::lbvh::build_karras`] (tested), Karras' algorithm as published: without the CPU
 //! default's refinement of runs of equal Morton codes.
 //!
 //! 1. Centroid bounds by a two-stage workgroup reduction. The 24 bytes of bounds are read back,
@@ -81,13 +81,13 @@ impl GpuBvh {
 }
 
 /// The sorted Morton codes and the primitive of each, as the GPU build computes them: the
-/// counterpart of [`crate::bvh::lbvh::sorted_morton_codes`], for tests of that stage.
+/// counterpart of [`crate::bvh::build::lbvh::sorted_morton_codes`], for tests of that stage.
 pub fn sorted_morton_codes(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(Vec<u64>, Vec<u32>), GpuError> {
     build_on_device(ctx, prim_aabbs)?.0.read_codes(ctx)
 }
 
 /// Builds the LBVH over `prim_aabbs` on the GPU and reads it back: the same tree as
-/// [`crate::bvh::lbvh::build_karras`].
+/// [`crate::bvh::build::lbvh::build_karras`].
 pub fn build(ctx: &GpuContext, prim_aabbs: &[Aabb]) -> Result<(Bvh, GpuBuildTimes), GpuError> {
     if prim_aabbs.len() <= 1 {
         return Ok((Bvh::single_leaf(prim_aabbs), GpuBuildTimes::default()));

@@ -43,7 +43,7 @@ pub fn build_render_scene(
     let prims: Vec<crate::geometry::Aabb> = triangles.iter().map(crate::geometry::Triangle::aabb).collect();
     let (gpu, _) = lbvh::build_on_device(ctx, &prims)?;
     let scheme = prbvh::LockScheme::best_for(ctx);
-    let config = crate::bvh::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
+    let config = crate::bvh::build::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
     // The GPU builds Karras' LBVH, which leaves runs of equal Morton codes in file order: a
     // model far from another object (inside a sky box of 10^6) lies in a few cells, and its
     // tree would be a list. Where such runs hold more than 1/64 of the primitives (far more
@@ -51,10 +51,10 @@ pub fn build_render_scene(
     // sky box"), the CPU's LBVH, which splits them, is built instead and optimised on the GPU
     // all the same.
     let (codes, ids) = gpu.read_codes(ctx)?;
-    let scrambled = crate::bvh::lbvh::refinable_primitives(&prims, &codes, &ids);
+    let scrambled = crate::bvh::build::lbvh::refinable_primitives(&prims, &codes, &ids);
     let (tree, mut label) = if scrambled > prims.len() / 64 {
         drop(gpu);
-        let cpu = crate::bvh::lbvh::build(&prims);
+        let cpu = crate::bvh::build::lbvh::build(&prims);
         let why = format!("{scrambled} triangles in runs of equal Morton codes");
         if optimize {
             let (tree, stats) = prbvh::optimize(ctx, &cpu, &config, scheme)?;

@@ -1,6 +1,6 @@
 //! Parallel reinsertion on the GPU: Meister & Bittner 2018, section 5, the six kernels of
 //! `shaders/prbvh.wgsl` per iteration (find best node, lock, check, reinsert, refit, SAH), the
-//! algorithm of the CPU optimiser ([`crate::bvh::prbvh`]) with its μ/ε schedule.
+//! algorithm of the CPU optimiser ([`crate::bvh::build::prbvh`]) with its μ/ε schedule.
 //!
 //! - Only the SAH (4 bytes) is read back per iteration, for the termination test.
 //! - Locks: with `SHADER_INT64_ATOMIC_MIN_MAX`, one 64-bit `atomicMax` of
@@ -23,7 +23,7 @@ use std::time::Instant;
 use super::context::{GpuContext, GpuError};
 use super::layout::{BvhNode, PrbvhParams, REFIT_BOX_WORDS, with_prelude};
 use super::lbvh::GpuBvh;
-use crate::bvh::prbvh::{IterationStats, PrbvhConfig, PrbvhStats};
+use crate::bvh::build::prbvh::{IterationStats, PrbvhConfig, PrbvhStats};
 use crate::bvh::{Bvh, collapse_leaves};
 
 /// How reinsertions claim their nodes.
@@ -97,7 +97,7 @@ pub fn optimize_on_device(
         partial_count,
         cost_traversal: config.costs.traversal,
         cost_intersection: config.costs.intersection,
-        area_scale: crate::bvh::prbvh::search_scale(Some(&root)),
+        area_scale: crate::bvh::build::prbvh::search_scale(Some(&root)),
         ..Default::default()
     };
     let params_buf = ctx.uniform_buffer("PRBVH parameters", &params);
@@ -170,7 +170,7 @@ pub fn optimize_on_device(
             elapsed: start.elapsed(),
         });
         iteration += 1;
-        match crate::bvh::prbvh::next_mu(previous, current, mu, config.epsilon) {
+        match crate::bvh::build::prbvh::next_mu(previous, current, mu, config.epsilon) {
             Some(next) => mu = next,
             None => break,
         }
@@ -185,7 +185,7 @@ pub fn optimize_on_device(
 /// Algorithm 1 alone, on the device: every node's best output and decrease in `bvh` as it is
 /// (one `find_best` pass, every node searching), read back; `(sibling, 0.0)` where nothing
 /// decreases the area, and for the root and the padding node. The decreases are half areas at
-/// the search's scale ([`crate::bvh::prbvh::find_best_output`] divides the scale out). For
+/// the search's scale ([`crate::bvh::build::prbvh::find_best_output`] divides the scale out). For
 /// comparing the device's search with the CPU's node by node.
 pub fn search_on_device(ctx: &GpuContext, bvh: &Bvh) -> Result<Vec<(u32, f32)>, GpuError> {
     let node_count = bvh.nodes.len() as u32;
@@ -199,7 +199,7 @@ pub fn search_on_device(ctx: &GpuContext, bvh: &Bvh) -> Result<Vec<(u32, f32)>, 
         node_count,
         mu: 1,
         phase: 0,
-        area_scale: crate::bvh::prbvh::search_scale(bvh.nodes.first()),
+        area_scale: crate::bvh::build::prbvh::search_scale(bvh.nodes.first()),
         ..Default::default()
     };
     let params_buf = ctx.uniform_buffer("PRBVH parameters", &params);

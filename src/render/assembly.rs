@@ -12,9 +12,9 @@ use super::camera::CameraModel;
 use super::geometry::{Cutouts, Flat, Geometry, Instanced, flat_lights, wants_instancing};
 use super::lights::Lights;
 use super::material::RenderMaterial;
-use crate::bvh::builders::Builder;
-use crate::bvh::instances::TopLevelUpdate;
-use crate::bvh::prbvh::PrbvhConfig;
+use crate::bvh::build::Builder;
+use crate::bvh::build::prbvh::PrbvhConfig;
+use crate::bvh::dynamic::instances::TopLevelUpdate;
 use crate::bvh::{CollapseConfig, MeshBvh, Tracing, collapse_leaves, sah_cost};
 use crate::geometry::Triangle;
 use crate::scene::{Environment, Scene};
@@ -99,7 +99,8 @@ impl RenderScene {
     /// The two-level build (see [`RenderScene::build`]).
     pub(super) fn build_instanced(scene: &Scene, builder: &Builder, tracing: Tracing) -> (Self, BuildReport) {
         let t = Instant::now();
-        let meshes: Vec<MeshBvh> = scene.meshes.iter().map(|m| builder.build_mesh(&m.mesh.triangles(), tracing)).collect();
+        let meshes: Vec<MeshBvh> =
+            scene.meshes.iter().map(|m| builder.build_mesh(&m.mesh.triangles(), tracing)).collect();
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
         let mut instanced = Instanced::new(scene, &materials, meshes, first_frame_time(scene));
         let lights = instanced.lights(&materials, &scene.textures);

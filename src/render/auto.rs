@@ -14,8 +14,8 @@ use super::geometry::wants_instancing;
 use super::integrator::RR_DEPTH;
 use super::{BuildReport, RenderScene};
 use crate::bvh::Tracing;
-use crate::bvh::prbvh::{self, PrbvhConfig};
-use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves, lbvh};
+use crate::bvh::build::prbvh::{self, PrbvhConfig};
+use crate::bvh::{CollapseConfig, MeshBvh, build::lbvh, collapse_leaves};
 use crate::geometry::{Ray, Triangle};
 use crate::scene::{RenderSettings, Scene};
 
@@ -119,7 +119,7 @@ pub const SWEEP_IN_LBVH_BUILDS: f64 = 8.0;
 
 /// The builder `auto` gives the meshes of a two-level scene: they are built once and serve
 /// every frame, so they are optimised in full.
-pub(crate) fn instanced_builder() -> crate::bvh::builders::Builder {
+pub(crate) fn instanced_builder() -> crate::bvh::build::Builder {
     "lbvh+prbvh".parse().expect("a builder name")
 }
 
@@ -248,7 +248,7 @@ impl RenderScene {
         // The render time binned SAH saves, 16% (the dragon scene, timed paths), must repay its
         // build, 9 LBVH builds (its cost there), and its probe, with half as much again to spare.
         if 0.16 * render_seconds > 1.5 * (9.0 * lbvh_seconds + probe_cost) {
-            let binned = crate::bvh::binned_sah::build(&prims, &Default::default());
+            let binned = crate::bvh::build::binned_sah::build(&prims, &Default::default());
             // The LBVH's scene goes first: one probed scene at a time.
             let lbvh_scene = timed.take();
             let (binned_seconds, binned_scene) = probe(&binned);

@@ -19,7 +19,7 @@ use rayon::prelude::*;
 use super::lights::{Emitter, Lights};
 use super::material::RenderMaterial;
 use crate::bvh::dynamic::UpdateStats;
-use crate::bvh::instances::{Instance, TopLevelUpdate, TwoLevel};
+use crate::bvh::dynamic::instances::{Instance, TopLevelUpdate, TwoLevel};
 use crate::bvh::{INVALID_INDEX, MeshBvh, SkipReject};
 use crate::geometry::{Ray, Triangle};
 use crate::scene::Scene;
@@ -386,7 +386,7 @@ impl Flat {
 }
 
 impl Instanced {
-    fn closest_hit(&self, ray: &Ray, from: Option<Surface>) -> Option<crate::bvh::instances::InstanceHit> {
+    fn closest_hit(&self, ray: &Ray, from: Option<Surface>) -> Option<crate::bvh::dynamic::instances::InstanceHit> {
         let skip = skip_pair(from);
         match &self.cutouts {
             None => self.two_level.closest_hit_skipping(ray, f32::INFINITY, skip),

@@ -35,7 +35,7 @@ use rayon::prelude::*;
 use super::auto::{FIRST_SWEEP_GAIN, SWEEP_IN_LBVH_BUILDS, first_sweep, sweep_efficiency, sweeps_while_they_pay};
 use super::geometry::Geometry;
 use super::{BuildReport, RenderScene};
-use crate::bvh::{Bvh, CollapseConfig, MeshBvh, Tracing, collapse_leaves, lbvh};
+use crate::bvh::{Bvh, CollapseConfig, MeshBvh, Tracing, build::lbvh, collapse_leaves};
 use crate::geometry::Triangle;
 use crate::scene::Scene;
 

@@ -1,7 +1,7 @@
 //! The builder comparison, the default mode: build time, SAH and trace speed.
 
 use anyhow::{Context, Result, bail};
-use arbor::bvh::prbvh::PrbvhConfig;
+use arbor::bvh::build::prbvh::PrbvhConfig;
 use arbor_bench::compare::{self as bench, BenchBuilder, BenchConfig, Report};
 use indicatif::ProgressBar;
 use std::io::{IsTerminal, Write};

@@ -10,7 +10,7 @@ use arbor_bench::median;
 
 /// `--gpu`: GPU LBVH and PRBVH times, beside the CPU's on the same input.
 pub(crate) fn run_gpu(args: &Args) -> Result<()> {
-    use arbor::bvh::prbvh::{self, PrbvhConfig};
+    use arbor::bvh::build::prbvh::{self, PrbvhConfig};
     use arbor::gpu::prbvh::{self as gpu_prbvh, LockScheme};
     use std::time::Instant;
     let ctx = arbor::gpu::GpuContext::shared()?;
@@ -31,7 +31,7 @@ pub(crate) fn run_gpu(args: &Args) -> Result<()> {
         let t = Instant::now();
         // Karras' algorithm as published, which the GPU builds (the CPU's default also refines
         // runs of equal codes).
-        cpu_tree = Some(arbor::bvh::lbvh::build_karras(&prims));
+        cpu_tree = Some(arbor::bvh::build::lbvh::build_karras(&prims));
         cpu_ms.push(t.elapsed().as_secs_f64() * 1e3);
         let (tree, times) = arbor::gpu::lbvh::build(ctx, &prims)?;
         gpu_ms.push(times.build.as_secs_f64() * 1e3);

@@ -24,7 +24,7 @@ use crate::gpu::run_gpu;
 use crate::memory::{memory_child, run_memory};
 use crate::options::{check_options, parse_size};
 use anyhow::Result;
-use arbor::bvh::prbvh::PrbvhConfig;
+use arbor::bvh::build::prbvh::PrbvhConfig;
 use clap::Parser;
 use std::path::PathBuf;
 

@@ -1,7 +1,7 @@
 //! `--memory`: what each builder keeps to trace, and the peak, one process per builder.
 
 use anyhow::{Context, Result, bail};
-use arbor::bvh::builders::Builder;
+use arbor::bvh::build::Builder;
 use std::io::Write;
 
 use crate::cli::outln;

@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result, bail};
 use arbor::atomic_file::{self};
-use arbor::bvh::builders::Builder;
+use arbor::bvh::build::Builder;
 use arbor::geometry::{TriangleMesh, procedural};
 use arbor_bench::compare::{BenchBuilder, EMBREE_PREFIX};
 

@@ -39,10 +39,10 @@ use std::sync::atomic::AtomicU32;
 
 use rayon::prelude::*;
 
-use super::parallel::SharedSlice;
+use crate::bvh::parallel::SharedSlice;
 use bytemuck::Zeroable;
 
-use super::{Bvh, BvhNode, INVALID_INDEX, LeafBoxes, Nodes, refit_with};
+use crate::bvh::{Bvh, BvhNode, INVALID_INDEX, LeafBoxes, Nodes, refit_with};
 use crate::geometry::Aabb;
 use crate::geometry::morton::MortonQuantizer;
 

@@ -31,8 +31,8 @@
 
 use crate::geometry::{Aabb, Ray, RayInv, Triangle, WatertightRay};
 
-use super::traverse::{Stack, closest_in_leaf, cull_limit, cull_slack, triangle_by_id};
-use super::{Bvh, Hit, INVALID_INDEX, SahCosts};
+use crate::bvh::trace::{Stack, closest_in_leaf, cull_limit, cull_slack, triangle_by_id};
+use crate::bvh::{Bvh, Hit, INVALID_INDEX, SahCosts};
 
 /// One wide node: `N` child boxes, structure of arrays (see the module docs).
 #[repr(C, align(64))]
@@ -173,7 +173,7 @@ impl<const N: usize> WideBvh<N> {
 
     /// The SAH cost of the wide tree: `cT` for every node a ray enters (weighted by the area of
     /// the box it enters it by, the root's for the root) plus `cI` per primitive of every leaf
-    /// entered, over the root's area, as [`super::sah_cost`] charges the binary tree.
+    /// entered, over the root's area, as [`crate::bvh::sah_cost`] charges the binary tree.
     pub fn sah(&self, costs: &SahCosts) -> f64 {
         nodes_sah(&self.nodes, costs)
     }
@@ -293,12 +293,12 @@ impl<const N: usize> WideBvh<N> {
 /// it is called once per leaf lane, depth first). `leaf` must hold for every binary leaf.
 pub(crate) fn collapse<const N: usize>(
     bvh: &Bvh,
-    mut leaf: impl FnMut(u32, &super::BvhNode) -> Option<(u32, u32)>,
-    mut place: impl FnMut(&super::BvhNode, (u32, u32)) -> (u32, u32),
+    mut leaf: impl FnMut(u32, &crate::bvh::BvhNode) -> Option<(u32, u32)>,
+    mut place: impl FnMut(&crate::bvh::BvhNode, (u32, u32)) -> (u32, u32),
 ) -> Vec<WideNode<N>> {
     const { assert!(N >= 2, "a wide node holds at least two children") };
     // Dereferenced once: each `Nodes` dereference rebuilds the slice.
-    let nodes: &[super::BvhNode] = &bvh.nodes;
+    let nodes: &[crate::bvh::BvhNode] = &bvh.nodes;
     let Some(root) = nodes.first() else { return Vec::new() };
     // About one wide node per N - 1 binary inner nodes.
     let mut wide = Vec::with_capacity(nodes.len() / (2 * (N - 1)) + 1);
@@ -459,7 +459,7 @@ pub(crate) fn validate_nodes<const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bvh::{CollapseConfig, collapse_leaves, lbvh, sah_cost_with};
+    use crate::bvh::{CollapseConfig, build::lbvh, collapse_leaves, sah_cost_with};
 
     fn tree(n: usize) -> (Vec<Aabb>, Bvh) {
         let boxes = crate::bvh::scattered_boxes(n, 0.8);

@@ -12,9 +12,9 @@
 
 use glam::{Affine3A, Vec3};
 
-use super::dynamic::{DynamicBvh, DynamicConfig, UpdateStats};
-use super::traverse::{HitFilter, Skip, SkipReject};
-use super::{Bvh, MeshBvh};
+use crate::bvh::dynamic::{DynamicBvh, DynamicConfig, UpdateStats};
+use crate::bvh::trace::{HitFilter, Skip, SkipReject};
+use crate::bvh::{Bvh, MeshBvh};
 use crate::geometry::{Aabb, Ray};
 
 /// A hit on an instance's triangle.
@@ -215,7 +215,7 @@ impl TwoLevel {
 /// The triangle of instance `i` to skip: `skip`'s, where `skip` names that instance.
 #[inline]
 fn skipped(skip: Option<(u32, u32)>, i: u32) -> u32 {
-    skip.filter(|&(instance, _)| instance == i).map_or(super::INVALID_INDEX, |(_, prim)| prim)
+    skip.filter(|&(instance, _)| instance == i).map_or(crate::bvh::INVALID_INDEX, |(_, prim)| prim)
 }
 
 fn to_object(inst: &Instance, ray: &Ray) -> Ray {

@@ -3,7 +3,7 @@
 //!
 //! Bottom-up agglomerative clustering restricted to a window of the Morton order:
 //! 1. The primitives, sorted by the Morton codes of their box centres (the same codes, sort and
-//!    refinement of runs of equal codes as [`super::lbvh`]), are the first clusters.
+//!    refinement of runs of equal codes as [`crate::bvh::build::lbvh`]), are the first clusters.
 //! 2. Each iteration (section 4), in parallel:
 //!    - every cluster finds its nearest neighbour among the `radius` clusters on either side of
 //!      it, the distance being the surface area of the merged box;
@@ -35,8 +35,8 @@
 use bytemuck::Zeroable;
 use rayon::prelude::*;
 
-use super::parallel::SharedSlice;
-use super::{Bvh, BvhNode, INVALID_INDEX, Nodes};
+use crate::bvh::parallel::SharedSlice;
+use crate::bvh::{Bvh, BvhNode, INVALID_INDEX, Nodes};
 use crate::geometry::Aabb;
 
 /// Options of [`build`].
@@ -53,7 +53,7 @@ impl Default for PlocConfig {
 }
 
 /// Builds a PLOC tree over primitives given by their boxes, one primitive per leaf. Like
-/// [`super::lbvh::build`], the tree does not depend on the thread count.
+/// [`crate::bvh::build::lbvh::build`], the tree does not depend on the thread count.
 pub fn build(prim_aabbs: &[Aabb], config: &PlocConfig) -> Bvh {
     build_counting(prim_aabbs, config).0
 }
@@ -66,7 +66,7 @@ fn build_counting(prim_aabbs: &[Aabb], config: &PlocConfig) -> (Bvh, usize) {
     if n <= 1 {
         return (Bvh::single_leaf(prim_aabbs), 0);
     }
-    let prim_ids = super::lbvh::morton_order(prim_aabbs);
+    let prim_ids = crate::bvh::build::lbvh::morton_order(prim_aabbs);
     let len = 2 * n;
     let mut nodes = Nodes::default();
     nodes.fill_pairs(n, len, |_| [BvhNode::zeroed(); 2]);

@@ -28,10 +28,9 @@
 //!   to underflow); so `t` above it is above the scalar bound too. *Checked*: every other lane (a ray through an edge, a `t` near zero: the
 //!   scalar test's f64 paths) goes to the scalar test. Hits are exactly the scalar test's.
 
-
 use crate::geometry::{ROBUST_SLAB_SCALE, RayInv, WatertightRay};
 
-use super::wide::WideNode;
+use crate::bvh::trace::wide::WideNode;
 
 /// The instruction set the CPU traversal uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -120,7 +119,7 @@ impl SimdPath {
 }
 
 /// The tree form the CPU traces: the binary tree itself, or a 4- or 8-wide tree collapsed from
-/// it with its triangles in packets of four ([`super::wide_mesh::WideMesh`]).
+/// it with its triangles in packets of four ([`crate::bvh::trace::wide_mesh::WideMesh`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum TraceLayout {
     Binary,
@@ -185,7 +184,7 @@ impl Tracing {
 
     /// `layout` (or the path's default) on the path `ARBOR_SIMD` names (or the best). The
     /// library never calls it: the tools read the environment once, at their edge, and pass the
-    /// result down to every tree they build ([`super::MeshBvh::new`], `device::Renderer::new`).
+    /// result down to every tree they build ([`crate::bvh::MeshBvh::new`], `device::Renderer::new`).
     pub fn from_env(layout: Option<TraceLayout>) -> Result<Self, SimdError> {
         let simd = SimdPath::from_env()?;
         Ok(Self { layout: layout.unwrap_or(TraceLayout::default_for(simd)), simd })
@@ -360,7 +359,7 @@ pub fn test_triangles(path: SimdPath, packet: &TrianglePacket, ray: &PacketRay, 
 }
 
 /// A path's kernels. Each method is the whole of one test; the traversals in
-/// [`super::wide_mesh`] are written once over this trait and instantiated per path inside a
+/// [`crate::bvh::trace::wide_mesh`] are written once over this trait and instantiated per path inside a
 /// function compiled for that path's features. The kernels are `inline(always)` functions
 /// without target features of their own (a `target_feature` function cannot be
 /// `inline(always)`, and as a plain `inline` one it stayed a call), so they compile into that
@@ -384,545 +383,37 @@ pub(crate) unsafe trait Kernel {
     unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits;
 }
 
-/// Portable kernels: a lane at a time.
-pub(crate) struct Scalar;
-
-// SAFETY: portable code, for every CPU.
-unsafe impl Kernel for Scalar {
-    #[inline(always)]
-    unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-        let mut mask = 0;
-        for (i, d) in dist.iter_mut().enumerate().take(node.lanes()) {
-            if let Some(t) = node.intersect_lane(i, &ray.inv, limit) {
-                *d = t;
-                mask |= 1 << i;
-            }
-        }
-        mask
-    }
-
-    /// Only rejects: the lanes it keeps go to the scalar test whole.
-    #[inline(always)]
-    unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
-        let mut check = 0;
-        for i in 0..4 {
-            if valid & (1 << i) != 0 && scalar_candidate(p, i, ray, t_max) {
-                check |= 1 << i;
-            }
-        }
-        PacketHits { check, ..Default::default() }
-    }
-}
-
 /// The factor the f32 evaluation of the error bound is enlarged by: its dozen roundings move it
 /// by less than 2^-19 of itself (module docs).
-const BOUND_MARGIN: f32 = 1.0 + 1.0 / 65536.0;
+pub(super) const BOUND_MARGIN: f32 = 1.0 + 1.0 / 65536.0;
 /// The smallest f32 bound trusted, and the smallest coordinate, edge-function and depth maxima it
 /// is computed from: with every maximum at least 2^-30, every product in the bound (at most
 /// three maxima and a `γ` of about 2^-23) is at least 2^-113, a normal float, so no term loses
 /// more to underflow than the margin covers. (A tiny maximum multiplied into a huge one lost its
 /// term to underflow; such lanes go to the scalar test.)
-const BOUND_FLOOR: f32 = 1.0e-25;
-const MAXIMUM_FLOOR: f32 = 1.0 / (1u64 << 30) as f32;
-
-/// The triangle filter for one lane (module docs).
-#[inline(always)]
-fn scalar_candidate(p: &TrianglePacket, i: usize, r: &PacketRay, t_max: f32) -> bool {
-    let [kx, ky, kz] = r.k;
-    let rel = |vertex: usize, axis: usize, o: f32| p.v[vertex][axis][i] - o;
-    let (az, bz, cz) = (rel(0, kz, r.o[2]), rel(1, kz, r.o[2]), rel(2, kz, r.o[2]));
-    let ax = rel(0, kx, r.o[0]) - r.sx * az;
-    let ay = rel(0, ky, r.o[1]) - r.sy * az;
-    let bx = rel(1, kx, r.o[0]) - r.sx * bz;
-    let by = rel(1, ky, r.o[1]) - r.sy * bz;
-    let cx = rel(2, kx, r.o[0]) - r.sx * cz;
-    let cy = rel(2, ky, r.o[1]) - r.sy * cz;
-    let u = cx * by - cy * bx;
-    let v = ax * cy - ay * cx;
-    let w = bx * ay - by * ax;
-    if !(u.is_normal() && v.is_normal() && w.is_normal()) {
-        return true;
-    }
-    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
-        return false;
-    }
-    let det = u + v + w;
-    let t_scaled = u * (r.sz * az) + v * (r.sz * bz) + w * (r.sz * cz);
-    let rcp = 1.0 / det;
-    if !(t_scaled.is_normal() && rcp.is_normal()) {
-        return true;
-    }
-    // Not `<=`: an infinite `t` past an infinite `t_max` is the scalar test's to judge.
-    #[allow(clippy::neg_cmp_op_on_partial_ord)]
-    let keep = !(t_scaled * rcp > t_max);
-    keep
-}
+pub(super) const BOUND_FLOOR: f32 = 1.0e-25;
+pub(super) const MAXIMUM_FLOOR: f32 = 1.0 / (1u64 << 30) as f32;
 
 /// The six plane rows of a node: `min_x min_y min_z max_x max_y max_z`, `N` lanes each.
 #[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
 #[inline(always)]
-fn planes<const N: usize>(node: &WideNode<N>) -> &[[f32; N]; 6] {
+pub(super) fn planes<const N: usize>(node: &WideNode<N>) -> &[[f32; N]; 6] {
     // SAFETY: `WideNode` is `repr(C)` and starts with six `[f32; N]` fields, which have no
     // padding between them, so its first `6 N` floats are those rows in that order.
     unsafe { &*(node as *const WideNode<N>).cast::<[[f32; N]; 6]>() }
 }
 
 #[cfg(target_arch = "aarch64")]
+mod arm;
+mod scalar;
+#[cfg(target_arch = "x86_64")]
+mod x86;
+
+#[cfg(target_arch = "aarch64")]
 pub(crate) use arm::Neon;
+pub(crate) use scalar::Scalar;
 #[cfg(target_arch = "x86_64")]
 pub(crate) use x86::{Avx2, Sse4};
-
-#[cfg(target_arch = "x86_64")]
-mod x86 {
-    use std::arch::x86_64::*;
-
-    use super::{
-        BOUND_FLOOR, BOUND_MARGIN, BoxRay, Kernel, MAXIMUM_FLOOR, PacketHits, PacketRay, ROBUST_SLAB_SCALE,
-        TrianglePacket, planes,
-    };
-    use crate::bvh::INVALID_INDEX;
-    use crate::bvh::wide::WideNode;
-    use crate::geometry::gamma;
-
-    /// SSE4.1 kernels.
-    pub(crate) struct Sse4;
-    /// AVX2 kernels: the box test eight lanes at once; triangles as [`Sse4`] (VEX-encoded).
-    pub(crate) struct Avx2;
-
-    // SAFETY: the methods run SSE4.1 (x86-64's SSE2 baseline, in fact) and require it.
-    unsafe impl Kernel for Sse4 {
-        #[inline(always)]
-        unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-            // SAFETY: the caller's contract (the CPU has SSE4.1); N is 4 or 8.
-            unsafe { boxes_sse(node, ray, limit, dist) }
-        }
-
-        #[inline(always)]
-        unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
-            // SAFETY: as for `boxes`.
-            unsafe { triangles_sse(p, ray, t_max, valid) }
-        }
-    }
-
-    // SAFETY: the methods run AVX2 and require it; AVX2 implies SSE4.1.
-    unsafe impl Kernel for Avx2 {
-        #[inline(always)]
-        unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-            // SAFETY: the caller's contract (the CPU has AVX2), under which the AVX intrinsics
-            // inline into the AVX2-compiled caller; N is 4 or 8.
-            unsafe { if N == 8 { boxes_avx2(node, ray, limit, dist) } else { boxes_sse(node, ray, limit, dist) } }
-        }
-
-        #[inline(always)]
-        unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
-            // SAFETY: as for `boxes`.
-            unsafe { triangles_sse(p, ray, t_max, valid) }
-        }
-    }
-
-    /// Four lanes from `offset` of a node's box test: the hit mask (bits 0..4) and the entry
-    /// distances.
-    #[inline(always)]
-    unsafe fn boxes_sse4_chunk<const N: usize>(
-        node: &WideNode<N>,
-        ray: &BoxRay,
-        limit: f32,
-        offset: usize,
-    ) -> (u32, __m128) {
-        let rows = planes(node);
-        // SAFETY: `offset + 4 <= N` (callers step by 4 below N, and N is 4 or 8), so every load
-        // reads four floats inside one row.
-        unsafe {
-            let row = |k: usize| _mm_loadu_ps(rows[k].as_ptr().add(offset));
-            let slab = |axis: usize, k: usize| {
-                _mm_mul_ps(_mm_sub_ps(row(k), _mm_set1_ps(ray.inv.origin[axis])), _mm_set1_ps(ray.inv.inv_dir[axis]))
-            };
-            // `max(x, acc)` is `x > acc ? x : acc`: NaN planes keep the accumulator.
-            let mut enter = _mm_setzero_ps();
-            let mut exit = _mm_set1_ps(limit);
-            for axis in 0..3 {
-                enter = _mm_max_ps(slab(axis, ray.near[axis]), enter);
-                exit = _mm_min_ps(slab(axis, ray.far[axis]), exit);
-            }
-            let hit = _mm_cmple_ps(enter, _mm_mul_ps(exit, _mm_set1_ps(ROBUST_SLAB_SCALE)));
-            let child = _mm_loadu_si128(node.child.as_ptr().add(offset).cast());
-            let empty = _mm_cmpeq_epi32(child, _mm_set1_epi32(INVALID_INDEX as i32));
-            let mask = _mm_movemask_ps(_mm_andnot_ps(_mm_castsi128_ps(empty), hit)) as u32;
-            (mask, enter)
-        }
-    }
-
-    #[inline(always)]
-    unsafe fn boxes_sse<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-        let mut mask = 0;
-        let mut offset = 0;
-        while offset + 4 <= N {
-            // SAFETY: `offset + 4 <= N`, and the caller runs with SSE4.1.
-            unsafe {
-                let (m, enter) = boxes_sse4_chunk(node, ray, limit, offset);
-                _mm_storeu_ps(dist.as_mut_ptr().add(offset), enter);
-                mask |= m << offset;
-            }
-            offset += 4;
-        }
-        mask
-    }
-
-    #[inline(always)]
-    unsafe fn boxes_avx2<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-        debug_assert_eq!(N, 8);
-        let rows = planes(node);
-        // SAFETY: N is 8 here, so each load reads one whole row of eight floats (or the eight
-        // child links), and the store writes all of `dist`.
-        unsafe {
-            let row = |k: usize| _mm256_loadu_ps(rows[k].as_ptr());
-            let slab = |axis: usize, k: usize| {
-                _mm256_mul_ps(
-                    _mm256_sub_ps(row(k), _mm256_set1_ps(ray.inv.origin[axis])),
-                    _mm256_set1_ps(ray.inv.inv_dir[axis]),
-                )
-            };
-            let mut enter = _mm256_setzero_ps();
-            let mut exit = _mm256_set1_ps(limit);
-            for axis in 0..3 {
-                enter = _mm256_max_ps(slab(axis, ray.near[axis]), enter);
-                exit = _mm256_min_ps(slab(axis, ray.far[axis]), exit);
-            }
-            let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(enter, _mm256_mul_ps(exit, _mm256_set1_ps(ROBUST_SLAB_SCALE)));
-            let child = _mm256_loadu_si256(node.child.as_ptr().cast());
-            let empty = _mm256_cmpeq_epi32(child, _mm256_set1_epi32(INVALID_INDEX as i32));
-            _mm256_storeu_ps(dist.as_mut_ptr(), enter);
-            _mm256_movemask_ps(_mm256_andnot_ps(_mm256_castsi256_ps(empty), hit)) as u32
-        }
-    }
-
-    /// The triangle kernel on four lanes (the module docs; [`super::scalar_candidate`] and the
-    /// scalar test's error bound lane by lane, with the same operations in the same order).
-    #[inline(always)]
-    unsafe fn triangles_sse(p: &TrianglePacket, r: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
-        let [kx, ky, kz] = r.k;
-        // SAFETY: every load reads one 16-byte-aligned row of `p` (`TrianglePacket` is
-        // `align(16)` and its rows are 16 bytes each); the stores write whole arrays of four.
-        unsafe {
-            let rel = |vertex: usize, axis: usize, o: f32| {
-                _mm_sub_ps(_mm_load_ps(p.v[vertex][axis].as_ptr()), _mm_set1_ps(o))
-            };
-            let (sx, sy, sz) = (_mm_set1_ps(r.sx), _mm_set1_ps(r.sy), _mm_set1_ps(r.sz));
-            let (az, bz, cz) = (rel(0, kz, r.o[2]), rel(1, kz, r.o[2]), rel(2, kz, r.o[2]));
-            let ax = _mm_sub_ps(rel(0, kx, r.o[0]), _mm_mul_ps(sx, az));
-            let ay = _mm_sub_ps(rel(0, ky, r.o[1]), _mm_mul_ps(sy, az));
-            let bx = _mm_sub_ps(rel(1, kx, r.o[0]), _mm_mul_ps(sx, bz));
-            let by = _mm_sub_ps(rel(1, ky, r.o[1]), _mm_mul_ps(sy, bz));
-            let cx = _mm_sub_ps(rel(2, kx, r.o[0]), _mm_mul_ps(sx, cz));
-            let cy = _mm_sub_ps(rel(2, ky, r.o[1]), _mm_mul_ps(sy, cz));
-            let u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
-            let v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
-            let w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
-            let zero = _mm_setzero_ps();
-            let abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fff_ffff));
-            let abs = |x: __m128| _mm_and_ps(x, abs_mask);
-            let (min_normal, inf) = (_mm_set1_ps(f32::MIN_POSITIVE), _mm_set1_ps(f32::INFINITY));
-            // Normal: MIN_POSITIVE <= |x| < inf (NaN fails both).
-            let normal = |x: __m128| {
-                let a = abs(x);
-                _mm_and_ps(_mm_cmpge_ps(a, min_normal), _mm_cmplt_ps(a, inf))
-            };
-            let all_normal = _mm_and_ps(_mm_and_ps(normal(u), normal(v)), normal(w));
-            let any_neg = _mm_or_ps(_mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)), _mm_cmplt_ps(w, zero));
-            let any_pos = _mm_or_ps(_mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)), _mm_cmpgt_ps(w, zero));
-            let mixed = _mm_and_ps(any_neg, any_pos);
-            let valid = valid & 0xf;
-            // Most packets a ray reaches miss it on every lane: then the division and the error
-            // bound are not needed.
-            if _mm_movemask_ps(_mm_and_ps(all_normal, mixed)) as u32 & valid == valid {
-                return PacketHits::default();
-            }
-            let det = _mm_add_ps(_mm_add_ps(u, v), w);
-            let (zs_a, zs_b, zs_c) = (_mm_mul_ps(sz, az), _mm_mul_ps(sz, bz), _mm_mul_ps(sz, cz));
-            let t_scaled = _mm_add_ps(_mm_add_ps(_mm_mul_ps(u, zs_a), _mm_mul_ps(v, zs_b)), _mm_mul_ps(w, zs_c));
-            let rcp = _mm_div_ps(_mm_set1_ps(1.0), det);
-            let t_ok = _mm_and_ps(normal(t_scaled), normal(rcp));
-            let t = _mm_mul_ps(t_scaled, rcp);
-            let beyond = _mm_cmpgt_ps(t, _mm_set1_ps(t_max));
-            // The scalar test's bound on `t`'s error (`t_error_bound`), in f32, enlarged.
-            let max3 = |a: __m128, b: __m128, c: __m128| _mm_max_ps(_mm_max_ps(abs(a), abs(b)), abs(c));
-            let (max_x, max_y) = (max3(ax, bx, cx), max3(ay, by, cy));
-            let (max_z, shear_z) = (max3(zs_a, zs_b, zs_c), max3(az, bz, cz));
-            let max_e = max3(u, v, w);
-            let g = |n: u32| _mm_set1_ps(gamma(n));
-            let delta_z = _mm_mul_ps(g(3), max_z);
-            let delta_x = _mm_mul_ps(g(5), _mm_add_ps(max_x, _mm_mul_ps(_mm_set1_ps(r.sx.abs()), shear_z)));
-            let delta_y = _mm_mul_ps(g(5), _mm_add_ps(max_y, _mm_mul_ps(_mm_set1_ps(r.sy.abs()), shear_z)));
-            let delta_e = _mm_mul_ps(
-                _mm_set1_ps(2.0),
-                _mm_add_ps(
-                    _mm_add_ps(_mm_mul_ps(_mm_mul_ps(g(2), max_x), max_y), _mm_mul_ps(delta_y, max_x)),
-                    _mm_mul_ps(delta_x, max_y),
-                ),
-            );
-            let inner = _mm_mul_ps(
-                _mm_set1_ps(3.0),
-                _mm_add_ps(
-                    _mm_add_ps(_mm_mul_ps(_mm_mul_ps(g(3), max_e), max_z), _mm_mul_ps(delta_e, max_z)),
-                    _mm_mul_ps(delta_z, max_e),
-                ),
-            );
-            let bound = _mm_mul_ps(_mm_mul_ps(inner, abs(rcp)), _mm_set1_ps(BOUND_MARGIN));
-            let floor = _mm_set1_ps(BOUND_FLOOR);
-            let max_floor = _mm_set1_ps(MAXIMUM_FLOOR);
-            let maxima_ok = _mm_and_ps(
-                _mm_and_ps(_mm_cmpge_ps(max_x, max_floor), _mm_cmpge_ps(max_y, max_floor)),
-                _mm_and_ps(_mm_cmpge_ps(max_z, max_floor), _mm_cmpge_ps(max_e, max_floor)),
-            );
-            let bound_ok = _mm_and_ps(
-                _mm_and_ps(maxima_ok, _mm_cmpge_ps(bound, floor)),
-                _mm_and_ps(_mm_cmpge_ps(inner, floor), _mm_cmplt_ps(bound, inf)),
-            );
-            let known = _mm_and_ps(_mm_and_ps(all_normal, _mm_andnot_ps(mixed, t_ok)), bound_ok);
-            let in_range = _mm_andnot_ps(beyond, known);
-            let accept = _mm_and_ps(in_range, _mm_cmpgt_ps(t, bound));
-            let behind = _mm_and_ps(in_range, _mm_cmplt_ps(t, _mm_sub_ps(zero, bound)));
-            // Rejected as the scalar test rejects: every edge function normal with mixed signs,
-            // a normal distance past `t_max`, or one known to be behind the origin.
-            let reject = _mm_or_ps(_mm_and_ps(all_normal, _mm_or_ps(mixed, _mm_and_ps(t_ok, beyond))), behind);
-            let accept = _mm_movemask_ps(accept) as u32 & valid;
-            let check = !(_mm_movemask_ps(reject) as u32) & valid & !accept;
-            let mut hits = PacketHits { accept, check, ..Default::default() };
-            _mm_storeu_ps(hits.t.as_mut_ptr(), t);
-            _mm_storeu_ps(hits.u.as_mut_ptr(), _mm_mul_ps(v, rcp));
-            _mm_storeu_ps(hits.v.as_mut_ptr(), _mm_mul_ps(w, rcp));
-            hits
-        }
-    }
-}
-
-/// The NEON kernels: the SSE4.1 kernels' operations, in the same order, on the same four lanes.
-///
-/// Where the instruction sets differ:
-/// - `maxps(x, acc)` is `x > acc ? x : acc`, and the scalar code relies on it (a NaN `x` keeps
-///   the accumulator). NEON's `vmaxq_f32` returns NaN where either operand is, and `vmaxnmq_f32`
-///   returns the other operand, so it would also drop a NaN accumulator (a NaN `limit` or
-///   `t_max`) that the scalar and SSE4.1 code keep; and it orders `-0.0` below `+0.0`. So each
-///   `maxps`/`minps` becomes the compare and select it is defined as ([`max_ps`], [`min_ps`]).
-/// - `movemask` has no single instruction: the comparison masks are all ones or all zeros per
-///   lane, so lane `i` ANDed with `1 << i` and the lanes summed across (`vaddvq_u32`) give the
-///   same bits ([`movemask`]).
-/// - Subnormals: AArch64's Advanced SIMD honours FPCR as scalar code does (no flush to zero
-///   unless the process asks, as on x86 with MXCSR); AArch32 NEON, which always flushes, is not
-///   a target here.
-/// - No fused multiply-adds: each `_mm_mul_ps` and `_mm_add_ps`/`_mm_sub_ps` pair is a
-///   `vmulq_f32` and a `vaddq_f32`/`vsubq_f32` (never `vfmaq_f32` or `vmlaq_f32`), and rustc does
-///   not contract them.
-#[cfg(target_arch = "aarch64")]
-mod arm {
-    use std::arch::aarch64::*;
-
-    use super::{
-        BOUND_FLOOR, BOUND_MARGIN, BoxRay, Kernel, MAXIMUM_FLOOR, PacketHits, PacketRay, ROBUST_SLAB_SCALE,
-        TrianglePacket, planes,
-    };
-    use crate::bvh::INVALID_INDEX;
-    use crate::bvh::wide::WideNode;
-    use crate::geometry::gamma;
-
-    /// NEON kernels. An 8-wide node is tested as two 4-wide halves, as `Sse4` does;
-    /// the default form on this path is the 4-wide tree ([`super::TraceLayout::default_for`]).
-    pub(crate) struct Neon;
-
-    // SAFETY: the methods run NEON (Advanced SIMD, in the aarch64 baseline) and require it.
-    unsafe impl Kernel for Neon {
-        #[inline(always)]
-        unsafe fn boxes<const N: usize>(node: &WideNode<N>, ray: &BoxRay, limit: f32, dist: &mut [f32; N]) -> u32 {
-            let mut mask = 0;
-            let mut offset = 0;
-            while offset + 4 <= N {
-                // SAFETY: `offset + 4 <= N`, so the store writes four floats inside `dist`; the
-                // caller's contract (the CPU has NEON).
-                unsafe {
-                    let (m, enter) = boxes_chunk(node, ray, limit, offset);
-                    vst1q_f32(dist.as_mut_ptr().add(offset), enter);
-                    mask |= m << offset;
-                }
-                offset += 4;
-            }
-            mask
-        }
-
-        #[inline(always)]
-        unsafe fn triangles(p: &TrianglePacket, ray: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
-            // SAFETY: as for `boxes`.
-            unsafe { triangles_neon(p, ray, t_max, valid) }
-        }
-    }
-
-    /// x86's `maxps(a, b)`: `a > b ? a : b`, so `b` where either is NaN (module docs).
-    ///
-    /// # Safety
-    /// The CPU has NEON.
-    #[inline(always)]
-    unsafe fn max_ps(a: float32x4_t, b: float32x4_t) -> float32x4_t {
-        // SAFETY: the caller's contract.
-        unsafe { vbslq_f32(vcgtq_f32(a, b), a, b) }
-    }
-
-    /// x86's `minps(a, b)`: `a < b ? a : b`, so `b` where either is NaN.
-    ///
-    /// # Safety
-    /// The CPU has NEON.
-    #[inline(always)]
-    unsafe fn min_ps(a: float32x4_t, b: float32x4_t) -> float32x4_t {
-        // SAFETY: the caller's contract.
-        unsafe { vbslq_f32(vcltq_f32(a, b), a, b) }
-    }
-
-    /// x86's `movemask` of a comparison mask (every lane all ones or all zeros): lane `i` as
-    /// bit `i`.
-    ///
-    /// # Safety
-    /// The CPU has NEON.
-    #[inline(always)]
-    unsafe fn movemask(m: uint32x4_t) -> u32 {
-        const LANE_BITS: [u32; 4] = [1, 2, 4, 8];
-        // SAFETY: the load reads the four `u32` of `LANE_BITS`; the caller's contract.
-        unsafe { vaddvq_u32(vandq_u32(m, vld1q_u32(LANE_BITS.as_ptr()))) }
-    }
-
-    /// Four lanes from `offset` of a node's box test: the hit mask (bits 0..4) and the entry
-    /// distances.
-    ///
-    /// # Safety
-    /// The CPU has NEON; `offset + 4 <= N`.
-    #[inline(always)]
-    unsafe fn boxes_chunk<const N: usize>(
-        node: &WideNode<N>,
-        ray: &BoxRay,
-        limit: f32,
-        offset: usize,
-    ) -> (u32, float32x4_t) {
-        let rows = planes(node);
-        // SAFETY: `offset + 4 <= N` (callers step by 4 below N, and N is 4 or 8), so every load
-        // reads four floats inside one row (or four child links inside `child`).
-        unsafe {
-            let row = |k: usize| vld1q_f32(rows[k].as_ptr().add(offset));
-            let slab = |axis: usize, k: usize| {
-                vmulq_f32(vsubq_f32(row(k), vdupq_n_f32(ray.inv.origin[axis])), vdupq_n_f32(ray.inv.inv_dir[axis]))
-            };
-            // `max_ps(x, acc)` is `x > acc ? x : acc`: NaN planes keep the accumulator.
-            let mut enter = vdupq_n_f32(0.0);
-            let mut exit = vdupq_n_f32(limit);
-            for axis in 0..3 {
-                enter = max_ps(slab(axis, ray.near[axis]), enter);
-                exit = min_ps(slab(axis, ray.far[axis]), exit);
-            }
-            let hit = vcleq_f32(enter, vmulq_f32(exit, vdupq_n_f32(ROBUST_SLAB_SCALE)));
-            let child = vld1q_u32(node.child.as_ptr().add(offset));
-            let empty = vceqq_u32(child, vdupq_n_u32(INVALID_INDEX));
-            (movemask(vbicq_u32(hit, empty)), enter)
-        }
-    }
-
-    /// The triangle kernel on four lanes: `Sse4`'s, operation for operation (the module docs of
-    /// [`super`]; [`super::scalar_candidate`] and the scalar test's error bound lane by lane).
-    ///
-    /// # Safety
-    /// The CPU has NEON.
-    #[inline(always)]
-    unsafe fn triangles_neon(p: &TrianglePacket, r: &PacketRay, t_max: f32, valid: u32) -> PacketHits {
-        let [kx, ky, kz] = r.k;
-        // SAFETY: every load reads one row of four floats of `p`; the stores write whole arrays
-        // of four; the caller's contract (the CPU has NEON).
-        unsafe {
-            let rel =
-                |vertex: usize, axis: usize, o: f32| vsubq_f32(vld1q_f32(p.v[vertex][axis].as_ptr()), vdupq_n_f32(o));
-            let (sx, sy, sz) = (vdupq_n_f32(r.sx), vdupq_n_f32(r.sy), vdupq_n_f32(r.sz));
-            let (az, bz, cz) = (rel(0, kz, r.o[2]), rel(1, kz, r.o[2]), rel(2, kz, r.o[2]));
-            let ax = vsubq_f32(rel(0, kx, r.o[0]), vmulq_f32(sx, az));
-            let ay = vsubq_f32(rel(0, ky, r.o[1]), vmulq_f32(sy, az));
-            let bx = vsubq_f32(rel(1, kx, r.o[0]), vmulq_f32(sx, bz));
-            let by = vsubq_f32(rel(1, ky, r.o[1]), vmulq_f32(sy, bz));
-            let cx = vsubq_f32(rel(2, kx, r.o[0]), vmulq_f32(sx, cz));
-            let cy = vsubq_f32(rel(2, ky, r.o[1]), vmulq_f32(sy, cz));
-            let u = vsubq_f32(vmulq_f32(cx, by), vmulq_f32(cy, bx));
-            let v = vsubq_f32(vmulq_f32(ax, cy), vmulq_f32(ay, cx));
-            let w = vsubq_f32(vmulq_f32(bx, ay), vmulq_f32(by, ax));
-            let zero = vdupq_n_f32(0.0);
-            // Clears the sign bit, as SSE4.1's AND with 0x7fff_ffff does (NaN included).
-            let abs = |x: float32x4_t| vabsq_f32(x);
-            let (min_normal, inf) = (vdupq_n_f32(f32::MIN_POSITIVE), vdupq_n_f32(f32::INFINITY));
-            // Normal: MIN_POSITIVE <= |x| < inf (NaN fails both).
-            let normal = |x: float32x4_t| {
-                let a = abs(x);
-                vandq_u32(vcgeq_f32(a, min_normal), vcltq_f32(a, inf))
-            };
-            let all_normal = vandq_u32(vandq_u32(normal(u), normal(v)), normal(w));
-            let any_neg = vorrq_u32(vorrq_u32(vcltq_f32(u, zero), vcltq_f32(v, zero)), vcltq_f32(w, zero));
-            let any_pos = vorrq_u32(vorrq_u32(vcgtq_f32(u, zero), vcgtq_f32(v, zero)), vcgtq_f32(w, zero));
-            let mixed = vandq_u32(any_neg, any_pos);
-            let valid = valid & 0xf;
-            // Most packets a ray reaches miss it on every lane: then the division and the error
-            // bound are not needed.
-            if movemask(vandq_u32(all_normal, mixed)) & valid == valid {
-                return PacketHits::default();
-            }
-            let det = vaddq_f32(vaddq_f32(u, v), w);
-            let (zs_a, zs_b, zs_c) = (vmulq_f32(sz, az), vmulq_f32(sz, bz), vmulq_f32(sz, cz));
-            let t_scaled = vaddq_f32(vaddq_f32(vmulq_f32(u, zs_a), vmulq_f32(v, zs_b)), vmulq_f32(w, zs_c));
-            let rcp = vdivq_f32(vdupq_n_f32(1.0), det);
-            let t_ok = vandq_u32(normal(t_scaled), normal(rcp));
-            let t = vmulq_f32(t_scaled, rcp);
-            let beyond = vcgtq_f32(t, vdupq_n_f32(t_max));
-            // The scalar test's bound on `t`'s error (`t_error_bound`), in f32, enlarged.
-            let max3 = |a: float32x4_t, b: float32x4_t, c: float32x4_t| max_ps(max_ps(abs(a), abs(b)), abs(c));
-            let (max_x, max_y) = (max3(ax, bx, cx), max3(ay, by, cy));
-            let (max_z, shear_z) = (max3(zs_a, zs_b, zs_c), max3(az, bz, cz));
-            let max_e = max3(u, v, w);
-            let g = |n: u32| vdupq_n_f32(gamma(n));
-            let delta_z = vmulq_f32(g(3), max_z);
-            let delta_x = vmulq_f32(g(5), vaddq_f32(max_x, vmulq_f32(vdupq_n_f32(r.sx.abs()), shear_z)));
-            let delta_y = vmulq_f32(g(5), vaddq_f32(max_y, vmulq_f32(vdupq_n_f32(r.sy.abs()), shear_z)));
-            let delta_e = vmulq_f32(
-                vdupq_n_f32(2.0),
-                vaddq_f32(
-                    vaddq_f32(vmulq_f32(vmulq_f32(g(2), max_x), max_y), vmulq_f32(delta_y, max_x)),
-                    vmulq_f32(delta_x, max_y),
-                ),
-            );
-            let inner = vmulq_f32(
-                vdupq_n_f32(3.0),
-                vaddq_f32(
-                    vaddq_f32(vmulq_f32(vmulq_f32(g(3), max_e), max_z), vmulq_f32(delta_e, max_z)),
-                    vmulq_f32(delta_z, max_e),
-                ),
-            );
-            let bound = vmulq_f32(vmulq_f32(inner, abs(rcp)), vdupq_n_f32(BOUND_MARGIN));
-            let floor = vdupq_n_f32(BOUND_FLOOR);
-            let max_floor = vdupq_n_f32(MAXIMUM_FLOOR);
-            let maxima_ok = vandq_u32(
-                vandq_u32(vcgeq_f32(max_x, max_floor), vcgeq_f32(max_y, max_floor)),
-                vandq_u32(vcgeq_f32(max_z, max_floor), vcgeq_f32(max_e, max_floor)),
-            );
-            let bound_ok = vandq_u32(
-                vandq_u32(maxima_ok, vcgeq_f32(bound, floor)),
-                vandq_u32(vcgeq_f32(inner, floor), vcltq_f32(bound, inf)),
-            );
-            // `vbicq_u32(a, b)` is `a & !b`: SSE's `andnot(b, a)`.
-            let known = vandq_u32(vandq_u32(all_normal, vbicq_u32(t_ok, mixed)), bound_ok);
-            let in_range = vbicq_u32(known, beyond);
-            let accept = vandq_u32(in_range, vcgtq_f32(t, bound));
-            let behind = vandq_u32(in_range, vcltq_f32(t, vsubq_f32(zero, bound)));
-            // Rejected as the scalar test rejects: every edge function normal with mixed signs,
-            // a normal distance past `t_max`, or one known to be behind the origin.
-            let reject = vorrq_u32(vandq_u32(all_normal, vorrq_u32(mixed, vandq_u32(t_ok, beyond))), behind);
-            let accept = movemask(accept) & valid;
-            let check = !movemask(reject) & valid & !accept;
-            let mut hits = PacketHits { accept, check, ..Default::default() };
-            vst1q_f32(hits.t.as_mut_ptr(), t);
-            vst1q_f32(hits.u.as_mut_ptr(), vmulq_f32(v, rcp));
-            vst1q_f32(hits.v.as_mut_ptr(), vmulq_f32(w, rcp));
-            hits
-        }
-    }
-}
 
 #[cfg(test)]
 mod tests {

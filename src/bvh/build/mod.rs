@@ -1,32 +1,39 @@
-//! Builders by name: what `bvh-bench --builders` and `render --builder` accept.
+//! Building a BVH: the builders, each in its own module, and the builders by name
+//! ([`Builder`]: what `bvh-bench --builders` and `render --builder` accept).
 //!
 //! | name | what |
 //! |---|---|
-//! | `lbvh` | [`super::lbvh`] |
-//! | `lbvh+prbvh` | LBVH optimised by [`super::prbvh`] (aggressive locks) |
+//! | `lbvh` | [`crate::bvh::build::lbvh`] |
+//! | `lbvh+prbvh` | LBVH optimised by [`crate::bvh::build::prbvh`] (aggressive locks) |
 //! | `lbvh+prbvh-conservative` | the same with conservative locks |
-//! | `binned-sah` | [`super::binned_sah`] |
+//! | `binned-sah` | [`crate::bvh::build::binned_sah`] |
 //! | `binned-sah+prbvh` | binned SAH optimised by PRBVH |
-//! | `ploc`, `ploc-R` | [`super::ploc`] with radius 16, or R |
+//! | `ploc`, `ploc-R` | [`crate::bvh::build::ploc`] with radius 16, or R |
 //! | `ploc+prbvh`, `ploc-R+prbvh` | PLOC optimised by PRBVH |
-//! | `lbvh+rbvh` (any base `+rbvh`) | sequential reinsertion ([`super::rbvh`]), the paper's reference |
+//! | `lbvh+rbvh` (any base `+rbvh`) | sequential reinsertion ([`crate::bvh::build::rbvh`]), the paper's reference |
 //! | any name given to [`register_external`] | an external builder; `arbor-bench` registers the obvhs crate's presets |
 //!
 //! Every builder returns a tree with one primitive per leaf; the leaf collapse is applied by the
 //! caller, the same for all, so that trees compare by topology and not by leaf policy.
+
+pub mod binned_sah;
+pub mod lbvh;
+pub mod ploc;
+pub mod prbvh;
+pub mod rbvh;
 
 use std::fmt;
 use std::str::FromStr;
 use std::sync::RwLock;
 use std::time::{Duration, Instant};
 
-use super::prbvh::{self, LockStrategy, PrbvhConfig, PrbvhStats};
+use prbvh::{LockStrategy, PrbvhConfig, PrbvhStats};
 use rayon::prelude::*;
 
-use super::ploc::{self, PlocConfig};
-use super::rbvh::{self, RbvhConfig, RbvhStats};
-use super::{Bvh, CollapseConfig, MeshBvh, Tracing, binned_sah, collapse_leaves, lbvh};
+use crate::bvh::{Bvh, CollapseConfig, MeshBvh, Tracing, collapse_leaves};
 use crate::geometry::{Aabb, Triangle};
+use ploc::PlocConfig;
+use rbvh::{RbvhConfig, RbvhStats};
 
 /// A builder, optionally followed by an optimiser.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -38,9 +45,9 @@ pub struct Builder {
 /// What runs after the base builder.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Optimizer {
-    /// Parallel reinsertion ([`super::prbvh`]) with these locks.
+    /// Parallel reinsertion ([`crate::bvh::build::prbvh`]) with these locks.
     Prbvh(LockStrategy),
-    /// Sequential reinsertion ([`super::rbvh`]), the reference.
+    /// Sequential reinsertion ([`crate::bvh::build::rbvh`]), the reference.
     Rbvh,
 }
 
@@ -56,7 +63,7 @@ pub enum BaseBuilder {
 
 /// A builder that another crate adds to the names [`Builder`] parses (the benchmark crate adds
 /// its peers this way, so that the library does not depend on them). Its tree must have one
-/// primitive per leaf and pass [`super::validate`]; it is traced, collapsed and optimised like
+/// primitive per leaf and pass [`crate::bvh::validate`]; it is traced, collapsed and optimised like
 /// ours. It takes no optimiser (`NAME+prbvh` is refused), as it is measured as its authors ship it.
 #[derive(Debug)]
 pub struct ExternalBuilder {

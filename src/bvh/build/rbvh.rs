@@ -27,8 +27,8 @@
 
 use std::time::{Duration, Instant};
 
-use super::dynamic::best_sibling;
-use super::{Bvh, BvhNode, INVALID_INDEX, SahCosts, sah_cost_with};
+use crate::bvh::dynamic::best_sibling;
+use crate::bvh::{Bvh, BvhNode, INVALID_INDEX, SahCosts, sah_cost_with};
 use crate::geometry::Aabb;
 
 /// Options of [`optimize`].
@@ -189,7 +189,7 @@ fn remove_and_reinsert(bvh: &mut Bvh, n: u32) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bvh::{lbvh, validate};
+    use crate::bvh::{build::lbvh, validate};
 
     #[test]
     fn the_tree_does_not_depend_on_the_units() {

@@ -22,7 +22,7 @@
 //!
 //! Sparse search and termination (section 4.4.1–4.4.2): node `i` searches in iteration `I` when
 //! `I ≡ i (mod μ)`; when an iteration lowers the SAH by less than `ε`, `μ` drops by one, and at
-//! `μ = 1` the run stops. Afterwards the leaf collapse of [`super::sah`] picks leaf sizes.
+//! `μ = 1` the run stops. Afterwards the leaf collapse of [`crate::bvh::sah`] picks leaf sizes.
 //!
 //! Departures from the paper:
 //! - When the output is a pivot itself (Algorithm 1, lines 30–36), the paper's candidate value
@@ -176,7 +176,7 @@ pub fn optimize_while(
 ) -> PrbvhStats {
     assert!(config.mu >= 1, "PRBVH needs mu >= 1");
     let start = Instant::now();
-    let sah = |b: &Bvh| super::sah_cost_with(b, &config.costs);
+    let sah = |b: &Bvh| crate::bvh::sah_cost_with(b, &config.costs);
     let mut stats = PrbvhStats { initial_sah: sah(bvh), ..Default::default() };
     let mut mu = config.mu;
     let mut previous = stats.initial_sah;
@@ -271,13 +271,13 @@ fn iterate(
 fn debug_validate(bvh: &Bvh, iteration: u32) {
     let mut prim_aabbs = vec![crate::geometry::Aabb::EMPTY; bvh.prim_ids.len()];
     for (i, n) in bvh.nodes.iter().enumerate() {
-        if n.is_leaf() && i != super::PAD_INDEX as usize {
+        if n.is_leaf() && i != crate::bvh::PAD_INDEX as usize {
             for &p in &bvh.prim_ids[n.prim_range()] {
                 prim_aabbs[p as usize] = n.aabb();
             }
         }
     }
-    if let Err(e) = super::validate(bvh, &prim_aabbs) {
+    if let Err(e) = crate::bvh::validate(bvh, &prim_aabbs) {
         panic!("PRBVH iteration {iteration} broke the tree: {e}");
     }
 }
@@ -297,7 +297,7 @@ mod tests {
     #[test]
     fn cached_areas_change_no_search() {
         let boxes = crate::bvh::scattered_boxes(3000, 0.8);
-        let mut bvh = crate::bvh::lbvh::build(&boxes);
+        let mut bvh = crate::bvh::build::lbvh::build(&boxes);
         for round in 0..3 {
             let areas = NodeAreas::new(&bvh);
             let cached = areas.get().expect("unit-scale scene");
@@ -332,7 +332,7 @@ mod tests {
                 Aabb::new(corners[0].min(corners[1]).min(corners[2]), corners[0].max(corners[1]).max(corners[2]))
             })
             .collect();
-        let bvh = crate::bvh::lbvh::build(&boxes);
+        let bvh = crate::bvh::build::lbvh::build(&boxes);
         let mut bounded = 0;
         for input in 2..bvh.nodes.len() as u32 {
             let ((out, d), visits) = search_with::<false, false>(&bvh, input, 1.0, &[]);

@@ -12,8 +12,8 @@
 //! traversal of [`WideBvh::closest_hit`] (hit lanes visited near to far, the same culling slack,
 //! ties to the lowest primitive id), with the leaves tested four triangles at a time: the kernel
 //! rejects the lanes the scalar watertight test would reject, accepts those it would hit with
-//! the same `t`, `u`, `v`, and leaves the rest to the scalar test ([`super::simd`]), so every
-//! path returns exactly the hits of [`super::Bvh::closest_hit_triangles`].
+//! the same `t`, `u`, `v`, and leaves the rest to the scalar test ([`crate::bvh::trace::simd`]), so every
+//! path returns exactly the hits of [`crate::bvh::Bvh::closest_hit_triangles`].
 //!
 //! `skip` names a primitive to leave out: a ray spawned from a triangle never needs to test it
 //! (its origin is offset to the side of the plane the ray leaves to, so the plane lies behind
@@ -24,15 +24,15 @@ use rayon::prelude::*;
 
 use crate::geometry::{Aabb, Ray, Triangle, WatertightRay};
 
-use super::simd::{BoxRay, Kernel, PacketRay, Scalar, SimdPath, TrianglePacket};
-use super::traverse::{HitFilter, Skip, Stack, cull_limit, cull_slack};
-use super::wide::{
+use crate::bvh::trace::simd::{BoxRay, Kernel, PacketRay, Scalar, SimdPath, TrianglePacket};
+use crate::bvh::trace::wide::{
     Entry, WideNode, WideValidationError, collapse, far_to_near, nodes_bounds, nodes_sah, validate_nodes,
 };
-use super::{Bvh, BvhNode, Hit, INVALID_INDEX, SahCosts};
+use crate::bvh::trace::{HitFilter, Skip, Stack, cull_limit, cull_slack};
+use crate::bvh::{Bvh, BvhNode, Hit, INVALID_INDEX, SahCosts};
 
 #[cfg(doc)]
-use super::wide::WideBvh;
+use crate::bvh::trace::wide::WideBvh;
 
 /// Entries a traversal keeps before spilling to the heap.
 const STACK_SIZE: usize = 128;
@@ -49,7 +49,7 @@ pub struct WideMesh<const N: usize> {
 impl<const N: usize> WideMesh<N> {
     /// Collapses `bvh` into `N`-wide nodes (the pull-up of [`WideBvh::from_binary`]) and packs
     /// its leaves from `leaf_ordered` (the triangle at each `prim_ids` position, as
-    /// [`super::MeshBvh`] keeps them), for tracing on `simd`; a path this CPU lacks is replaced
+    /// [`crate::bvh::MeshBvh`] keeps them), for tracing on `simd`; a path this CPU lacks is replaced
     /// by the best one it has.
     ///
     /// A subtree of at most four triangles becomes one leaf lane, one packet: testing four
@@ -237,7 +237,7 @@ impl<const N: usize> WideMesh<N> {
     unsafe fn closest_avx2<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.closest::<super::simd::Avx2, R>(ray, t_max, skip) }
+        unsafe { self.closest::<crate::bvh::trace::simd::Avx2, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -245,7 +245,7 @@ impl<const N: usize> WideMesh<N> {
     unsafe fn closest_sse4<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.closest::<super::simd::Sse4, R>(ray, t_max, skip) }
+        unsafe { self.closest::<crate::bvh::trace::simd::Sse4, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -253,7 +253,7 @@ impl<const N: usize> WideMesh<N> {
     unsafe fn any_avx2<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.any::<super::simd::Avx2, R>(ray, t_max, skip) }
+        unsafe { self.any::<crate::bvh::trace::simd::Avx2, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -261,7 +261,7 @@ impl<const N: usize> WideMesh<N> {
     unsafe fn any_sse4<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.any::<super::simd::Sse4, R>(ray, t_max, skip) }
+        unsafe { self.any::<crate::bvh::trace::simd::Sse4, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "aarch64")]
@@ -269,7 +269,7 @@ impl<const N: usize> WideMesh<N> {
     unsafe fn closest_neon<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> Option<Hit> {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.closest::<super::simd::Neon, R>(ray, t_max, skip) }
+        unsafe { self.closest::<crate::bvh::trace::simd::Neon, R>(ray, t_max, skip) }
     }
 
     #[cfg(target_arch = "aarch64")]
@@ -277,7 +277,7 @@ impl<const N: usize> WideMesh<N> {
     unsafe fn any_neon<R: HitFilter>(&self, ray: &Ray, t_max: f32, skip: &R) -> bool {
         // SAFETY: this function is compiled for the kernel's features and called only where
         // the CPU has them.
-        unsafe { self.any::<super::simd::Neon, R>(ray, t_max, skip) }
+        unsafe { self.any::<crate::bvh::trace::simd::Neon, R>(ray, t_max, skip) }
     }
 
     /// # Safety
@@ -444,8 +444,10 @@ fn small_subtrees(nodes: &[BvhNode]) -> Vec<u8> {
     let mut count = vec![0u8; nodes.len()];
     let own = |n: &BvhNode| n.prim_count.min(5) as u8;
     // The padding node (`PAD_INDEX`) is neither leaf nor parent.
-    let ordered =
-        nodes.iter().enumerate().all(|(i, n)| i == super::PAD_INDEX as usize || n.is_leaf() || n.first as usize > i);
+    let ordered = nodes
+        .iter()
+        .enumerate()
+        .all(|(i, n)| i == crate::bvh::PAD_INDEX as usize || n.is_leaf() || n.first as usize > i);
     if ordered {
         for i in (0..nodes.len()).rev() {
             let n = &nodes[i];

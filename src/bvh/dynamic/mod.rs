@@ -20,7 +20,7 @@
 //!   Ancestors' boxes are then grown, stopping at the first that already contains the leaf.
 //! - **Local PRBVH**: Meister & Bittner 2018 propose focusing reinsertion on the moving parts of
 //!   an animation (section 7). [`DynamicBvh::update`] runs a few rounds of their search, locks and
-//!   reinsertion ([`super::prbvh::reinsert_candidates`]) over only the reinserted leaves, their
+//!   reinsertion ([`crate::bvh::build::prbvh::reinsert_candidates`]) over only the reinserted leaves, their
 //!   parents and grandparents; the boxes the moves leave stale are marked dirty and refitted by
 //!   the same clean pass, so the cost follows the number of moving objects, not the scene.
 //! - **Quality monitor** (in the spirit of Lauterbach et al. 2006 and Eisemann et al. 2007): the
@@ -44,6 +44,8 @@
 //! is the identity, so a primitive's slot in `prim_ids` never moves. `leaf_of` maps each id back
 //! to its leaf (Cozzi's object-to-leaf back pointer).
 
+pub mod instances;
+
 use std::collections::{BinaryHeap, HashSet};
 use std::sync::atomic::AtomicU64;
 use std::time::Instant;
@@ -51,9 +53,9 @@ use std::time::Instant;
 use bytemuck::Zeroable;
 use glam::Vec3;
 
-use super::binned_sah::{self, BinnedSahConfig};
-use super::prbvh::{self, LockStrategy};
-use super::{Bvh, BvhNode, INVALID_INDEX, Nodes, PAD_INDEX, SahCosts};
+use crate::bvh::build::binned_sah::{self, BinnedSahConfig};
+use crate::bvh::build::prbvh::{self, LockStrategy};
+use crate::bvh::{Bvh, BvhNode, INVALID_INDEX, Nodes, PAD_INDEX, SahCosts};
 use crate::geometry::Aabb;
 
 /// A deleted leaf, until the next clean removes it.
@@ -66,7 +68,7 @@ fn is_hole(n: &BvhNode) -> bool {
 
 /// The node a subtree with box `b` should become the sibling of, in the tree under `nodes[0]`:
 /// best-first branch and bound on the insertion cost (module docs), skipping nodes for which
-/// `skip` holds. Never the padding. Shared with [`super::rbvh`]. Areas are of boxes scaled by
+/// `skip` holds. Never the padding. Shared with [`crate::bvh::build::rbvh`]. Areas are of boxes scaled by
 /// [`Aabb::area_scale`] of the root and `b`, so that they neither overflow nor underflow.
 pub(crate) fn best_sibling(nodes: &[BvhNode], b: &Aabb, skip: impl Fn(&BvhNode) -> bool) -> u32 {
     let scale = nodes[0].aabb().union(*b).area_scale();
@@ -535,7 +537,7 @@ impl DynamicBvh {
             || estimate > self.fresh_sah * (1.0 + config.rebuild_threshold)
         {
             let fresh = fresh_build(boxes);
-            let fresh_sah = super::sah_cost_with(&fresh, &config.costs);
+            let fresh_sah = crate::bvh::sah_cost_with(&fresh, &config.costs);
             self.resync_areas();
             let kept = self.sah_estimate(&config.costs);
             // A healthy tree is checked less often (up to 8 times the interval); the running
@@ -603,7 +605,7 @@ impl DynamicBvh {
     /// primitives were inserted with: links and pairs, reachability, one leaf per primitive in the
     /// tree and `leaf_of` pointing at it, holes only under dirty nodes, dirty nodes' ancestors
     /// dirty, every box containing its children's and equal to their union unless dirty, and the
-    /// running area sums. A clean tree holding every primitive also passes [`super::validate`].
+    /// running area sums. A clean tree holding every primitive also passes [`crate::bvh::validate`].
     pub fn validate(&self, boxes: &[Aabb]) -> Result<(), DynamicValidationError> {
         use DynamicValidationError as E;
         let nodes = &self.bvh.nodes;
@@ -688,7 +690,7 @@ impl DynamicBvh {
             return Err(E::AreaDrift { running: (self.area_internal, self.area_leaves), exact: (internal, leaf) });
         }
         if !self.is_dirty() && self.prim_count() == self.leaf_of.len() {
-            super::validate(&self.bvh, boxes)?;
+            crate::bvh::validate(&self.bvh, boxes)?;
         }
         Ok(())
     }
@@ -737,7 +739,7 @@ pub enum DynamicValidationError {
     AreaDrift { running: (f64, f64), exact: (f64, f64) },
     /// A clean tree holding every primitive fails the static tree's validation.
     #[error(transparent)]
-    Tree(#[from] super::ValidationError),
+    Tree(#[from] crate::bvh::ValidationError),
 }
 
 /// The build the monitor compares with and falls back to: binned SAH, one primitive per leaf.

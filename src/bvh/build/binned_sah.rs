@@ -13,9 +13,9 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use bytemuck::Zeroable;
 use glam::Vec3;
 
-use super::parallel::SharedSlice;
-use super::sah::half_area_f64;
-use super::{Bvh, BvhNode, INVALID_INDEX, Nodes};
+use crate::bvh::parallel::SharedSlice;
+use crate::bvh::sah::half_area_f64;
+use crate::bvh::{Bvh, BvhNode, INVALID_INDEX, Nodes};
 use crate::geometry::Aabb;
 
 /// Options of [`build`].

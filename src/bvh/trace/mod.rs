@@ -1,4 +1,7 @@
-//! Ray traversal: closest hit and any hit, plus brute-force references.
+//! Ray traversal: closest hit and any hit, plus brute-force references. This module traverses
+//! the binary tree; [`wide`] and [`wide_mesh`] the 4- and 8-wide trees collapsed from it, with the
+//! kernels of each instruction set in [`simd`]; [`MeshBvh`] pairs a mesh's tree with the form
+//! it is traced in.
 //!
 //! Stack-based, near child first: at an internal node both children's boxes are tested (they are
 //! adjacent in memory), the nearer is visited next and the farther pushed with its entry
@@ -14,9 +17,17 @@
 //! the origin. The slack only decides which boxes are opened, never which hits are accepted;
 //! only triangles hit at grazing angles, whose `t` has no useful error bound, may still differ.
 
+mod mesh_bvh;
+pub mod simd;
+pub mod wide;
+pub mod wide_mesh;
+
+pub use mesh_bvh::MeshBvh;
+pub use simd::{SimdPath, TraceLayout, Tracing};
+
 use glam::Vec3;
 
-use super::{Bvh, BvhNode};
+use crate::bvh::{Bvh, BvhNode};
 use crate::geometry::{Ray, RayInv, Triangle, WatertightRay, intersect_ray_packed};
 
 /// Relative slack on the best hit distance when culling boxes.
@@ -66,7 +77,7 @@ pub struct Hit {
     pub v: f32,
 }
 
-/// What a mesh traversal leaves out ([`super::MeshBvh::closest_hit_filtered`]): the primitive a
+/// What a mesh traversal leaves out ([`crate::bvh::MeshBvh::closest_hit_filtered`]): the primitive a
 /// spawned ray leaves ([`Skip`]), and with it every hit a predicate refuses ([`SkipReject`]:
 /// cut-out texels).
 pub trait HitFilter {
@@ -81,7 +92,7 @@ pub trait HitFilter {
     fn reject(&self, prim: u32, u: f32, v: f32) -> bool;
 }
 
-/// Leaves out one primitive ([`super::INVALID_INDEX`]: none).
+/// Leaves out one primitive ([`crate::bvh::INVALID_INDEX`]: none).
 #[derive(Clone, Copy, Debug)]
 pub struct Skip(pub u32);
 
@@ -97,7 +108,7 @@ impl HitFilter for Skip {
     }
 }
 
-/// Leaves out primitive `.0` ([`super::INVALID_INDEX`]: none), and every hit `(prim, u, v)` for
+/// Leaves out primitive `.0` ([`crate::bvh::INVALID_INDEX`]: none), and every hit `(prim, u, v)` for
 /// which the function holds.
 #[derive(Clone, Copy, Debug)]
 pub struct SkipReject<F>(pub u32, pub F);

@@ -12,10 +12,10 @@
 
 use rayon::prelude::*;
 
-use super::simd::{TraceLayout, Tracing};
-use super::traverse::{HitFilter, Skip};
-use super::wide_mesh::WideMesh;
-use super::{Bvh, Hit, INVALID_INDEX, SahCosts};
+use crate::bvh::trace::simd::{TraceLayout, Tracing};
+use crate::bvh::trace::wide_mesh::WideMesh;
+use crate::bvh::trace::{HitFilter, Skip};
+use crate::bvh::{Bvh, Hit, INVALID_INDEX, SahCosts};
 use crate::geometry::{Ray, Triangle, WatertightRay};
 
 /// A [`Bvh`] over triangles, with `triangles[k]` the triangle whose id is `bvh.prim_ids[k]`, and
@@ -69,7 +69,7 @@ impl MeshBvh {
     /// How this mesh is traced: its form and SIMD path (scalar for the binary form).
     pub fn tracing(&self) -> Tracing {
         let (layout, simd) = match &self.wide {
-            Wide::None => (TraceLayout::Binary, super::SimdPath::Scalar),
+            Wide::None => (TraceLayout::Binary, crate::bvh::SimdPath::Scalar),
             Wide::Four(w) => (TraceLayout::Wide4, w.simd()),
             Wide::Eight(w) => (TraceLayout::Wide8, w.simd()),
         };
@@ -82,11 +82,11 @@ impl MeshBvh {
         self.collapse_seconds
     }
 
-    /// The SAH of the traced form: the wide tree's ([`super::wide::WideBvh::sah`]) or the binary
+    /// The SAH of the traced form: the wide tree's ([`crate::bvh::trace::wide::WideBvh::sah`]) or the binary
     /// tree's.
     pub fn traced_sah(&self, costs: &SahCosts) -> f64 {
         match &self.wide {
-            Wide::None => super::sah_cost_with(&self.bvh, costs),
+            Wide::None => crate::bvh::sah_cost_with(&self.bvh, costs),
             Wide::Four(w) => w.sah(costs),
             Wide::Eight(w) => w.sah(costs),
         }
@@ -108,7 +108,10 @@ impl MeshBvh {
     }
 
     /// Checks the wide form against the triangles' boxes (by id); `Ok` for the binary form.
-    pub fn validate_wide(&self, prim_aabbs: &[crate::geometry::Aabb]) -> Result<(), super::wide::WideValidationError> {
+    pub fn validate_wide(
+        &self,
+        prim_aabbs: &[crate::geometry::Aabb],
+    ) -> Result<(), crate::bvh::trace::wide::WideValidationError> {
         match &self.wide {
             Wide::None => Ok(()),
             Wide::Four(w) => w.validate(prim_aabbs),
@@ -168,7 +171,7 @@ impl MeshBvh {
     }
 
     /// [`MeshBvh::closest_hit`] without testing triangle `skip` (the one a spawned ray leaves,
-    /// which it cannot hit: see [`super::wide_mesh`]); [`INVALID_INDEX`] skips none.
+    /// which it cannot hit: see [`crate::bvh::trace::wide_mesh`]); [`INVALID_INDEX`] skips none.
     #[inline]
     pub fn closest_hit_skipping(&self, ray: &Ray, t_max: f32, skip: u32) -> Option<Hit> {
         match &self.wide {
