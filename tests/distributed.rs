@@ -287,7 +287,7 @@ fn interrupt_and_resume(device: &str, spp: &str) {
         assert!(kill.success());
         let status = child.wait().unwrap();
         assert_eq!(status.code(), Some(75), "split {split}: a signalled render exits 75");
-        let info = arbor::film_file::read_info(&state).unwrap().expect("a partial film");
+        let info = arbor::distributed::film_file::read_info(&state).unwrap().expect("a partial film");
         assert!(!info.is_complete(), "split {split}: the state is complete: make the render longer");
         let o = run(render()
             .args(common)

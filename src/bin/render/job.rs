@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use arbor::device::DeviceError;
-use arbor::film_file::PieceError;
+use arbor::distributed::film_file::PieceError;
 use arbor::image_io::ImageError;
 use arbor::memory::OutOfMemory;
 use arbor::scene::SceneError;

@@ -16,7 +16,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use arbor::bvh::{TraceLayout, Tracing};
 use arbor::device::{BuilderChoice, DeviceChoice, Progress, RenderedFrame, Renderer};
-use arbor::film_file::{FilmPiece, PieceInfo, parse_rect, read_info, read_piece, write_piece};
+use arbor::distributed::film_file::{FilmPiece, PieceInfo, parse_rect, read_info, read_piece, write_piece};
 use arbor::image_io::{check_output_path, write_image};
 use arbor::render::BuildReport;
 use arbor::render::geometry::wants_instancing;
@@ -563,7 +563,7 @@ fn merge(args: &Args, report: &mut Report) -> Result<()> {
     arbor::atomic_file::prepare(&args.output).with_context(|| format!("cannot write {}", args.output.display()))?;
     report.pieces.clone_from(&args.merge);
     let start = Instant::now();
-    let (info, film) = arbor::film_file::merge_files(&args.merge)?;
+    let (info, film) = arbor::distributed::film_file::merge_files(&args.merge)?;
     write_image(&args.output, &film.mean())?;
     report.scene_hash = Some(info.scene_hash.clone());
     report.seed = Some(info.seed);
