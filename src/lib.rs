@@ -55,7 +55,9 @@
 //! - [`gpu`] (feature `gpu`): the wgpu backend: context, shared layouts, GPU LBVH, PRBVH and
 //!   path tracing.
 //! - [`device`]: one entry point that renders a frame on the CPU or the GPU.
-//! - [`image_io`]: EXR and PNG; [`film_file`]: partial films and their exact merge;
+//! - [`distributed`]: split renders: planning a job's region and outputs, resuming and
+//!   skipping them, partial films and their exact merge.
+//! - [`image_io`]: EXR and PNG;
 //!   [`atomic_file`]: every file output, written atomically;
 //!   [`memory`]: peak resident memory and the memory check.
 //!
@@ -65,7 +67,7 @@
 pub mod atomic_file;
 pub mod bvh;
 pub mod device;
-pub mod film_file;
+pub mod distributed;
 pub mod geometry;
 #[cfg(feature = "gpu")]
 pub mod gpu;

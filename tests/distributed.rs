@@ -287,7 +287,7 @@ fn interrupt_and_resume(device: &str, spp: &str) {
         assert!(kill.success());
         let status = child.wait().unwrap();
         assert_eq!(status.code(), Some(75), "split {split}: a signalled render exits 75");
-        let info = arbor::film_file::read_info(&state).unwrap().expect("a partial film");
+        let info = arbor::distributed::film_file::read_info(&state).unwrap().expect("a partial film");
         assert!(!info.is_complete(), "split {split}: the state is complete: make the render longer");
         let o = run(render()
             .args(common)
@@ -324,4 +324,100 @@ fn a_signalled_render_resumes_to_the_same_image_on_the_gpu() {
         return;
     }
     interrupt_and_resume("gpu", "400");
+}
+
+/// The library's plan of a split render, used without the binary, as a scheduler's wrapper
+/// would: 4 tiles of two frames cover the image once, each job's output and state follow the
+/// frame pattern; a whole render keeps its state beside the output; a state half rendered is
+/// resumed, finished, then skipped; a finished or foreign state is refused with `render`'s
+/// messages.
+#[test]
+fn the_library_plans_tiles_of_frames_and_decides_resume_and_skip() {
+    use arbor::device::{BuilderChoice, Device, Renderer};
+    use arbor::distributed::film_file::write_piece;
+    use arbor::distributed::{Plan, PlanError, Request, Start};
+    use arbor::render::region::{Region, tile_rect};
+    use arbor::scene::{RenderSettings, Scene};
+
+    let dir = temp_dir("library-plan");
+    let scene_path = small_cornell(&dir, 40, 30);
+    let scene = Scene::load(&scene_path).unwrap();
+    let request = |i: u32| Request {
+        scene: scene_path.clone(),
+        output: dir.join("f%02d").join(format!("tile{i}.exr")),
+        settings: RenderSettings { spp: 4, max_depth: 3, ..scene.render },
+        tile: Some((i, 4)),
+        crop: None,
+        samples: None,
+        frames: Some(3..5),
+        checkpoint: None,
+        resume: true,
+        skip_existing: true,
+    };
+    let mut pixels = 0;
+    for i in 0..4 {
+        let plan = Plan::new(request(i), &scene).unwrap();
+        assert_eq!(plan.region, Region { rect: tile_rect(i, 4, 40, 30).unwrap(), samples: 0..4 });
+        pixels += plan.region.rect.pixel_count();
+        let frames = plan.frames(&scene).unwrap();
+        assert_eq!(frames, Some(3..5));
+        let jobs = plan.jobs(frames, &scene, "hash", "cpu");
+        let got: Vec<_> = jobs.iter().map(|j| (j.frame, j.output.clone(), j.state.clone())).collect();
+        let file = |f: u32| dir.join(format!("f{f:02}")).join(format!("tile{i}.exr"));
+        assert_eq!(got, [(Some(3), file(3), file(3)), (Some(4), file(4), file(4))]);
+        assert!(jobs.iter().all(|j| matches!(j.start(), Ok(Start::Fresh))));
+    }
+    assert_eq!(pixels, 40 * 30);
+
+    // A still, whole: its state is beside the image.
+    let still = Request { tile: None, frames: None, output: dir.join("still.png"), ..request(0) };
+    let plan = Plan::new(still, &scene).unwrap();
+    let frames = plan.frames(&scene).unwrap();
+    let jobs = plan.jobs(frames, &scene, "hash", "cpu");
+    assert_eq!(jobs.len(), 1);
+    assert_eq!((jobs[0].frame, &jobs[0].state), (None, &dir.join("still.png.partial.exr")));
+
+    // Tile 1's first frame, half rendered and stopped: resumed, finished, then skipped.
+    let plan = Plan::new(request(1), &scene).unwrap();
+    let frames = plan.frames(&scene).unwrap();
+    let hash = scene.content_hash();
+    let job = plan.jobs(frames.clone(), &scene, &hash, "cpu").remove(0);
+    let settings = plan.request.settings;
+    let mut renderer =
+        Renderer::new(Device::Cpu, &scene, &BuilderChoice::Auto, crate::common::tracing(), &settings, 1, job.time)
+            .unwrap();
+    let half = Region { samples: 0..2, ..plan.region.clone() };
+    let frame = renderer.render_region(&half, None, &settings, &|_| {}, &|_| false).unwrap();
+    write_piece(&job.state, &job.held(&frame), &frame.film).unwrap();
+    assert!(!job.is_complete());
+    let Ok(Start::Resume(carried)) = job.start() else { panic!("a state of 2 of 4 samples is resumed") };
+    assert_eq!(carried.samples, 2);
+    let frame = job.render(&mut renderer, Some(carried), &|_| {}, &std::sync::atomic::AtomicBool::new(false)).unwrap();
+    assert_eq!(frame.samples, 4);
+    job.write(&frame).unwrap();
+    assert!(job.is_complete());
+    assert!(matches!(job.start(), Ok(Start::Skip)));
+    // Without --skip-existing, a finished piece is refused; so is a state of another seed.
+    let finished = arbor::distributed::Job { skip_existing: false, ..job.clone() };
+    let e = finished.start().err().expect("a finished piece is not resumed");
+    assert!(matches!(e, PlanError::Finished { .. }));
+    let finished_message = format!(
+        "--resume: {} is finished (samples 0..4): nothing to resume; --skip-existing skips finished outputs",
+        job.state.display()
+    );
+    assert_eq!(e.to_string(), finished_message);
+    let other = Request { settings: RenderSettings { seed: settings.seed + 1, ..settings }, ..request(1) };
+    let plan = Plan::new(other, &scene).unwrap();
+    let job = plan.jobs(frames, &scene, &hash, "cpu").remove(0);
+    let Err(e) = job.start() else { panic!("a state of another seed is refused") };
+    assert!(
+        e.to_string().starts_with(&format!("--resume: {} is a piece of another render: its seed", job.state.display())),
+        "{e}"
+    );
+
+    // Bad requests: typed, with `render`'s messages.
+    let e = Plan::new(Request { tile: Some((4, 4)), ..request(0) }, &scene).unwrap_err();
+    assert_eq!(e.to_string(), "--tile 4/4: the tile number must be below 4 (tiles count from 0)");
+    let e = Plan::new(Request { samples: Some(2..9), ..request(0) }, &scene).unwrap_err();
+    assert!(matches!(e, PlanError::Samples { spp: 4, .. }), "{e}");
 }

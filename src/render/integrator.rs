@@ -50,6 +50,28 @@ pub const SHADOW_T_MAX: f32 = 1.0 - 1e-4;
 /// Russian roulette starts at this many path segments (Mitsuba's `rr_depth`).
 pub const RR_DEPTH: u32 = 5;
 
+/// A scattering vertex of a path, as next-event estimation reads it.
+#[derive(Clone, Copy)]
+struct Vertex<'a> {
+    bsdf: &'a Bsdf,
+    /// The shading frame the BSDF is evaluated in.
+    frame: &'a Frame,
+    /// The point and its error bound.
+    p: Vec3,
+    p_error: Vec3,
+    /// The surface it lies on, which shadow rays skip.
+    surface: Surface,
+    /// The geometric normal (unit).
+    ng: Vec3,
+    /// `Some(wo · ng)` where the shading normal is not the geometric one: directions must
+    /// then agree on both (module docs).
+    check: Option<f32>,
+    /// The direction to the previous vertex, in the shading frame.
+    wo: Vec3,
+    /// The path's throughput up to here.
+    beta: Vec3,
+}
+
 impl RenderScene {
     /// Radiance along `ray` (unit direction) for a path of at most `max_depth` segments;
     /// also returns the number of rays traced.
@@ -108,8 +130,8 @@ impl RenderScene {
             let check = shading.map(|_| wo_ng);
             let wo = frame.to_local(wo_world);
             if lit && bsdf.has_non_delta() {
-                let at = (p, p_error, hit.surface);
-                rays += self.direct_light(env_light, &bsdf, &frame, at, ng, check, wo, beta, rng, &mut l);
+                let at = Vertex { bsdf: &bsdf, frame: &frame, p, p_error, surface: hit.surface, ng, check, wo, beta };
+                rays += self.direct_light(env_light, &at, rng, &mut l);
             }
             let Some(s) = bsdf.sample(wo, rng.next_vec2(), rng.next_f32()) else { break };
             if !(s.weight.is_finite() && s.weight.max_element() > 0.0) {
@@ -137,20 +159,8 @@ impl RenderScene {
 
     /// Next-event estimation: one light sample, MIS-weighted against the BSDF. Adds to `l` and
     /// returns the rays traced (0 or 1). `env_light` is [`RenderScene::environment_light`].
-    #[allow(clippy::too_many_arguments)]
-    fn direct_light(
-        &self,
-        env_light: Option<EnvLight>,
-        bsdf: &Bsdf,
-        frame: &Frame,
-        (p, p_error, surface): (Vec3, Vec3, Surface),
-        ng: Vec3,
-        check: Option<f32>,
-        wo: Vec3,
-        beta: Vec3,
-        rng: &mut Rng,
-        l: &mut Vec3,
-    ) -> u32 {
+    fn direct_light(&self, env_light: Option<EnvLight>, at: &Vertex, rng: &mut Rng, l: &mut Vec3) -> u32 {
+        let Vertex { bsdf, frame, p, p_error, surface, ng, check, wo, beta } = *at;
         let mut u_select = rng.next_f32();
         let u = rng.next_vec2();
         let mut area_select = 1.0;

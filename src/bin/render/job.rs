@@ -6,7 +6,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use arbor::device::DeviceError;
-use arbor::film_file::PieceError;
+use arbor::distributed::film_file::PieceError;
+use arbor::distributed::{JobError, PlanError};
 use arbor::image_io::ImageError;
 use arbor::memory::OutOfMemory;
 use arbor::scene::SceneError;
@@ -35,59 +36,80 @@ pub mod code {
 #[error("{0}")]
 pub struct BadInput(pub String);
 
-/// A render stopped by a signal, its state written to `state`.
-#[derive(Debug, thiserror::Error)]
-#[error("stopped by a signal after {done} of {of} samples per pixel; the state is in {}: run again with --resume to finish", state.display())]
-pub struct Interrupted {
-    pub state: PathBuf,
-    pub done: u32,
-    pub of: u32,
-}
-
 /// The exit code for `error`: the first cause in its chain that says.
 pub fn exit_code(error: &anyhow::Error) -> i32 {
-    use std::io::ErrorKind;
-    // An input that is not there is bad input; any other failure to read, and any failure to
-    // write (a shared folder briefly gone), may pass.
-    let input = |e: &std::io::Error| if e.kind() == ErrorKind::NotFound { code::BAD_INPUT } else { code::IO };
     for cause in error.chain() {
-        if cause.is::<Interrupted>() {
-            return code::INTERRUPTED;
-        }
-        if cause.is::<BadInput>() || cause.is::<clap::Error>() {
-            return code::BAD_INPUT;
-        }
-        if cause.is::<OutOfMemory>() {
-            return code::NO_MEMORY;
-        }
-        if cause.is::<DeviceError>() {
-            return code::DEVICE;
-        }
-        if let Some(e) = cause.downcast_ref::<SceneError>() {
-            return match e {
-                SceneError::Read { error, .. } => input(error),
-                SceneError::Invalid { .. } => code::BAD_INPUT,
-            };
-        }
-        if let Some(e) = cause.downcast_ref::<PieceError>() {
-            return match e {
-                PieceError::Io { source, .. } => input(source),
-                PieceError::Memory(_) => code::NO_MEMORY,
-                _ => code::BAD_INPUT,
-            };
-        }
-        if let Some(e) = cause.downcast_ref::<ImageError>() {
-            return match e {
-                ImageError::Io { .. } => code::IO,
-                ImageError::Exr { .. } | ImageError::Png { .. } => code::OTHER,
-                _ => code::BAD_INPUT,
-            };
-        }
-        if cause.is::<std::io::Error>() {
-            return code::IO;
+        if let Some(code) = cause_code(cause) {
+            return code;
         }
     }
     code::OTHER
+}
+
+/// The exit code `cause` says, `None` where it leaves it to its own cause.
+fn cause_code(cause: &(dyn std::error::Error + 'static)) -> Option<i32> {
+    if let Some(e) = cause.downcast_ref::<PlanError>() {
+        // The library's errors that wrap another in place (`transparent`) say what it says.
+        return match e {
+            PlanError::Memory(_) => Some(code::NO_MEMORY),
+            PlanError::Output(e) => Some(image_code(e)),
+            PlanError::State(e) => Some(piece_code(e)),
+            PlanError::Unwritable { .. } => None,
+            _ => Some(code::BAD_INPUT),
+        };
+    }
+    if let Some(e) = cause.downcast_ref::<JobError>() {
+        return match e {
+            JobError::Interrupted { .. } => Some(code::INTERRUPTED),
+            JobError::Device(_) => Some(code::DEVICE),
+            JobError::Write(e) => Some(image_code(e)),
+            JobError::Remove { .. } => None,
+        };
+    }
+    if cause.is::<BadInput>() || cause.is::<clap::Error>() {
+        return Some(code::BAD_INPUT);
+    }
+    if cause.is::<OutOfMemory>() {
+        return Some(code::NO_MEMORY);
+    }
+    if cause.is::<DeviceError>() {
+        return Some(code::DEVICE);
+    }
+    if let Some(e) = cause.downcast_ref::<SceneError>() {
+        return Some(match e {
+            SceneError::Read { error, .. } => input_code(error),
+            SceneError::Invalid { .. } => code::BAD_INPUT,
+        });
+    }
+    if let Some(e) = cause.downcast_ref::<PieceError>() {
+        return Some(piece_code(e));
+    }
+    if let Some(e) = cause.downcast_ref::<ImageError>() {
+        return Some(image_code(e));
+    }
+    cause.is::<std::io::Error>().then_some(code::IO)
+}
+
+/// An input that is not there is bad input; any other failure to read, and any failure to
+/// write (a shared folder briefly gone), may pass.
+fn input_code(e: &std::io::Error) -> i32 {
+    if e.kind() == std::io::ErrorKind::NotFound { code::BAD_INPUT } else { code::IO }
+}
+
+fn piece_code(e: &PieceError) -> i32 {
+    match e {
+        PieceError::Io { source, .. } => input_code(source),
+        PieceError::Memory(_) => code::NO_MEMORY,
+        _ => code::BAD_INPUT,
+    }
+}
+
+fn image_code(e: &ImageError) -> i32 {
+    match e {
+        ImageError::Io { .. } => code::IO,
+        ImageError::Exr { .. } | ImageError::Png { .. } => code::OTHER,
+        _ => code::BAD_INPUT,
+    }
 }
 
 /// How `render` answers SIGTERM (what Slurm and Kubernetes send before they kill a job) and
