@@ -17,12 +17,12 @@ use std::sync::Arc;
 
 use glam::{EulerRot, Mat4, Quat, Vec3};
 
-use super::file::{EnvironmentFile, KeyframeFile, MaterialFile, ObjectFile, S, ScaleFile, ScatterFile, SceneFile};
-use super::gltf::{
+use super::super::file::{EnvironmentFile, KeyframeFile, MaterialFile, ObjectFile, S, ScaleFile, ScatterFile, SceneFile};
+use super::super::gltf::{
     AlphaMode, DEFAULT_MATERIAL, GltfCameraNode, GltfError, GltfFile, GltfImageSource, GltfMaterial, GltfProjection,
     GltfTexture, WrapMode,
 };
-use super::{
+use super::super::{
     Animation, AnimationSettings, Camera, ConductorFresnel, Environment, Keyframe, Material, MaterialTextures, Object,
     RenderSettings, Scattering, Scene, SceneError, SceneMesh,
 };
@@ -53,7 +53,7 @@ const MAX_OBJECTS: u64 = MAX_SCATTER;
 /// A scatter's orbit period when none is given, seconds.
 const DEFAULT_PERIOD: f32 = 4.0;
 
-pub(super) fn load(path: PathBuf) -> Result<Scene, SceneError> {
+pub(in crate::scene) fn load(path: PathBuf) -> Result<Scene, SceneError> {
     let bytes = crate::memory::read_at_most(&path, crate::memory::text_file_limit())
         .map_err(|error| SceneError::Read { file: path.clone(), error })?;
     match String::from_utf8(bytes) {
@@ -117,7 +117,7 @@ impl Ctx<'_> {
     }
 }
 
-pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
+pub(in crate::scene) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
     let ctx = Ctx { file: &file, text };
     let de = toml::de::Deserializer::parse(text).map_err(|e| {
         let span = e.span().unwrap_or(0..0);
@@ -1267,7 +1267,7 @@ fn transform(ctx: &Ctx, index: usize, f: &ObjectFile) -> Result<Mat4, SceneError
 /// orthogonal columns), so that a tiny object or a huge one is judged as its shape, not its
 /// size. Below 10^-6 the columns are within rounding of being dependent (f32 keeps 7 digits):
 /// the mesh would be flattened.
-pub(super) fn invertible(m: &Mat4) -> bool {
+pub(in crate::scene) fn invertible(m: &Mat4) -> bool {
     let m3 = glam::Mat3::from_mat4(*m);
     let det = f64::from(m3.determinant());
     let bound: f64 = [m3.x_axis, m3.y_axis, m3.z_axis].iter().map(|c| f64::from(c.length())).product();
