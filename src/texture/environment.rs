@@ -67,39 +67,6 @@ pub const BYTES_PER_TEXEL: f64 = 12.0 + 4.0 + 4.0 + 16.0;
 /// Texels at most: 2^28 (a 23170² map), well past the 16k × 8k of the largest skies published.
 const MAX_TEXELS: u64 = 1 << 28;
 
-/// How directions are drawn from a map: [`Sampling::Luminance`] renders use; the uniform one is
-/// the baseline the tests and benchmarks compare it with.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Sampling {
-    /// In proportion to luminance × sin θ (the module docs).
-    Luminance,
-    /// Uniformly over the sphere (every texel weighted by its solid angle only).
-    Uniform,
-}
-
-/// A piecewise-constant density over the unit square, one constant per texel, and the CDFs that
-/// sample it.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Distribution {
-    /// The density over `(u, v)` in each texel, row-major: it integrates to 1 over the square.
-    pub pdf: Vec<f32>,
-    /// The rows' CDF: `height + 1` values rising from 0 to exactly 1.
-    pub marginal: Vec<f32>,
-    /// Each row's CDF over its texels: `width + 1` values a row, from 0 to exactly 1 (all 0 in a
-    /// row of no weight, which the marginal never picks).
-    pub conditional: Vec<f32>,
-}
-
-/// Why a map cannot be used: each names the file (the error of any image file).
-pub type EnvironmentError = super::TextureError;
-
-/// Bytes a map holds per texel once loaded: its radiance, its density and its row CDF, and the
-/// decoder's own copy while it is read.
-pub const BYTES_PER_TEXEL: f64 = 12.0 + 4.0 + 4.0 + 16.0;
-
-/// Texels at most: 2^28 (a 23170² map), well past the 16k × 8k of the largest skies published.
-const MAX_TEXELS: u64 = 1 << 28;
-
 impl EnvironmentMap {
     /// Reads an EXR (`.exr`) or Radiance HDR (`.hdr`) file, turned by `world_from_map` (a
     /// rotation), sampled as `sampling` says.
