@@ -10,9 +10,9 @@ use std::sync::Arc;
 
 use arbor::device::{BuilderChoice, Device, Renderer};
 use arbor::image_io::{Image, write_image};
-use arbor::texture::environment::Sampling;
 use arbor::render::film::Film;
 use arbor::scene::{RenderSettings, Scene};
+use arbor::texture::environment::Sampling;
 use glam::Vec3;
 
 use crate::render_accuracy::devices;

@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use arbor::device::{BuilderChoice, Device, Renderer};
 use arbor::render::film::Film;
-use arbor::texture::{Texture, Wrap};
 use arbor::scene::{RenderSettings, Scene};
+use arbor::texture::{Texture, Wrap};
 use glam::Vec2;
 
 use crate::render_accuracy::devices;

@@ -17,9 +17,7 @@ pub fn gpu_texture_ref(r: Option<TextureRef>) -> u32 {
 ///
 /// [`RenderMaterial::bsdf_at`]: crate::render::RenderMaterial::bsdf_at
 pub fn gpu_texture_channel(r: Option<(TextureRef, u8)>) -> u32 {
-    r.map_or(INVALID_INDEX, |(r, c)| {
-        gpu_texture_ref(Some(TextureRef { srgb: false, ..r })) | u32::from(c & 3) << 27
-    })
+    r.map_or(INVALID_INDEX, |(r, c)| gpu_texture_ref(Some(TextureRef { srgb: false, ..r })) | u32::from(c & 3) << 27)
 }
 
 /// Every texture as `shaders/trace.wgsl` reads them, one array of words: the 256 values of

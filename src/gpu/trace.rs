@@ -73,12 +73,12 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
-use super::texture::{gpu_texture_channel, gpu_texture_data, gpu_texture_ref};
 use super::layout::{
     BvhNode, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COATED, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
     MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP, TraceParams,
     with_prelude,
 };
+use super::texture::{gpu_texture_channel, gpu_texture_data, gpu_texture_ref};
 use crate::bvh::Bvh;
 use crate::bvh::builders::Builder;
 use crate::bvh::prbvh::PrbvhConfig;

@@ -15,8 +15,8 @@ use glam::{Vec2, Vec3};
 
 use super::geometry::interpolate;
 use super::sampling::uniform_triangle;
-use crate::texture::{Texture, TextureRef, luminance};
 use crate::geometry::Triangle;
+use crate::texture::{Texture, TextureRef, luminance};
 
 /// What a triangle emits: its radiance, whether from both faces, and the texture multiplying
 /// the radiance with the triangle's texture coordinates (in its vertex order).

@@ -6,8 +6,8 @@ use glam::{Vec2, Vec3};
 
 use super::bsdf::{Bsdf, ConductorFresnel as BsdfFresnel};
 use super::geometry::SurfaceHit;
-use crate::texture::{Texture, TextureRef};
 use crate::scene::{ConductorFresnel, Scattering};
+use crate::texture::{Texture, TextureRef};
 
 /// A material as the integrator uses it.
 #[derive(Clone, Copy, Debug)]
