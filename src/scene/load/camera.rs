@@ -5,8 +5,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use super::Ctx;
-use super::gltf::{GltfFiles, file_camera};
+use super::{Ctx, GltfFiles, file_camera};
 use crate::scene::file::{S, SceneFile};
 use crate::scene::{Camera, SceneError};
 

@@ -6,12 +6,16 @@
 //! A file per table: this one reads the file and holds what every table's checks share ([`Ctx`]),
 //! with the `[render]` and `[animation]` tables; [`camera`], [`materials`] (with MTL materials
 //! and texture statements), [`objects`] (meshes, shapes, OBJ and PLY files, transforms,
-//! keyframes), [`scatter`] and [`environment`] the others; [`gltf`] the glue to the glTF reader.
+//! keyframes), [`scatter`] and [`environment`] the others; `gltf` the glue to the glTF reader
+//! (feature `gltf`), which a build without it replaces by `no_gltf`, a refusal that says so.
 
 mod camera;
 mod environment;
+#[cfg(feature = "gltf")]
 mod gltf;
 mod materials;
+#[cfg(not(feature = "gltf"))]
+mod no_gltf;
 mod objects;
 mod scatter;
 
@@ -24,9 +28,14 @@ use glam::Vec3;
 use super::file::{S, SceneFile};
 use super::{AnimationSettings, RenderSettings, Scene, SceneError};
 use crate::texture::TextureCache;
-use gltf::GltfFiles;
+#[cfg(feature = "gltf")]
+use gltf::{GltfFiles, file_camera, gltf_parts};
+#[cfg(not(feature = "gltf"))]
+use no_gltf::{GltfFiles, file_camera, gltf_parts};
 use objects::{Built, ObjectEnv};
 
+// The glTF reader judges its nodes' matrices as the loader does objects'.
+#[cfg(feature = "gltf")]
 pub(super) use objects::invertible;
 
 pub(super) fn load(path: PathBuf) -> Result<Scene, SceneError> {

@@ -8,10 +8,9 @@ use std::path::{Path, PathBuf};
 
 use glam::{EulerRot, Mat4, Quat, Vec3};
 
-use super::Ctx;
-use super::gltf::{GltfFiles, gltf_parts};
 use super::materials::{from_mtl, mtl_textures};
 use super::scatter::{MAX_SCATTER, scatter};
+use super::{Ctx, GltfFiles, gltf_parts};
 use crate::geometry::obj::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
 use crate::scene::file::{KeyframeFile, ObjectFile, S, ScaleFile};
@@ -53,6 +52,7 @@ pub(super) struct Built {
     /// Triangles of the procedural shapes made so far.
     procedural_triangles: u64,
     /// The glTF files read so far, and the objects each makes.
+    #[cfg_attr(not(feature = "gltf"), expect(dead_code, reason = "without glTF support no file is read"))]
     pub(super) gltf: GltfFiles,
 }
 
