@@ -49,7 +49,8 @@
 //! - [`bvh`]: the tree layout shared with the GPU, the builders (LBVH, binned SAH, PLOC, parallel
 //!   and sequential reinsertion), SAH cost and leaf collapse, validation, traversal, the
 //!   dynamic and two-level BVHs.
-//! - [`scene`]: the TOML scene format, its loader, and animation.
+//! - [`scene`]: the TOML scene format, its loader, the glTF reader (feature `gltf`), and
+//!   animation.
 //! - [`render`]: camera, film, materials (BSDFs), sampling, lights, scene assembly, `--builder
 //!   auto`, and the path tracer.
 //! - [`gpu`] (feature `gpu`): the wgpu backend: context, shared layouts, GPU LBVH, PRBVH and
@@ -61,8 +62,10 @@
 //!   [`atomic_file`]: every file output, written atomically;
 //!   [`memory`]: peak resident memory and the memory check.
 //!
-//! Features: `gpu` (the wgpu backend) and `cli` (the `render` binary's dependencies), both on by
-//! default; `default-features = false` gives the library alone.
+//! Features, all on by default: `gpu` (the wgpu backend), `gltf` (the glTF 2.0 reader,
+//! `scene::gltf`, and glTF files in scenes) and `cli` (the `render` binary's dependencies);
+//! `default-features = false` gives the library alone, whose scenes then refuse glTF files with
+//! an error that names the feature.
 
 pub mod atomic_file;
 pub mod bvh;

@@ -16,6 +16,7 @@ mod watertight;
 // Scenes: the loader and animation.
 mod animation;
 mod fuzz_loader;
+#[cfg(feature = "gltf")]
 mod gltf;
 mod scene_load;
 

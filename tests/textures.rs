@@ -255,6 +255,7 @@ fn bad_textures_name_where_they_are_used() {
 /// colour within 1e-5 (Schlick's `(1 - cos θ)⁵` is below 1e-7 over the quad, and the clamped
 /// GGX lobe masks less), so that the answer stays exact under the coated material.
 #[test]
+#[cfg(feature = "gltf")]
 fn gltf_base_colour_textures_and_masks() {
     use crate::common::gltf::{Doc, UNSIGNED_SHORT};
     use serde_json::json;
@@ -439,6 +440,7 @@ fn an_emission_texture_lights_as_it_looks() {
 /// `map_Pr` and `map_Pm` and TOML `roughness_texture` and `metallic_texture` red. And a floor
 /// whose roughness and metallic vary across it renders alike on both devices.
 #[test]
+#[cfg(feature = "gltf")]
 fn roughness_and_metallic_textures_read_their_channels() {
     use arbor::render::RenderMaterial;
     use arbor::render::bsdf::Bsdf;
@@ -515,6 +517,7 @@ fn roughness_and_metallic_textures_read_their_channels() {
     }
 }
 
+#[cfg(feature = "gltf")]
 fn json_value(text: &str) -> serde_json::Value {
     serde_json::from_str(text).unwrap()
 }

@@ -1,12 +1,14 @@
 //! Scenes: the TOML scene format (documented in `docs/scene-format.md`) and its loader.
 //!
-//! [`Scene::load`] reads a scene file and the OBJ/MTL, PLY and glTF files it names ([`gltf`]), checks every value, and
+//! [`Scene::load`] reads a scene file and the OBJ/MTL, PLY and glTF files it names (`gltf`, with the
+//! Cargo feature `gltf`), checks every value, and
 //! returns plain data: a camera, render settings, materials by index, meshes and the objects
 //! placing them, some of them animated ([`Animation`]). Any error names the scene file, the line
 //! and the key at fault ([`SceneError`]); nothing panics on bad input.
 
 mod animation;
 mod file;
+#[cfg(feature = "gltf")]
 pub mod gltf;
 mod load;
 
