@@ -14,8 +14,6 @@
 //! Without the `gpu` feature only [`Device::Cpu`] exists.
 
 use std::sync::atomic::{AtomicU64, Ordering};
-#[cfg(feature = "gpu")]
-use std::time::Duration;
 use std::time::Instant;
 
 use crate::bvh::Tracing;
@@ -26,8 +24,10 @@ use crate::bvh::dynamic::instances::TopLevelUpdate;
 use crate::gpu::{GpuContext, GpuError, trace};
 use crate::render::film::Film;
 use crate::render::geometry::wants_instancing;
+use crate::render::pass::{Pass, Progress};
 use crate::render::refine::{RefineReport, Refiner};
 use crate::render::region::{Rect, Region};
+use crate::render::tiles::Rows;
 use crate::render::{BuildReport, RenderScene, first_frame_time};
 use crate::scene::{RenderSettings, Scene};
 
@@ -169,15 +169,6 @@ pub enum DeviceError {
     #[cfg(feature = "gpu")]
     #[error("rendering on the GPU")]
     Render(#[source] GpuError),
-}
-
-/// How far a render has come, for a progress bar: `done` of `total` units (pixel rows × samples),
-/// and the rays traced so far where the device counts them as it goes (the CPU; 0 on the GPU).
-#[derive(Clone, Copy, Debug)]
-pub struct Progress {
-    pub done: u64,
-    pub total: u64,
-    pub rays: u64,
 }
 
 /// `auto`'s rule for an animation's per-frame top-level update on the CPU: its local PRBVH
@@ -475,7 +466,7 @@ impl Renderer {
     ) -> Result<RenderedFrame, DeviceError> {
         let region = self.whole(settings.spp);
         self.begin_frame();
-        self.render_region(&region, None, settings, progress, &|_| false)
+        self.render_region(Pass::new(settings, region).with_progress(progress))
     }
 
     /// Says a new frame starts (for `auto`'s estimate of the frames to come); [`Renderer::render`]
@@ -494,7 +485,7 @@ impl Renderer {
         progress: &(dyn Fn(Progress) + Sync),
     ) -> Result<RenderedFrame, DeviceError> {
         let region = self.whole(settings.spp);
-        self.render_region(&region, Some(frame), settings, progress, &|_| false)
+        self.render_region(Pass::new(settings, region).carrying(Some(frame)).with_progress(progress))
     }
 
     /// The whole image, samples `0..spp`.
@@ -502,30 +493,24 @@ impl Renderer {
         Region { rect: Rect::full(self.render_scene.width, self.render_scene.height), samples: 0..spp }
     }
 
-    /// Renders `region`: the samples `region.samples` of each pixel of `region.rect`, into a film
-    /// of the rectangle's size (its pixel (0, 0) is the image's `(rect.x0, rect.y0)`), with
-    /// `settings.seed`, `settings.max_depth` and `settings.time` (`settings.spp` is not read).
-    /// `carried`, where given, holds the region's first `carried.samples` samples (a
-    /// checkpoint, or an earlier call), and the render carries on from there. `pause(samples)`
-    /// is asked after each pass with the samples per pixel taken so far (of the region's); when
-    /// it says yes, the render returns there, to be carried on later. The image never depends on
+    /// Renders `pass.region`: the samples `region.samples` of each pixel of `region.rect`, into a
+    /// film of the rectangle's size (its pixel (0, 0) is the image's `(rect.x0, rect.y0)`), with
+    /// the seed, path depth and time budget of `pass.settings` (`settings.spp` is not read).
+    /// `pass.carried`, where given, holds the region's first `carried.samples` samples (a
+    /// checkpoint, or an earlier call), and the render carries on from there. `pass.pause` is
+    /// asked after each pass with the samples per pixel taken so far (of the region's); when it
+    /// says yes, the render returns there, to be carried on later. The image never depends on
     /// where passes, pauses or devices' passes fall: the film's sums are exact
     /// ([`crate::render::film`]).
-    pub fn render_region(
-        &mut self,
-        region: &Region,
-        carried: Option<RenderedFrame>,
-        settings: &RenderSettings,
-        progress: &(dyn Fn(Progress) + Sync),
-        pause: &(dyn Fn(u32) -> bool + Sync),
-    ) -> Result<RenderedFrame, DeviceError> {
+    pub fn render_region(&mut self, mut pass: Pass<'_, RenderedFrame>) -> Result<RenderedFrame, DeviceError> {
+        let region = &pass.region;
         let (w, h) = (self.render_scene.width, self.render_scene.height);
         assert!(
             region.rect.fits(w, h) && region.samples.start <= region.samples.end,
             "region {:?} outside a {w}x{h} image",
             region
         );
-        let frame = carried.unwrap_or_else(|| RenderedFrame {
+        let frame = pass.carried.take().unwrap_or_else(|| RenderedFrame {
             film: Film::new(region.rect.width(), region.rect.height()),
             rays: 0,
             seconds: 0.0,
@@ -533,20 +518,14 @@ impl Renderer {
             timed_seconds: 0.0,
         });
         match self.device {
-            Device::Cpu => Ok(self.render_cpu(frame, settings, region, progress, pause)),
+            Device::Cpu => Ok(self.render_cpu(frame, &pass)),
             #[cfg(feature = "gpu")]
-            Device::Gpu(ctx) => self.render_gpu(ctx, frame, settings, region, progress, pause),
+            Device::Gpu(ctx) => self.render_gpu(ctx, frame, &pass),
         }
     }
 
-    fn render_cpu(
-        &mut self,
-        frame: RenderedFrame,
-        s: &RenderSettings,
-        region: &Region,
-        progress: &(dyn Fn(Progress) + Sync),
-        pause: &(dyn Fn(u32) -> bool + Sync),
-    ) -> RenderedFrame {
+    fn render_cpu(&mut self, frame: RenderedFrame, pass: &Pass<'_, RenderedFrame>) -> RenderedFrame {
+        let Pass { settings: s, ref region, progress, pause, .. } = *pass;
         let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: taken, timed_seconds } =
             frame;
         let (first, end) = (region.samples.start, region.samples.end);
@@ -569,9 +548,18 @@ impl Renderer {
         // sample begun in slices is finished before the next.
         let threads = rayon::current_num_threads() as u32;
         let slices = (region.rect.height() / (16 * threads).max(1)).clamp(1, 16);
-        let pass = if s.time.is_some() { 4 } else { 16 }.min((end - first).max(1));
+        let pass_spp = if s.time.is_some() { 4 } else { 16 }.min((end - first).max(1));
         // Slices of sample `done` rendered so far: the rows `y % slices < slice`.
         let mut slice = 0;
+        // Every row of the samples `samples`; a pass narrows the rows and names its listener.
+        let rows = |samples| Rows {
+            origin,
+            seed: s.seed,
+            max_depth: s.max_depth,
+            samples,
+            filter: &|_| true,
+            progress: &|_| {},
+        };
         while done < end {
             let deciding = slice < slices && self.refiner.as_ref().is_some_and(Refiner::is_active);
             let pass_start = Instant::now();
@@ -587,16 +575,15 @@ impl Renderer {
             let share = if deciding || slice > 0 {
                 // While deciding, the next slice of sample `done`; after, the rest of it.
                 let k = slice;
-                let rows = move |y: u32| if deciding { y % slices == k } else { y % slices >= k };
-                let samples = done..done + 1;
-                self.render_scene.render_rows(&mut film, origin, s.seed, s.max_depth, samples, &rows, &report(1));
+                let filter = move |y: u32| if deciding { y % slices == k } else { y % slices >= k };
+                let rows = Rows { filter: &filter, progress: &report(1), ..rows(done..done + 1) };
+                self.render_scene.render_rows(&mut film, &rows);
                 slice = if deciding { k + 1 } else { slices };
                 f64::from(slice - k) / f64::from(slices)
             } else {
-                let n = pass.min(end - done);
-                let all = |_: u32| true;
-                let samples = done..done + n;
-                self.render_scene.render_rows(&mut film, origin, s.seed, s.max_depth, samples, &all, &report(n));
+                let n = pass_spp.min(end - done);
+                let rows = Rows { progress: &report(n), ..rows(done..done + n) };
+                self.render_scene.render_rows(&mut film, &rows);
                 done += n;
                 f64::from(n)
             };
@@ -641,11 +628,9 @@ impl Renderer {
         &mut self,
         ctx: &GpuContext,
         frame: RenderedFrame,
-        s: &RenderSettings,
-        region: &Region,
-        progress: &(dyn Fn(Progress) + Sync),
-        pause: &(dyn Fn(u32) -> bool + Sync),
+        pass: &Pass<'_, RenderedFrame>,
     ) -> Result<RenderedFrame, DeviceError> {
+        let Pass { settings: s, ref region, progress, pause, .. } = *pass;
         let gpu = self.gpu.as_mut().expect("a GPU renderer holds its uploaded scene");
         let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: taken, timed_seconds } =
             frame;
@@ -657,15 +642,16 @@ impl Renderer {
         let height = u64::from(region.rect.height());
         let total = u64::from(region.samples.len() as u32) * height;
         let start = Instant::now();
-        let budget = s.time.map(Duration::from_secs_f64);
-        let before = Duration::from_secs_f64(seconds_before)
-            + timed.as_ref().map_or(Duration::ZERO, |t| Duration::from_secs_f64(t.seconds()));
-        let samples = first + taken..region.samples.end;
-        let out = trace::render_from(ctx, &gpu.scene, s.seed, s.max_depth, region.rect, samples, timed, &mut |done| {
-            progress(Progress { done: u64::from(done - first) * height, total, rays: 0 });
-            budget.is_none_or(|b| before + start.elapsed() < b) && (done == region.samples.end || !pause(done - first))
-        })
-        .map_err(DeviceError::Render)?;
+        // The device renders the samples not yet taken, within what the samples carried left of
+        // the budget; its progress and pauses count from there, the region's from its start.
+        let settings = RenderSettings { time: s.time.map(|t| t - seconds_before), ..*s };
+        let device_progress =
+            |p: Progress| progress(Progress { done: p.done + u64::from(taken) * height, total, rays: 0 });
+        let device_pause = |n: u32| pause(n + taken);
+        let rest = Region { rect: region.rect, samples: first + taken..region.samples.end };
+        let device_pass =
+            Pass::new(&settings, rest).carrying(timed).with_progress(&device_progress).with_pause(&device_pause);
+        let out = trace::render_from(ctx, &gpu.scene, device_pass).map_err(DeviceError::Render)?;
         // The device's sums are exact, as the host's: adding them to the samples carried gives
         // the film of an uninterrupted render.
         film.merge(&out.film);

@@ -387,7 +387,7 @@ fn the_library_plans_tiles_of_frames_and_decides_resume_and_skip() {
         Renderer::new(Device::Cpu, &scene, &BuilderChoice::Auto, crate::common::tracing(), &settings, 1, job.time)
             .unwrap();
     let half = Region { samples: 0..2, ..plan.region.clone() };
-    let frame = renderer.render_region(&half, None, &settings, &|_| {}, &|_| false).unwrap();
+    let frame = renderer.render_region(arbor::render::pass::Pass::new(&settings, half.clone())).unwrap();
     write_piece(&job.state, &job.held(&frame), &frame.film).unwrap();
     assert!(!job.is_complete());
     let Ok(Start::Resume(carried)) = job.start() else { panic!("a state of 2 of 4 samples is resumed") };

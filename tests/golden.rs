@@ -137,7 +137,7 @@ fn render_gpu(scene: &Scene, seed: u64) -> Estimate {
         RenderScene::build(scene, &lbvh, common::tracing())
     };
     let gpu = GpuScene::upload(ctx, &rs).unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
-    let out = gpu_trace::render(ctx, &gpu, seed, scene.render.max_depth, SPP, &mut |_| true)
+    let out = gpu_trace::render(ctx, &gpu, seed, scene.render.max_depth, SPP)
         .unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
     assert_eq!(out.film.non_finite_count(), 0, "{}: non-finite samples on the GPU", scene.path.display());
     Estimate { mean: out.film.mean(), stderr: out.film.stderr() }

@@ -17,6 +17,8 @@ use arbor::gpu::GpuContext;
 use arbor::gpu::trace::{self, Features, GpuScene};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
+use arbor::render::pass::{Pass, Progress};
+use arbor::render::region::Region;
 use arbor::scene::Scene;
 use common::analytic::{self, region};
 use common::{gpu_or_skip, z_for_two_sided_p};
@@ -33,7 +35,7 @@ fn lbvh() -> Builder {
 /// Renders `scene` on the GPU; asserts that no sample was non-finite.
 fn render_gpu(ctx: &GpuContext, scene: &RenderScene, seed: u64, spp: u32, max_depth: u32) -> Film {
     let gpu = GpuScene::upload(ctx, scene).unwrap_or_else(|e| panic!("{e}"));
-    let out = trace::render(ctx, &gpu, seed, max_depth, spp, &mut |_| true).unwrap_or_else(|e| panic!("{e}"));
+    let out = trace::render(ctx, &gpu, seed, max_depth, spp).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(out.samples, spp);
     assert_eq!(out.film.non_finite_count(), 0, "non-finite samples on the GPU");
     assert_eq!(out.film.sample_count(), u64::from(spp) * u64::from(scene.width * scene.height));
@@ -211,9 +213,9 @@ fn specialized_and_general_variants_agree() {
         }
     );
     let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
-    let specialized = trace::render(ctx, &gpu, 3, 8, 8, &mut |_| true).unwrap();
+    let specialized = trace::render(ctx, &gpu, 3, 8, 8).unwrap();
     gpu.features = Features::ALL;
-    let general = trace::render(ctx, &gpu, 3, 8, 8, &mut |_| true).unwrap();
+    let general = trace::render(ctx, &gpu, 3, 8, 8).unwrap();
     // The same random streams and the same arithmetic: the same image.
     assert_eq!(specialized.film.mean().pixels, general.film.mean().pixels);
     assert_eq!(specialized.rays, general.rays);
@@ -235,16 +237,16 @@ fn auto_hands_its_timed_samples_to_the_render() {
     assert_eq!(timed.samples(), trace::MEASURE_SPP);
     let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
     gpu.set_clamp(Some(4.0));
-    let mut reported = Vec::new();
-    let full = arbor::render::region::Rect::full(24, 16);
-    let carried = trace::render_from(ctx, &gpu, seed, max_depth, full, 0..spp, Some(timed), &mut |done| {
-        reported.push(done);
-        true
-    })
-    .unwrap();
+    let reported = std::sync::Mutex::new(Vec::new());
+    let whole = Region { rect: arbor::render::region::Rect::full(24, 16), samples: 0..spp };
+    // Progress in rows × samples: a row's samples reached, times the 16 rows.
+    let progress = |p: Progress| reported.lock().unwrap().push(p.done / 16);
+    let pass = Pass::new(&job, whole.clone()).carrying(Some(timed)).with_progress(&progress);
+    let carried = trace::render_from(ctx, &gpu, pass).unwrap();
+    let reported = reported.into_inner().unwrap();
     assert_eq!(carried.carried.0, trace::MEASURE_SPP);
-    assert_eq!(reported.first(), Some(&(trace::MEASURE_SPP + trace::PASS_SPP)), "passes: {reported:?}");
-    let fresh = trace::render(ctx, &gpu, seed, max_depth, spp, &mut |_| true).unwrap();
+    assert_eq!(reported.first(), Some(&u64::from(trace::MEASURE_SPP + trace::PASS_SPP)), "passes: {reported:?}");
+    let fresh = trace::render(ctx, &gpu, seed, max_depth, spp).unwrap();
     assert_eq!(fresh.carried, (0, 0.0));
     assert_eq!((carried.samples, carried.rays), (fresh.samples, fresh.rays));
     assert_eq!(carried.film.mean().pixels, fresh.film.mean().pixels);
@@ -253,7 +255,7 @@ fn auto_hands_its_timed_samples_to_the_render() {
     for (other_seed, clamp, other_depth) in [(6, Some(4.0), max_depth), (seed, None, max_depth), (seed, Some(4.0), 5)] {
         let other_job = arbor::scene::RenderSettings { seed: other_seed, max_depth: other_depth, clamp, ..job };
         let (_, _, other) = trace::build_auto(ctx, &scene, &other_job, 1);
-        let out = trace::render_from(ctx, &gpu, seed, max_depth, full, 0..spp, other, &mut |_| true).unwrap();
+        let out = trace::render_from(ctx, &gpu, Pass::new(&job, whole.clone()).carrying(other)).unwrap();
         assert_eq!(out.carried.0, 0, "seed {other_seed}, clamp {clamp:?}, depth {other_depth}");
         assert_eq!(out.film.mean().pixels, fresh.film.mean().pixels);
     }
@@ -407,7 +409,7 @@ fn specialization_speedup() {
             for (k, features) in [specialized, Features::ALL].into_iter().enumerate() {
                 gpu.features = features;
                 let (t, c) = (std::time::Instant::now(), process_cpu_seconds());
-                let out = trace::render(ctx, &gpu, 0, scene.render.max_depth, spp, &mut |_| true).unwrap();
+                let out = trace::render(ctx, &gpu, 0, scene.render.max_depth, spp).unwrap();
                 wall[k] = wall[k].min(t.elapsed().as_secs_f64());
                 cpu[k] = cpu[k].min(process_cpu_seconds() - c);
                 rays[k] = out.rays;

@@ -11,9 +11,10 @@ use std::time::Instant;
 
 use super::film_file::{PieceError, PieceInfo, read_info, read_piece, write_piece};
 use super::frames::{frame_path, has_frame_pattern};
-use crate::device::{DeviceError, Progress, RenderedFrame, Renderer};
+use crate::device::{DeviceError, RenderedFrame, Renderer};
 use crate::image_io::{ImageError, check_output_path, write_image};
 use crate::memory::OutOfMemory;
+use crate::render::pass::{Pass, Progress};
 use crate::render::region::{Rect, Region, tile_rect};
 use crate::scene::{RenderSettings, Scene};
 
@@ -385,7 +386,9 @@ impl Job {
         loop {
             let since = Instant::now();
             let pause = |_| stopped() || self.checkpoint.is_some_and(|c| since.elapsed().as_secs_f64() >= c);
-            let frame = renderer.render_region(region, carried.take(), settings, progress, &pause)?;
+            let pass =
+                Pass::new(settings, region.clone()).carrying(carried.take()).with_progress(progress).with_pause(&pause);
+            let frame = renderer.render_region(pass)?;
             let out_of_time = settings.time.is_some_and(|t| frame.seconds >= t);
             if frame.samples == wanted || out_of_time {
                 return Ok(frame);

@@ -66,7 +66,6 @@
 //! arrays ([`env_map_data`]) and weighted by MIS as on the CPU; textures read from the same
 //! texel words and sRGB table ([`gpu_texture_data`]), and cut-outs tested in both traversals.
 
-use std::ops::Range;
 use std::time::Instant;
 
 use glam::{Vec2, Vec3};
@@ -86,9 +85,10 @@ use crate::geometry::{Aabb, Triangle};
 use crate::render::bsdf::{Bsdf, ConductorFresnel};
 use crate::render::film::{Film, PixelAccum};
 use crate::render::geometry::Geometry;
-use crate::render::region::Rect;
+use crate::render::pass::{Pass, Progress};
+use crate::render::region::{Rect, Region};
 use crate::render::{BuildReport, RenderMaterial, RenderScene};
-use crate::scene::Scene;
+use crate::scene::{RenderSettings, Scene};
 use crate::texture::environment::EnvironmentMap;
 
 /// The shader files concatenated (after the variant's constants and the prelude) into the
@@ -566,44 +566,33 @@ impl PartialFilm {
     }
 }
 
-/// Renders `spp` samples per pixel (samples `0..spp` of each pixel's streams under `seed`) with
-/// paths of at most `max_depth` segments, in passes of [`PASS_SPP`]. After each pass has
-/// finished on the device, `after_pass(samples done so far)` is called; returning `false` stops
-/// the render there (a time budget).
-pub fn render(
-    ctx: &GpuContext,
-    scene: &GpuScene,
-    seed: u64,
-    max_depth: u32,
-    spp: u32,
-    after_pass: &mut dyn FnMut(u32) -> bool,
-) -> Result<GpuRender, GpuError> {
-    let rect = Rect::full(scene.width, scene.height);
-    render_from(ctx, scene, seed, max_depth, rect, 0..spp, None, after_pass)
+/// Renders `spp` samples per pixel (samples `0..spp` of each pixel's streams under `seed`) of
+/// the whole image with paths of at most `max_depth` segments, in passes of [`PASS_SPP`].
+pub fn render(ctx: &GpuContext, scene: &GpuScene, seed: u64, max_depth: u32, spp: u32) -> Result<GpuRender, GpuError> {
+    let settings = RenderSettings { spp, seed, max_depth, ..Default::default() };
+    render_from(
+        ctx,
+        scene,
+        Pass::new(&settings, Region { rect: Rect::full(scene.width, scene.height), samples: 0..spp }),
+    )
 }
 
-/// Renders samples `samples` of each pixel of `rect` (in passes of [`PASS_SPP`];
-/// `after_pass(sample index reached)` as for [`render`]), carrying on from `start` where it
-/// holds samples of this very render: the whole image, the same seed, path depth and clamp,
-/// samples `0..k` with `samples.start == 0` and `k <= samples.end`. The film is then the one an
-/// uninterrupted render gives (the film's sums are exact). The tree may differ: every tree
-/// finds the same closest hits, but for exact ties (a path through an edge shared by two
-/// triangles). A `start` of another render is dropped and the render starts from scratch.
-#[allow(clippy::too_many_arguments)]
-pub fn render_from(
-    ctx: &GpuContext,
-    scene: &GpuScene,
-    seed: u64,
-    max_depth: u32,
-    rect: Rect,
-    samples: Range<u32>,
-    start: Option<PartialFilm>,
-    after_pass: &mut dyn FnMut(u32) -> bool,
-) -> Result<GpuRender, GpuError> {
-    let key = film_key(scene, seed, max_depth, rect);
-    let start = start.filter(|s| s.key == key && samples.start == 0 && s.samples <= samples.end);
-    let carried = start.as_ref().map_or((0, 0.0), |s| (s.samples, s.seconds));
-    let film = passes(ctx, scene, seed, max_depth, rect, samples.clone(), start, after_pass)?;
+/// Renders `pass`: samples `pass.region.samples` of each pixel of its rectangle, in passes of
+/// [`PASS_SPP`], under the pass's seed and path depth. After each pass has finished on the
+/// device, the pass's progress hears of it, and the render stops there where the pass's time
+/// budget is spent (the carried samples' seconds included) or its pause says so. It carries on
+/// from `pass.carried` where that holds samples of this very render: the whole image, the same
+/// seed, path depth and clamp, samples `0..k` with `region.samples.start == 0` and
+/// `k <= region.samples.end`. The film is then the one an uninterrupted render gives (the film's
+/// sums are exact). The tree may differ: every tree finds the same closest hits, but for exact
+/// ties (a path through an edge shared by two triangles). A carried film of another render is
+/// dropped and the render starts from scratch.
+pub fn render_from(ctx: &GpuContext, scene: &GpuScene, mut pass: Pass<'_, PartialFilm>) -> Result<GpuRender, GpuError> {
+    let (rect, samples) = (pass.region.rect, pass.region.samples.clone());
+    let key = film_key(scene, pass.settings.seed, pass.settings.max_depth, rect);
+    pass.carried = pass.carried.filter(|s| s.key == key && samples.start == 0 && s.samples <= samples.end);
+    let carried = pass.carried.as_ref().map_or((0, 0.0), |s| (s.samples, s.seconds));
+    let film = passes(ctx, scene, pass)?;
     let pixels = rect.pixel_count() as usize;
     let sums: Vec<GpuPixel> = ctx.read_buffer("film", &film.buffer, pixels)?;
     let width = rect.width() as usize;
@@ -624,19 +613,11 @@ fn film_key(scene: &GpuScene, seed: u64, max_depth: u32, rect: Rect) -> FilmKey 
     (seed, max_depth, scene.params.clamp.to_bits(), rect)
 }
 
-/// The passes of [`render_from`], the film left on the device; its `samples` is the sample
-/// index reached.
-#[allow(clippy::too_many_arguments)]
-fn passes(
-    ctx: &GpuContext,
-    scene: &GpuScene,
-    seed: u64,
-    max_depth: u32,
-    rect: Rect,
-    samples: Range<u32>,
-    start: Option<PartialFilm>,
-    after_pass: &mut dyn FnMut(u32) -> bool,
-) -> Result<PartialFilm, GpuError> {
+/// The passes of [`render_from`] (its carried film already checked), the film left on the
+/// device; its `samples` is the sample index reached.
+fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Result<PartialFilm, GpuError> {
+    let Pass { settings, region: Region { rect, samples }, carried: start, progress, pause } = pass;
+    let (seed, max_depth) = (settings.seed, settings.max_depth);
     assert!(rect.x1 <= scene.width && rect.y1 <= scene.height, "{rect} outside the image");
     let pixels = rect.pixel_count() as usize;
     let groups = (rect.width().div_ceil(TRACE_WORKGROUP), rect.height().div_ceil(TRACE_WORKGROUP));
@@ -671,6 +652,11 @@ fn passes(
     let pipeline = pipeline(ctx, scene);
     let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, &film_buffer);
     let started = std::time::Instant::now();
+    let (height, total) = (u64::from(rect.height()), u64::from(samples.len() as u32) * u64::from(rect.height()));
+    let within_budget = |seconds_before: f64| {
+        settings.time.is_none_or(|budget| seconds_before + started.elapsed().as_secs_f64() < budget)
+    };
+    let seconds_before = seconds;
     while done < samples.end && pixels > 0 {
         params.sample_start = done;
         params.sample_count = PASS_SPP.min(samples.end - done);
@@ -686,7 +672,8 @@ fn passes(
         ctx.queue.submit([encoder.finish()]);
         ctx.wait()?;
         done += params.sample_count;
-        if !after_pass(done) {
+        progress(Progress { done: u64::from(done - samples.start) * height, total, rays: 0 });
+        if !within_budget(seconds_before) || (done < samples.end && pause(done - samples.start)) {
             break;
         }
     }
@@ -716,13 +703,13 @@ pub fn measure_speed(
     let t = std::time::Instant::now();
     compile(ctx, &gpu_scene).ok()?;
     let compiled = t.elapsed();
-    let mut ends = Vec::with_capacity(2);
-    let rect = Rect::full(gpu_scene.width, gpu_scene.height);
-    let film = passes(ctx, &gpu_scene, seed, max_depth, rect, 0..MEASURE_SPP, None, &mut |_| {
-        ends.push(std::time::Instant::now());
-        true
-    })
-    .ok()?;
+    let ends = std::sync::Mutex::new(Vec::with_capacity(2));
+    let settings = RenderSettings { seed, max_depth, ..Default::default() };
+    let region = Region { rect: Rect::full(gpu_scene.width, gpu_scene.height), samples: 0..MEASURE_SPP };
+    // Progress is heard after each pass has finished on the device: its times are the passes' ends.
+    let mark = |_| ends.lock().expect("no panic while held").push(std::time::Instant::now());
+    let film = passes(ctx, &gpu_scene, Pass::new(&settings, region).with_progress(&mark)).ok()?;
+    let ends = ends.into_inner().expect("no panic while held");
     let second = ends.get(1)?.duration_since(ends[0]).as_secs_f64();
     Some((second / f64::from(PASS_SPP), compiled, film))
 }
@@ -739,7 +726,7 @@ pub fn measure_speed(
 pub fn build_auto(
     ctx: &GpuContext,
     scene: &crate::scene::Scene,
-    settings: &crate::scene::RenderSettings,
+    settings: &RenderSettings,
     frames: usize,
 ) -> (RenderScene, crate::render::BuildReport, Option<PartialFilm>) {
     use crate::render::AutoDevice;

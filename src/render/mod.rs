@@ -4,6 +4,7 @@
 //! - [`auto`]: `--builder auto`, the tree the render's length repays;
 //! - [`environment`]: environment maps and their importance sampling;
 //! - [`integrator`]: the path tracer, one path at a time;
+//! - [`pass`]: what one call renders, as every device takes it;
 //! - [`tiles`]: the CPU's loop over pixels and samples into a [`film::Film`].
 
 pub mod assembly;
@@ -16,6 +17,7 @@ pub mod geometry;
 pub mod integrator;
 pub mod lights;
 pub mod material;
+pub mod pass;
 pub mod refine;
 pub mod region;
 pub mod rng;

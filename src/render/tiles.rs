@@ -1,6 +1,8 @@
 //! The CPU's render loop: every pixel's samples, rows in parallel, into a [`Film`] of the whole
 //! image or of a rectangle of it.
 
+use std::ops::Range;
+
 use glam::Vec2;
 use rayon::prelude::*;
 
@@ -20,27 +22,17 @@ impl RenderScene {
         samples: std::ops::Range<u32>,
         progress: &(dyn Fn(u64) + Sync),
     ) -> u64 {
-        self.render_rows(film, (0, 0), seed, max_depth, samples, &|_| true, progress)
+        self.render_rows(film, &Rows { origin: (0, 0), seed, max_depth, samples, filter: &|_| true, progress })
     }
 
-    /// [`RenderScene::render`] for the film's rows `y` where `rows(y)` holds, the film's pixel
-    /// (0, 0) being the image's pixel `origin` (a film of a rectangle of the image). A pixel's
-    /// samples may be added by several calls, rows in any order, and the film is the same as
-    /// long as each pixel gets its samples in increasing order.
-    #[allow(clippy::too_many_arguments)]
-    pub fn render_rows(
-        &self,
-        film: &mut Film,
-        origin: (u32, u32),
-        seed: u64,
-        max_depth: u32,
-        samples: std::ops::Range<u32>,
-        rows: &(dyn Fn(u32) -> bool + Sync),
-        progress: &(dyn Fn(u64) + Sync),
-    ) -> u64 {
+    /// [`RenderScene::render`] for the film's rows that `rows` names, with its seed, depth and
+    /// samples. A pixel's samples may be added by several calls, rows in any order, and the film
+    /// is the same as long as each pixel gets its samples in increasing order.
+    pub fn render_rows(&self, film: &mut Film, rows: &Rows<'_>) -> u64 {
+        let Rows { origin, seed, max_depth, ref samples, filter, progress } = *rows;
         let width = self.width as u64;
         film.rows_mut()
-            .filter(|(y, _)| rows(*y))
+            .filter(|(y, _)| filter(*y))
             .map(|(y, row)| {
                 let mut rays = 0u64;
                 let y = y + origin.1;
@@ -68,4 +60,19 @@ impl RenderScene {
             })
             .sum()
     }
+}
+
+/// What one call of [`RenderScene::render_rows`] renders: a slice of a pass of the CPU's loop.
+#[derive(Clone)]
+pub struct Rows<'a> {
+    /// The image's pixel at the film's pixel (0, 0) (a film of a rectangle of the image).
+    pub origin: (u32, u32),
+    pub seed: u64,
+    pub max_depth: u32,
+    /// The sample indices each pixel gets.
+    pub samples: Range<u32>,
+    /// The film's rows to render: those `y` where `filter(y)` holds.
+    pub filter: &'a (dyn Fn(u32) -> bool + Sync),
+    /// Hears of the rays of each finished row.
+    pub progress: &'a (dyn Fn(u64) + Sync),
 }

@@ -16,10 +16,11 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use arbor::bvh::{TraceLayout, Tracing};
-use arbor::device::{BuilderChoice, DeviceChoice, Progress, Renderer};
+use arbor::device::{BuilderChoice, DeviceChoice, Renderer};
 use arbor::distributed::{Job, JobError, Plan, Request, Start};
 use arbor::image_io::{check_output_path, write_image};
 use arbor::render::geometry::wants_instancing;
+use arbor::render::pass::Progress;
 use arbor::scene::{RenderSettings, Scene};
 use args::{Args, Device};
 use clap::Parser;
