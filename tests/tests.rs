@@ -6,6 +6,9 @@
 
 mod common;
 
+// The layers of docs/design/architecture.md.
+mod architecture;
+
 // Geometry and the BVH.
 mod bvh_build;
 mod dynamic_bvh;
