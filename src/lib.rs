@@ -42,25 +42,27 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! `examples/` holds both as programs. The modules, bottom to top (none imports one above it):
+//! `examples/` holds both as programs. The modules, bottom to top (none imports one of its own
+//! layer or above: `docs/design/architecture.md`, checked by `tests/architecture.rs`):
 //!
+//! - [`memory`]: peak resident memory and the memory check; [`atomic_file`]: every file
+//!   output, written atomically; [`image_io`]: EXR and PNG.
 //! - [`geometry`]: boxes, rays, the watertight triangle test, Morton codes, meshes, built-in
-//!   shapes and the OBJ/MTL reader.
-//! - [`bvh`]: the tree layout shared with the GPU, the builders (LBVH, binned SAH, PLOC, parallel
-//!   and sequential reinsertion), SAH cost and leaf collapse, validation, traversal, the
-//!   dynamic and two-level BVHs.
+//!   shapes and the OBJ/MTL and PLY readers. [`texture`]: decoded images, their cache and wrap
+//!   modes, and the environment map's texels and sampling tables.
+//! - [`bvh`]: the tree layout shared with the GPU, SAH cost and leaf collapse, validation;
+//!   [`bvh::build`] (LBVH, binned SAH, PLOC, parallel and sequential reinsertion),
+//!   [`bvh::trace`] (binary and wide traversal, SIMD kernels, the trace form) and
+//!   [`bvh::dynamic`] (the dynamic and two-level BVHs).
 //! - [`scene`]: the TOML scene format, its loader, the glTF reader (feature `gltf`), and
 //!   animation.
 //! - [`render`]: camera, film, materials (BSDFs), sampling, lights, scene assembly, `--builder
-//!   auto`, and the path tracer.
+//!   auto`, passes and regions, and the path tracer.
 //! - [`gpu`] (feature `gpu`): the wgpu backend: context, shared layouts, GPU LBVH, PRBVH and
 //!   path tracing.
 //! - [`device`]: one entry point that renders a frame on the CPU or the GPU.
 //! - [`distributed`]: split renders: planning a job's region and outputs, resuming and
 //!   skipping them, partial films and their exact merge.
-//! - [`image_io`]: EXR and PNG;
-//!   [`atomic_file`]: every file output, written atomically;
-//!   [`memory`]: peak resident memory and the memory check.
 //!
 //! Features, all on by default: `gpu` (the wgpu backend), `gltf` (the glTF 2.0 reader,
 //! `scene::gltf`, and glTF files in scenes) and `cli` (the `render` binary's dependencies);
