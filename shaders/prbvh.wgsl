@@ -1,5 +1,5 @@
 // Parallel reinsertion (Meister & Bittner 2018, section 5): the six kernels of one iteration,
-// the same algorithm as src/bvh/build/prbvh.rs.
+// the same algorithm as src/bvh/build/prbvh/.
 //   find_best  Algorithm 1, one thread per searching node;
 //   lock_max, lock_tie, check  the portable 32-bit locks (the 64-bit ones are in
 //              _prbvh_lock64.wgsl, appended when the adapter has 64-bit atomics);
@@ -52,7 +52,7 @@ fn find_best_output(input: u32) -> vec2<u32> {
     var out_best = out;
     var pivot = parent;
     var down = true;
-    // The CPU search's bound on visits (src/bvh/build/prbvh.rs, MAX_VISITS).
+    // The CPU search's bound on visits (src/bvh/build/prbvh/, MAX_VISITS).
     var visits_left = SEARCH_MAX_VISITS;
     loop {
         let out_lo = nodes[out].aabb_min;
@@ -80,7 +80,7 @@ fn find_best_output(input: u32) -> vec2<u32> {
                 let a_out = node_area(out);
                 if (out != parent) {
                     let d_direct = a_parent - area(min(in_lo, pivot_lo), max(in_hi, pivot_hi));
-                    // The pivot's own shrink (src/bvh/build/prbvh.rs, module docs).
+                    // The pivot's own shrink (src/bvh/build/prbvh/, module docs).
                     let own = a_out - area(pivot_lo, pivot_hi);
                     if (d_best < d_direct + d + own) {
                         d_best = d_direct + d + own;
@@ -200,7 +200,7 @@ fn adopt(node: BvhNode, slot: u32) {
     }
 }
 
-// The reinsertion of src/bvh/build/prbvh.rs `reinsert_shared`: the sibling takes the parent's slot,
+// The reinsertion of src/bvh/build/prbvh/ `reinsert_shared`: the sibling takes the parent's slot,
 // the freed pair takes the output and the input under a new node in the output's slot.
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn reinsert(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
