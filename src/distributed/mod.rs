@@ -9,6 +9,55 @@
 //!   or started afresh;
 //! - [`frames`]: frame-number patterns in output names;
 //! - [`film_file`]: partial films (an EXR piece with the film's exact sums) and their merge.
+//!
+//! A scheduler written in Rust runs a job as `render --tile 2/4 -o tile2.exr` does:
+//!
+//! ```no_run
+//! use std::sync::atomic::AtomicBool;
+//!
+//! use arbor::bvh::Tracing;
+//! use arbor::device::{BuilderChoice, Device, Renderer};
+//! use arbor::distributed::{Plan, Request, Start};
+//! use arbor::scene::Scene;
+//!
+//! let scene = Scene::load("scenes/cornell-box.toml")?;
+//! let request = Request {
+//!     scene: "scenes/cornell-box.toml".into(),
+//!     output: "tile2.exr".into(),
+//!     settings: scene.render,
+//!     tile: Some((2, 4)),
+//!     crop: None,
+//!     samples: None,
+//!     frames: None,
+//!     checkpoint: Some(60.0),
+//!     resume: true,
+//!     skip_existing: true,
+//! };
+//! let plan = Plan::new(request, &scene)?;
+//! let frames = plan.frames(&scene)?;
+//! let moves = frames.is_some();
+//! let (device, hash) = (Device::Cpu, scene.content_hash());
+//! let jobs = plan.jobs(frames, &scene, &hash, device.name());
+//! if let Some(first) = jobs.first() {
+//!     let (settings, tracing) = (&plan.request.settings, Tracing::from_env(None)?);
+//!     let builder = BuilderChoice::Auto;
+//!     let mut renderer = Renderer::new(device, &scene, &builder, tracing, settings, jobs.len(), first.time)?;
+//!     for job in &jobs {
+//!         let carried = match job.start()? {
+//!             Start::Skip => continue,
+//!             Start::Fresh => None,
+//!             Start::Resume(frame) => Some(frame),
+//!         };
+//!         if moves {
+//!             renderer.set_time(&scene, job.time)?;
+//!         }
+//!         renderer.begin_frame();
+//!         let frame = job.render(&mut renderer, carried, &|_| {}, &AtomicBool::new(false))?;
+//!         job.write(&frame)?;
+//!     }
+//! }
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod film_file;
 pub mod frames;
