@@ -14,8 +14,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // leaf collapse; `Builder::names()` lists the others.
     let builder: Builder = "lbvh+prbvh".parse()?;
     let start = std::time::Instant::now();
-    // Traced through the best form this CPU has (8-wide on AVX2).
-    let bvh = builder.build_mesh(&triangles, Tracing::best());
+    // Traced through the best form this CPU has (8-wide on AVX2), or on the path ARBOR_SIMD names.
+    let bvh = builder.build_mesh(&triangles, Tracing::from_env(None)?);
     println!(
         "{} triangles, {builder} in {:.1} ms, SAH {:.2}",
         triangles.len(),

@@ -314,7 +314,7 @@ fn pow2_normalizer(m: f32, max_biased: i32) -> f32 {
     return bitcast<f32>(u32(clamp(254 - biased, 1, max_biased)) << 23u);
 }
 
-// The box-culling slack of traverse.rs (cull_slack), with each length taken on the vector
+// The box-culling slack of src/bvh/trace/mod.rs (cull_slack), with each length taken on the vector
 // divided by its largest component (the CPU takes them in f64): plain lengths overflow beyond
 // about 1e19 and underflow below 1e-19, which made the slack NaN.
 fn cull_slack(r: Ray) -> f32 {

@@ -14,6 +14,8 @@ use arbor::scene::gltf::GltfFile;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let runs: usize = std::env::args().nth(1).map_or(Ok(5), |r| r.parse())?;
+    // The form the LBVH's tree is traced in, as `bvh-bench` chooses it: ARBOR_SIMD, or the best.
+    let tracing = arbor::bvh::Tracing::from_env(None)?;
     // 2 · 1000 · 500 = 10^6 triangles over about 5 · 10^5 vertices, as a scanned mesh has.
     let mesh = TriangleMesh::uv_sphere(Vec3::ZERO, 1.0, 501, 1000);
     let dir = std::env::temp_dir().join(format!("arbor-load-times-{}", std::process::id()));
@@ -55,7 +57,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     report("load GLB, normals and uvs", runs, || load_glb(&glb_attributes).map(drop))?;
     report("load OBJ", runs, || TriangleMesh::load_obj(&obj).map(drop))?;
     report("LBVH build", runs, || {
-        std::hint::black_box(lbvh.build_mesh(&triangles, arbor::bvh::Tracing::best()));
+        std::hint::black_box(lbvh.build_mesh(&triangles, tracing));
         Ok::<_, std::convert::Infallible>(())
     })?;
     std::fs::remove_dir_all(&dir)?;

@@ -488,8 +488,8 @@ fn convergence_against_a_given_reference() {
         let loaded = arbor::scene::Scene::load(&scene).unwrap();
         let settings = arbor::scene::RenderSettings { spp: 4, ..loaded.render };
         let builder = BuilderChoice::Fixed("lbvh+prbvh".parse().unwrap());
-        let mut renderer =
-            Renderer::new(Device::Cpu, &loaded, &builder, arbor::bvh::Tracing::best(), &settings, 1, 0.0).unwrap();
+        let tracing = arbor::bvh::Tracing::from_env(None).unwrap();
+        let mut renderer = Renderer::new(Device::Cpu, &loaded, &builder, tracing, &settings, 1, 0.0).unwrap();
         let frame = renderer.render(&settings, &|_| {}).unwrap();
         arbor::image_io::write_image(&reference, &frame.film.mean()).unwrap();
     }

@@ -423,7 +423,7 @@ fn check_face(words: SplitWhitespace, seen: [usize; 3], total: [usize; 3]) -> Re
 
 /// What tobj 4 panics on in an MTL file (after [`without_comments`]), with its line: a colour
 /// (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than 3 numbers. And the values Arbor reads (see
-/// `from_mtl` in `scene/load.rs`) where they would silently break a material: colours, `Ns` and
+/// `from_mtl` in `scene/load/materials.rs`) where they would silently break a material: colours, `Ns` and
 /// `Ni` not finite, the dissolve `d` outside [0, 1]. Negative colours, `Ns` < 0, `Ni` <= 0 and
 /// any `illum` load, with `from_mtl`'s fallbacks. A number that does not parse is left to tobj.
 fn check_mtl(path: &Path, text: &[u8]) -> Result<(), MeshError> {

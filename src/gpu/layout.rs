@@ -399,7 +399,7 @@ fn trace_constants() -> String {
     s += &wgsl_f32("FILM_SAMPLE_LIMIT", 2f32.powi(crate::render::film::SAMPLE_LIMIT_LOG2));
     s += &wgsl_f32("SMOOTH_ALPHA", crate::render::bsdf::SMOOTH_ALPHA);
     s += &wgsl_f32("CULL_SCALE", crate::bvh::CULL_SCALE);
-    // traverse.rs's absolute culling slack per unit of distance, CULL_ABS_ULPS ULPs of 1.
+    // src/bvh/trace/mod.rs's absolute culling slack per unit of distance, CULL_ABS_ULPS ULPs of 1.
     s += &wgsl_f32("CULL_ABS_SLACK", crate::bvh::CULL_ABS_ULPS * f32::EPSILON);
     s += &wgsl_f32("ROBUST_SLAB_SCALE", crate::geometry::ROBUST_SLAB_SCALE);
     s += &wgsl_f32("SHADOW_T_MAX", crate::render::integrator::SHADOW_T_MAX);

@@ -618,6 +618,8 @@ fn film_key(scene: &GpuScene, seed: u64, max_depth: u32, rect: Rect) -> FilmKey 
 fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Result<PartialFilm, GpuError> {
     let Pass { settings, region: Region { rect, samples }, carried: start, progress, pause } = pass;
     let (seed, max_depth) = (settings.seed, settings.max_depth);
+    // The time budget counts from here, setting up included, as the render's seconds do.
+    let budget_clock = std::time::Instant::now();
     assert!(rect.x1 <= scene.width && rect.y1 <= scene.height, "{rect} outside the image");
     let pixels = rect.pixel_count() as usize;
     let groups = (rect.width().div_ceil(TRACE_WORKGROUP), rect.height().div_ceil(TRACE_WORKGROUP));
@@ -653,10 +655,9 @@ fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Re
     let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, &film_buffer);
     let started = std::time::Instant::now();
     let (height, total) = (u64::from(rect.height()), u64::from(samples.len() as u32) * u64::from(rect.height()));
-    let within_budget = |seconds_before: f64| {
-        settings.time.is_none_or(|budget| seconds_before + started.elapsed().as_secs_f64() < budget)
-    };
-    let seconds_before = seconds;
+    let carried_seconds = seconds;
+    let within_budget =
+        || settings.time.is_none_or(|budget| carried_seconds + budget_clock.elapsed().as_secs_f64() < budget);
     while done < samples.end && pixels > 0 {
         params.sample_start = done;
         params.sample_count = PASS_SPP.min(samples.end - done);
@@ -673,7 +674,7 @@ fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Re
         ctx.wait()?;
         done += params.sample_count;
         progress(Progress { done: u64::from(done - samples.start) * height, total, rays: 0 });
-        if !within_budget(seconds_before) || (done < samples.end && pause(done - samples.start)) {
+        if !within_budget() || (done < samples.end && pause(done - samples.start)) {
             break;
         }
     }

@@ -1,5 +1,6 @@
 //! How rays are traced on the CPU: which tree form ([`TraceLayout`]) and which instruction set
-//! ([`SimdPath`]), chosen once per process, plus the kernels each path runs: one wide node's
+//! ([`SimdPath`]), which the caller chooses and passes down ([`Tracing`]), plus the kernels each
+//! path runs: one wide node's
 //! child boxes against a ray, and one packet of four triangles against a ray.
 //!
 //! Dispatch is at run time, so the release build stays for plain x86-64 as users get it: the
