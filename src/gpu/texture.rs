@@ -43,15 +43,7 @@ pub fn gpu_texture_data(textures: &[Arc<Texture>]) -> Vec<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::texture::Wrap;
-
-    fn rgba8(width: u32, height: u32, f: impl Fn(u32, u32) -> [u8; 4]) -> Texture {
-        let texels = (0..height)
-            .flat_map(|y| (0..width).map(move |x| (x, y)))
-            .map(|(x, y)| u32::from_le_bytes(f(x, y)))
-            .collect();
-        Texture { source: "t".into(), width, height, format: TexelFormat::Rgba8, texels, has_alpha: true }
-    }
+    use crate::texture::{Wrap, test_texture as rgba8};
 
     #[test]
     fn gpu_data_has_headers_then_texels() {

@@ -345,17 +345,20 @@ impl TextureCache {
     }
 }
 
+/// An 8-bit RGBA texture whose texel `(x, y)` is `f(x, y)`, for the unit tests here and of the
+/// GPU's packing.
+#[cfg(test)]
+pub(crate) fn test_texture(width: u32, height: u32, f: impl Fn(u32, u32) -> [u8; 4]) -> Texture {
+    let texels =
+        (0..height).flat_map(|y| (0..width).map(move |x| (x, y))).map(|(x, y)| u32::from_le_bytes(f(x, y))).collect();
+    Texture { source: "t".into(), width, height, format: TexelFormat::Rgba8, texels, has_alpha: true }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn texture(width: u32, height: u32, f: impl Fn(u32, u32) -> [u8; 4]) -> Texture {
-        let texels = (0..height)
-            .flat_map(|y| (0..width).map(move |x| (x, y)))
-            .map(|(x, y)| u32::from_le_bytes(f(x, y)))
-            .collect();
-        Texture { source: "t".into(), width, height, format: TexelFormat::Rgba8, texels, has_alpha: true }
-    }
+    use super::test_texture as texture;
 
     #[test]
     fn texel_centres_are_exact_and_v_is_up() {

@@ -115,15 +115,20 @@ fn parse_trace(name: &str) -> Result<TraceLayout, String> {
     TraceLayout::parse(name).ok_or_else(|| format!("{name:?} is not a tree form: expected binary, wide4 or wide8"))
 }
 
-/// `A..B` with `A < B`.
-fn parse_frames(s: &str) -> Result<Range<u32>, String> {
-    let (a, b) = s.split_once("..").ok_or_else(|| format!("expected FIRST..END, as 0..120, not {s:?}"))?;
-    let a: u32 = a.trim().parse().map_err(|e| format!("first frame {a:?}: {e}"))?;
-    let b: u32 = b.trim().parse().map_err(|e| format!("end frame {b:?}: {e}"))?;
+/// `A..B` with `A < B`, a range of `what` (frame, sample); `example` is shown where `s` is not
+/// a range.
+fn parse_range(s: &str, what: &str, example: &str) -> Result<Range<u32>, String> {
+    let (a, b) = s.split_once("..").ok_or_else(|| format!("expected FIRST..END, as {example}, not {s:?}"))?;
+    let a: u32 = a.trim().parse().map_err(|e| format!("first {what} {a:?}: {e}"))?;
+    let b: u32 = b.trim().parse().map_err(|e| format!("end {what} {b:?}: {e}"))?;
     if b <= a {
-        return Err(format!("{s}: the end ({b}) must be after the first frame ({a})"));
+        return Err(format!("{s}: the end ({b}) must be after the first {what} ({a})"));
     }
     Ok(a..b)
+}
+
+fn parse_frames(s: &str) -> Result<Range<u32>, String> {
+    parse_range(s, "frame", "0..120")
 }
 
 /// `I/N` with `I < N`.
@@ -141,13 +146,6 @@ fn parse_crop(s: &str) -> Result<Rect, String> {
     parse_rect(s).ok_or_else(|| format!("expected X0,Y0,X1,Y1 with X0 < X1 and Y0 < Y1, as 0,0,256,128, not {s:?}"))
 }
 
-/// `A..B` with `A < B`.
 fn parse_samples(s: &str) -> Result<Range<u32>, String> {
-    let (a, b) = s.split_once("..").ok_or_else(|| format!("expected FIRST..END, as 0..64, not {s:?}"))?;
-    let a: u32 = a.trim().parse().map_err(|e| format!("first sample {a:?}: {e}"))?;
-    let b: u32 = b.trim().parse().map_err(|e| format!("end sample {b:?}: {e}"))?;
-    if b <= a {
-        return Err(format!("{s}: the end ({b}) must be after the first sample ({a})"));
-    }
-    Ok(a..b)
+    parse_range(s, "sample", "0..64")
 }
