@@ -128,13 +128,17 @@ pub fn write_image(path: impl AsRef<Path>, image: &Image) -> Result<(), ImageErr
     let path = path.as_ref();
     let format = Format::of(path)?;
     image.check_size(path)?;
+    // A write that fails in the encoder (a full disk, a quota) is an I/O error, as one that
+    // fails in the flush after it: the same retry helps both.
     write_atomic(path, |out| match format {
-        Format::Exr => encode_exr(out, image).map_err(|source| ImageError::Exr {
-            path: path.to_path_buf(),
-            what: "encode",
-            source,
+        Format::Exr => encode_exr(out, image).map_err(|source| match source {
+            exr::error::Error::Io(source) => io_error(path, "cannot write", source),
+            source => ImageError::Exr { path: path.to_path_buf(), what: "encode", source },
         }),
-        Format::Png => encode_png(out, image).map_err(|source| ImageError::Png { path: path.to_path_buf(), source }),
+        Format::Png => encode_png(out, image).map_err(|source| match source {
+            image::ImageError::IoError(source) => io_error(path, "cannot write", source),
+            source => ImageError::Png { path: path.to_path_buf(), source },
+        }),
     })
     .map_err(|e| match e {
         AtomicWriteError::Io { what, source } => io_error(path, what, source),
@@ -146,6 +150,30 @@ pub fn write_image(path: impl AsRef<Path>, image: &Image) -> Result<(), ImageErr
 /// on the image.
 pub fn check_output_path(path: impl AsRef<Path>) -> Result<(), ImageError> {
     Format::of(path.as_ref()).map(|_| ())
+}
+
+/// Whether `path` holds a whole image of `width` x `height` in the format its name says: a
+/// regular file that decodes to the end (every PNG chunk's checksum, every EXR block) at that
+/// size. What `--skip-existing` asks of an output before it skips it: a file cut short by a
+/// full disk or an interrupted copy is not whole.
+pub fn is_whole_image(path: &Path, width: u32, height: u32) -> bool {
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return false;
+    }
+    match Format::of(path) {
+        Ok(Format::Exr) => read_exr(path).is_ok_and(|i| (i.width, i.height) == (width, height)),
+        Ok(Format::Png) => {
+            let Ok(file) = File::open(path) else { return false };
+            let Ok(decoder) = image::codecs::png::PngDecoder::new(std::io::BufReader::new(file)) else { return false };
+            use image::ImageDecoder;
+            if decoder.dimensions() != (width, height) {
+                return false;
+            }
+            let mut pixels = vec![0; decoder.total_bytes() as usize];
+            decoder.read_image(&mut pixels).is_ok()
+        }
+        Err(_) => false,
+    }
 }
 
 fn io_error(path: &Path, what: &'static str, source: std::io::Error) -> ImageError {

@@ -361,7 +361,7 @@ fn the_library_plans_tiles_of_frames_and_decides_resume_and_skip() {
         pixels += plan.region.rect.pixel_count();
         let frames = plan.frames(&scene).unwrap();
         assert_eq!(frames, Some(3..5));
-        let jobs = plan.jobs(frames, &scene, "hash", "cpu");
+        let jobs: Vec<_> = plan.jobs(frames, &scene, "hash", "cpu").collect();
         let got: Vec<_> = jobs.iter().map(|j| (j.frame, j.output.clone(), j.state.clone())).collect();
         let file = |f: u32| dir.join(format!("f{f:02}")).join(format!("tile{i}.exr"));
         assert_eq!(got, [(Some(3), file(3), file(3)), (Some(4), file(4), file(4))]);
@@ -373,7 +373,7 @@ fn the_library_plans_tiles_of_frames_and_decides_resume_and_skip() {
     let still = Request { tile: None, frames: None, output: dir.join("still.png"), ..request(0) };
     let plan = Plan::new(still, &scene).unwrap();
     let frames = plan.frames(&scene).unwrap();
-    let jobs = plan.jobs(frames, &scene, "hash", "cpu");
+    let jobs: Vec<_> = plan.jobs(frames, &scene, "hash", "cpu").collect();
     assert_eq!(jobs.len(), 1);
     assert_eq!((jobs[0].frame, &jobs[0].state), (None, &dir.join("still.png.partial.exr")));
 
@@ -381,7 +381,7 @@ fn the_library_plans_tiles_of_frames_and_decides_resume_and_skip() {
     let plan = Plan::new(request(1), &scene).unwrap();
     let frames = plan.frames(&scene).unwrap();
     let hash = scene.content_hash();
-    let job = plan.jobs(frames.clone(), &scene, &hash, "cpu").remove(0);
+    let job = plan.jobs(frames.clone(), &scene, &hash, "cpu").next().unwrap();
     let settings = plan.request.settings;
     let mut renderer =
         Renderer::new(Device::Cpu, &scene, &BuilderChoice::Auto, crate::common::tracing(), &settings, 1, job.time)
@@ -408,7 +408,7 @@ fn the_library_plans_tiles_of_frames_and_decides_resume_and_skip() {
     assert_eq!(e.to_string(), finished_message);
     let other = Request { settings: RenderSettings { seed: settings.seed + 1, ..settings }, ..request(1) };
     let plan = Plan::new(other, &scene).unwrap();
-    let job = plan.jobs(frames, &scene, &hash, "cpu").remove(0);
+    let job = plan.jobs(frames, &scene, &hash, "cpu").next().unwrap();
     let Err(e) = job.start() else { panic!("a state of another seed is refused") };
     assert!(
         e.to_string().starts_with(&format!("--resume: {} is a piece of another render: its seed", job.state.display())),

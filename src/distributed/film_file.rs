@@ -14,6 +14,12 @@
 //! `arbor.clamp`, `arbor.resolution`, `arbor.frame`, `arbor.device`, `arbor.rect`,
 //! `arbor.samples` (asked), `arbor.samples_done`, `arbor.rays`, `arbor.seconds`.
 //!
+//! `arbor.integrity` is `sha256:` and the SHA-256 ([`integrity`]) of the other `arbor.*`
+//! attributes and of every channel's samples, as decoded. A reader recomputes it from what it
+//! decoded and refuses a piece that differs: a sum altered on disk or in transfer (even one
+//! recompressed into a well-formed file) is caught before it changes an image. It detects
+//! corruption and mix-ups, not forgery: anyone can recompute it.
+//!
 //! The merge ([`merge`]) refuses pieces that do not belong together, naming the first that does
 //! not, and adds the rest: integer sums, so the merged image is a single render's bit for bit,
 //! in any order of the pieces. EXR keeps no f64 or 128-bit channel, hence the limbs; ZIP
@@ -32,7 +38,12 @@ use crate::render::film::{FRACTION_BITS, Film, PixelAccum, SAMPLE_LIMIT_LOG2};
 use crate::render::region::Rect;
 
 /// `arbor.format` of the files this version writes and reads.
-pub const FORMAT: &str = "arbor partial film 1";
+/// `arbor.format` of the files this version writes and reads. Version 2 added
+/// `arbor.integrity`; version 1 pieces are refused with a message naming both.
+pub const FORMAT: &str = "arbor partial film 2";
+
+/// The header attribute that holds a piece's [`integrity`] digest.
+pub const INTEGRITY: &str = "arbor.integrity";
 
 /// What a piece is: which render it belongs to, and which part of it it holds.
 #[derive(Clone, Debug, PartialEq)]
@@ -128,6 +139,9 @@ pub enum PieceError {
     Overlap { a: PathBuf, b: PathBuf, samples: Range<u32>, rect: Rect },
     #[error("a piece is missing: samples {}..{} are held for {covered} of the image's {total} pixels (none holds pixel ({}, {}))", samples.start, samples.end, pixel.0, pixel.1)]
     Missing { samples: Range<u32>, covered: u64, total: u64, pixel: (u32, u32) },
+    /// The piece's header or pixels are not what it was written with.
+    #[error("{}: damaged or altered: its contents do not match its {INTEGRITY} (stated {stated}, computed {actual}); render this piece again", path.display())]
+    Integrity { path: PathBuf, stated: String, actual: String },
     #[error("no pieces to merge")]
     Empty,
     #[error(transparent)]
@@ -169,11 +183,14 @@ fn encode(info: &PieceInfo, film: &Film) -> Result<Vec<u8>, exr::error::Error> {
     }
     let mut attributes =
         LayerAttributes { layer_position: Vec2(info.rect.x0 as i32, info.rect.y0 as i32), ..Default::default() };
-    for (key, value) in attributes_of(info) {
-        attributes.other.insert(Text::from(key), AttributeValue::Text(Text::from(value.as_str())));
+    let header: Vec<(String, String)> = attributes_of(info).into_iter().map(|(k, v)| (k.to_owned(), v)).collect();
+    let channels = AnyChannels::sort(SmallVec::from_vec(channels));
+    let digest = integrity(&header, &channels.list);
+    for (key, value) in header.iter().chain([&(INTEGRITY.to_owned(), digest)]) {
+        attributes.other.insert(Text::from(key.as_str()), AttributeValue::Text(Text::from(value.as_str())));
     }
     let size = (info.rect.width() as usize, info.rect.height() as usize);
-    let layer = Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, AnyChannels::sort(SmallVec::from_vec(channels)));
+    let layer = Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, channels);
     let mut image = ExrImage::from_layer(layer);
     image.attributes.display_window = IntegerBounds::new(Vec2(0, 0), Vec2(info.width as usize, info.height as usize));
     // In memory: the encoder seeks back to write its offset tables (see `image_io`).
@@ -200,9 +217,49 @@ fn attributes_of(info: &PieceInfo) -> Vec<(&'static str, String)> {
     ]
 }
 
+/// `sha256:` and the hex SHA-256 of a piece's `arbor.*` header attributes but
+/// [`INTEGRITY`] (`header`, in any order: they are sorted by key) and its `channels` (sorted by
+/// name, as EXR stores them): each attribute's key and value, each channel's name, sample type
+/// and samples (little-endian), every string and list preceded by its length.
+pub fn integrity(header: &[(String, String)], channels: &[AnyChannel<FlatSamples>]) -> String {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    let mut bytes = |b: &[u8]| {
+        h.update((b.len() as u64).to_le_bytes());
+        h.update(b);
+    };
+    bytes(b"arbor partial film integrity 1");
+    let mut sorted: Vec<&(String, String)> = header.iter().filter(|(k, _)| k != INTEGRITY).collect();
+    sorted.sort();
+    for (key, value) in sorted {
+        bytes(key.as_bytes());
+        bytes(value.as_bytes());
+    }
+    for c in channels {
+        bytes(c.name.to_string().as_bytes());
+        let (kind, data): (&[u8], Vec<u8>) = match &c.sample_data {
+            FlatSamples::F16(v) => (b"f16", v.iter().flat_map(|x| x.to_bits().to_le_bytes()).collect()),
+            FlatSamples::F32(v) => (b"f32", v.iter().flat_map(|x| x.to_bits().to_le_bytes()).collect()),
+            FlatSamples::U32(v) => (b"u32", v.iter().flat_map(|x| x.to_le_bytes()).collect()),
+        };
+        bytes(kind);
+        bytes(&data);
+    }
+    let digest = h.finalize();
+    let hex: String = digest.iter().map(|b| format!("{b:02x}")).collect();
+    format!("sha256:{hex}")
+}
+
 /// What `path`'s header says it is, without reading its pixels: `Ok(None)` where it is an EXR
 /// but not a partial film (an image), an error where it cannot be read or is not an EXR.
 pub fn read_info(path: &Path) -> Result<Option<PieceInfo>, PieceError> {
+    // Opening a FIFO would wait for a writer, and a folder or a device is no piece either.
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_dir() => return Err(foreign(path, "it is a folder")),
+        Ok(m) if !m.is_file() => return Err(foreign(path, "it is not a regular file")),
+        Err(source) => return Err(PieceError::Io { path: path.to_path_buf(), source }),
+        Ok(_) => {}
+    }
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(path, e))?;
     let header = meta.headers.first().ok_or_else(|| foreign(path, "the file has no layer"))?;
     let attrs = |key: &str| -> Option<String> {
@@ -311,7 +368,7 @@ pub fn read_piece(path: &Path) -> Result<FilmPiece, PieceError> {
 }
 
 /// [`read_info`] of a file that must be a piece.
-fn piece_info(path: &Path) -> Result<PieceInfo, PieceError> {
+pub fn piece_info(path: &Path) -> Result<PieceInfo, PieceError> {
     read_info(path)?.ok_or_else(|| foreign(path, "it has no arbor.format attribute (an image, not a piece)"))
 }
 
@@ -329,6 +386,7 @@ fn read_pixels(path: &Path, info: PieceInfo) -> Result<FilmPiece, PieceError> {
         .from_file(path)
         .map_err(|e| exr_error(path, e))?;
     let layer = &image.layer_data;
+    check_integrity(path, &image.attributes.other, &layer.attributes.other, &layer.channel_data.list)?;
     let (rect, width, height) = (info.rect, info.width as usize, info.height as usize);
     let display = image.attributes.display_window;
     if display.position != Vec2(0, 0) || display.size != Vec2(width, height) {
@@ -386,6 +444,38 @@ fn read_pixels(path: &Path, info: PieceInfo) -> Result<FilmPiece, PieceError> {
         *px = PixelAccum { sum, sum_sq, count: count[i], non_finite: dropped[i] };
     }
     Ok(FilmPiece { info, film })
+}
+
+/// Refuses the piece at `path` unless its [`INTEGRITY`] attribute is the digest of its other
+/// `arbor.*` attributes (`shared` and `own`, the image's and the layer's) and its `channels`.
+fn check_integrity(
+    path: &Path,
+    shared: &std::collections::HashMap<Text, AttributeValue>,
+    own: &std::collections::HashMap<Text, AttributeValue>,
+    channels: &[AnyChannel<FlatSamples>],
+) -> Result<(), PieceError> {
+    let mut header = Vec::new();
+    let mut stated = None;
+    for (key, value) in shared.iter().chain(own) {
+        let key = key.to_string();
+        if !key.starts_with("arbor.") {
+            continue;
+        }
+        let AttributeValue::Text(value) = value else {
+            return Err(foreign(path, format!("{key} is not a text attribute")));
+        };
+        if key == INTEGRITY {
+            stated = Some(value.to_string());
+        } else {
+            header.push((key, value.to_string()));
+        }
+    }
+    let stated = stated.ok_or_else(|| foreign(path, format!("no {INTEGRITY} attribute")))?;
+    let actual = integrity(&header, channels);
+    if stated != actual {
+        return Err(PieceError::Integrity { path: path.to_path_buf(), stated, actual });
+    }
+    Ok(())
 }
 
 /// Checks that the pieces described by `pieces` (each with its path, for errors) belong

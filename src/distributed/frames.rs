@@ -18,6 +18,12 @@ pub fn frame_path(path: impl AsRef<Path>, frame: u32) -> PathBuf {
     }
 }
 
+/// The text of `path` before and after its first frame-number pattern, where it has one.
+pub fn pattern_parts(path: &str) -> Option<(&str, &str)> {
+    let (range, _) = find_frame_pattern(path)?;
+    Some((&path[..range.start], &path[range.end..]))
+}
+
 /// Widest zero padding a frame pattern may ask for: a file name is at most 255 bytes.
 const MAX_FRAME_WIDTH: usize = 255;
 

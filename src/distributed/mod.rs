@@ -8,6 +8,7 @@
 //! - [`plan`]: a request made into the region each job renders and its jobs, skipped, resumed
 //!   or started afresh;
 //! - [`frames`]: frame-number patterns in output names;
+//! - [`overwrite`]: outputs that would replace what the run reads, refused before any work;
 //! - [`film_file`]: partial films (an EXR piece with the film's exact sums) and their merge.
 //!
 //! A scheduler written in Rust runs a job as `render --tile 2/4 -o tile2.exr` does:
@@ -37,30 +38,31 @@
 //! let frames = plan.frames(&scene)?;
 //! let moves = frames.is_some();
 //! let (device, hash) = (Device::Cpu, scene.content_hash());
-//! let jobs = plan.jobs(frames, &scene, &hash, device.name());
-//! if let Some(first) = jobs.first() {
-//!     let (settings, tracing) = (&plan.request.settings, Tracing::from_env(None)?);
-//!     let builder = BuilderChoice::Auto;
-//!     let mut renderer = Renderer::new(device, &scene, &builder, tracing, settings, jobs.len(), first.time)?;
-//!     for job in &jobs {
-//!         let carried = match job.start()? {
-//!             Start::Skip => continue,
-//!             Start::Fresh => None,
-//!             Start::Resume(frame) => Some(frame),
-//!         };
-//!         if moves {
-//!             renderer.set_time(&scene, job.time)?;
-//!         }
-//!         renderer.begin_frame();
-//!         let frame = job.render(&mut renderer, carried, &|_| {}, &AtomicBool::new(false))?;
-//!         job.write(&frame)?;
+//! plan.check_overwrites(frames.as_ref(), &[], None)?;
+//! // Jobs are made as they are taken: a range of frames may hold millions.
+//! let count = plan.jobs(frames.clone(), &scene, &hash, device.name()).filter(|job| !job.skips()).count();
+//! let (settings, tracing) = (&plan.request.settings, Tracing::from_env(None)?);
+//! let first_time = plan.job(frames.as_ref().map(|f| f.start), &scene, &hash, device.name()).time;
+//! let mut renderer = Renderer::new(device, &scene, &BuilderChoice::Auto, tracing, settings, count, first_time)?;
+//! for job in plan.jobs(frames, &scene, &hash, device.name()) {
+//!     let carried = match job.start()? {
+//!         Start::Skip => continue,
+//!         Start::Fresh => None,
+//!         Start::Resume(frame) => Some(frame),
+//!     };
+//!     if moves {
+//!         renderer.set_time(&scene, job.time)?;
 //!     }
+//!     renderer.begin_frame();
+//!     let frame = job.render(&mut renderer, carried, &|_| {}, &AtomicBool::new(false))?;
+//!     job.write(&frame)?;
 //! }
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
 pub mod film_file;
 pub mod frames;
+pub mod overwrite;
 pub mod plan;
 
 pub use plan::{Job, JobError, Plan, PlanError, Request, Start};

@@ -9,8 +9,9 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use super::film_file::{PieceError, PieceInfo, read_info, read_piece, write_piece};
+use super::film_file::{PieceError, PieceInfo, piece_info, read_info, read_piece, write_piece};
 use super::frames::{frame_path, has_frame_pattern};
+use super::overwrite::{Named, check_overwrites};
 use crate::device::{DeviceError, RenderedFrame, Renderer};
 use crate::image_io::{ImageError, check_output_path, write_image};
 use crate::memory::OutOfMemory;
@@ -93,6 +94,11 @@ pub enum PlanError {
         #[source]
         source: std::io::Error,
     },
+    #[error("--frames {}..{}: {} frames in one command; at most {MAX_FRAMES} (split the range into several commands)", frames.start, frames.end, frames.len())]
+    TooManyFrames { frames: Range<u32> },
+    /// An output would replace a file the run reads, or another of its outputs.
+    #[error(transparent)]
+    Overwrite(#[from] super::overwrite::Overwrite),
     #[error("{count} frames would all go to {}: put a frame pattern such as %04d in the output name", output.display())]
     NoFramePattern { count: usize, output: PathBuf },
     /// `--resume` found a state of another render.
@@ -125,6 +131,10 @@ pub enum JobError {
     #[error("stopped by a signal after {done} of {of} samples per pixel; the state is in {}: run again with --resume to finish", state.display())]
     Interrupted { state: PathBuf, done: u32, of: u32 },
 }
+
+/// The most frames one command renders: about 4.6 days of animation at 24 frames a second.
+/// A range beyond it is a typo (`0..4000000000`), not a job.
+pub const MAX_FRAMES: usize = 10_000_000;
 
 /// A request checked against its scene: the region every job renders.
 #[derive(Clone, Debug)]
@@ -191,32 +201,58 @@ impl Plan {
         }
     }
 
-    /// The jobs, one per output of `frames` ([`Plan::frames`]), in frame order; `scene_hash`
-    /// and `device` as for [`Plan::piece`].
-    pub fn jobs(&self, frames: Option<Range<u32>>, scene: &Scene, scene_hash: &str, device: &str) -> Vec<Job> {
-        let outputs: Vec<(PathBuf, f32, Option<u32>)> = match frames {
-            None => vec![(self.request.output.clone(), crate::render::first_frame_time(scene), None)],
-            Some(frames) => {
-                frames.map(|f| (frame_path(&self.request.output, f), scene.frame_time(f), Some(f))).collect()
-            }
+    /// The jobs, one per output of `frames` ([`Plan::frames`]), in frame order, made as they are
+    /// taken (a range may hold millions); `scene_hash` and `device` as for [`Plan::piece`].
+    pub fn jobs<'a>(
+        &'a self,
+        frames: Option<Range<u32>>,
+        scene: &'a Scene,
+        scene_hash: &'a str,
+        device: &'a str,
+    ) -> impl ExactSizeIterator<Item = Job> + 'a {
+        let frames: Box<dyn ExactSizeIterator<Item = Option<u32>>> = match frames {
+            None => Box::new(std::iter::once(None)),
+            Some(frames) => Box::new(frames.map(Some)),
+        };
+        frames.map(move |frame| self.job(frame, scene, scene_hash, device))
+    }
+
+    /// The job of `frame` (`None`: the still); `scene_hash` and `device` as for [`Plan::piece`].
+    pub fn job(&self, frame: Option<u32>, scene: &Scene, scene_hash: &str, device: &str) -> Job {
+        let (output, time) = match frame {
+            None => (self.request.output.clone(), crate::render::first_frame_time(scene)),
+            Some(f) => (frame_path(&self.request.output, f), scene.frame_time(f)),
         };
         let split = self.request.is_split();
-        outputs
-            .into_iter()
-            .map(|(output, time, frame)| Job {
-                state: if split { output.clone() } else { sidecar(&output) },
-                output,
-                time,
-                frame,
-                piece: self.piece(scene_hash, device, frame),
-                region: self.region.clone(),
-                settings: self.request.settings,
-                split,
-                resume: self.request.resume,
-                skip_existing: self.request.skip_existing,
-                checkpoint: self.request.checkpoint,
-            })
-            .collect()
+        Job {
+            state: if split { output.clone() } else { sidecar(&output) },
+            output,
+            time,
+            frame,
+            piece: self.piece(scene_hash, device, frame),
+            region: self.region.clone(),
+            settings: self.request.settings,
+            split,
+            resume: self.request.resume,
+            skip_existing: self.request.skip_existing,
+            checkpoint: self.request.checkpoint,
+        }
+    }
+
+    /// Checks, before any work, that no output of `frames` (images or pieces, their states)
+    /// nor `report` replaces one of `inputs` (the files the run reads) or another output.
+    pub fn check_overwrites(
+        &self,
+        frames: Option<&Range<u32>>,
+        inputs: &[Named],
+        report: Option<&Path>,
+    ) -> Result<(), PlanError> {
+        let mut outputs = vec![Named::new("-o", &self.request.output)];
+        if !self.request.is_split() {
+            outputs.push(Named::new("the state of -o", sidecar(&self.request.output)));
+        }
+        outputs.extend(report.map(|r| Named::new("--report", r)));
+        Ok(check_overwrites(&outputs, frames, inputs)?)
     }
 }
 
@@ -264,6 +300,9 @@ fn check_outputs(request: &Request, scene: &Scene) -> Result<Option<Range<u32>>,
         None => None,
     };
     let first = frames.as_ref().map_or_else(|| output.clone(), |r| frame_path(output, r.start));
+    if let Some(f) = frames.as_ref().filter(|f| f.len() > MAX_FRAMES) {
+        return Err(PlanError::TooManyFrames { frames: f.clone() });
+    }
     if frames.is_some() && has_frame_pattern(&first) {
         return Err(PlanError::FramePatterns { output: output.clone() });
     }
@@ -314,28 +353,37 @@ pub enum Start {
 }
 
 impl Job {
-    /// Whether the output already holds this job, complete: for a partial film, a piece of
-    /// this very render with all its samples; for an image, any file (images are written
-    /// whole, atomically).
+    /// Whether the output already holds this job, complete and whole: for a partial film, a
+    /// piece of this very render with all its samples, whose sums pass their checks and its
+    /// integrity digest; for an image, a file that decodes to an image of the right size (an
+    /// output cut short by a full disk or a copy is not complete).
     pub fn is_complete(&self) -> bool {
         if !self.split {
-            return self.output.is_file();
+            return crate::image_io::is_whole_image(&self.output, self.piece.width, self.piece.height);
         }
         matches!(read_info(&self.output), Ok(Some(info)) if info.same_piece(&self.piece) && info.is_complete())
+            && read_piece(&self.output).is_ok()
     }
 
-    /// How the job starts: skipped where `skip_existing` and the output is complete; carried on
-    /// from its state where `resume` and there is one; else afresh. A state of another render,
-    /// or (for a partial film) one already complete, is an error.
-    pub fn start(&self) -> Result<Start, PlanError> {
-        if self.skip_existing && self.is_complete() {
-            return Ok(Start::Skip);
-        }
+    /// Whether the job does nothing: `skip_existing` was given and the output is complete
+    /// ([`Job::is_complete`]).
+    pub fn skips(&self) -> bool {
+        self.skip_existing && self.is_complete()
+    }
+
+    /// Whether the job carries on from a state (`resume`, and a state is there), its header
+    /// checked: a state of another render, or (for a partial film) one already complete, is an
+    /// error. Reads no pixels: a render checks every job this way before any work.
+    pub fn check_state(&self) -> Result<bool, PlanError> {
         if !self.resume || !self.state.exists() {
-            return Ok(Start::Fresh);
+            return Ok(false);
         }
-        let piece = read_piece(&self.state)?;
-        let (ours, theirs) = (&self.piece, &piece.info);
+        self.check_same(&piece_info(&self.state)?)?;
+        Ok(true)
+    }
+
+    fn check_same(&self, theirs: &PieceInfo) -> Result<(), PlanError> {
+        let ours = &self.piece;
         if !theirs.same_piece(ours) {
             let why = match ours.differs_from(theirs) {
                 Some((what, ours, theirs)) => format!("its {what} is {theirs}, this render's {ours}"),
@@ -349,6 +397,21 @@ impl Job {
         if self.split && theirs.is_complete() {
             return Err(PlanError::Finished { state: self.state.clone(), samples: theirs.samples.clone() });
         }
+        Ok(())
+    }
+
+    /// How the job starts: skipped where it [`skips`](Job::skips); carried on from its state
+    /// where `resume` and there is one (checked as [`Job::check_state`] does, and read whole,
+    /// its integrity checked); else afresh.
+    pub fn start(&self) -> Result<Start, PlanError> {
+        if self.skips() {
+            return Ok(Start::Skip);
+        }
+        if !self.resume || !self.state.exists() {
+            return Ok(Start::Fresh);
+        }
+        let piece = read_piece(&self.state)?;
+        self.check_same(&piece.info)?;
         Ok(Start::Resume(RenderedFrame {
             samples: piece.info.done - piece.info.samples.start,
             rays: piece.info.rays,

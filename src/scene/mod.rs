@@ -14,7 +14,7 @@ mod load;
 
 pub use animation::{Animation, AnimationSettings, Keyframe};
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use glam::{Mat4, Vec3};
@@ -266,6 +266,24 @@ impl Scene {
             }
         }
         (tris, mats)
+    }
+
+    /// The files the scene was read from, as `(what, path)`: the scene file, its meshes
+    /// (OBJ, PLY, glTF), textures and environment map; what a render must not overwrite.
+    /// Parts of a file (`car.glb#meshes[2]`) are given as the file; built-in shapes have none.
+    pub fn input_files(&self) -> Vec<(&'static str, PathBuf)> {
+        let file = |source: &str| -> Option<PathBuf> {
+            let path = Path::new(source.split_once('#').map_or(source, |(f, _)| f));
+            path.is_file().then(|| path.to_path_buf())
+        };
+        let mut files = vec![("the scene", self.path.clone())];
+        files.extend(self.meshes.iter().filter_map(|m| Some(("a mesh", file(&m.source)?))));
+        files.extend(self.textures.iter().filter_map(|t| Some(("a texture", file(&t.source.to_string_lossy())?))));
+        let map = self.environment.as_ref().and_then(|e| e.map.as_ref());
+        files.extend(map.map(|m| ("the environment map", m.source.clone())));
+        files.sort_by(|a, b| a.1.cmp(&b.1));
+        files.dedup_by(|a, b| a.1 == b.1);
+        files
     }
 
     /// SHA-256 of what the scene renders, as lowercase hex: the camera (but the file line it

@@ -7,6 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use arbor::device::DeviceError;
 use arbor::distributed::film_file::PieceError;
+use arbor::distributed::overwrite::Overwrite;
 use arbor::distributed::{JobError, PlanError};
 use arbor::image_io::ImageError;
 use arbor::memory::OutOfMemory;
@@ -66,7 +67,7 @@ fn cause_code(cause: &(dyn std::error::Error + 'static)) -> Option<i32> {
             JobError::Remove { .. } => None,
         };
     }
-    if cause.is::<BadInput>() || cause.is::<clap::Error>() {
+    if cause.is::<BadInput>() || cause.is::<clap::Error>() || cause.is::<Overwrite>() {
         return Some(code::BAD_INPUT);
     }
     if cause.is::<OutOfMemory>() {
@@ -90,10 +91,12 @@ fn cause_code(cause: &(dyn std::error::Error + 'static)) -> Option<i32> {
     cause.is::<std::io::Error>().then_some(code::IO)
 }
 
-/// An input that is not there is bad input; any other failure to read, and any failure to
+/// An input that is not there, or is a folder, is bad input; any other failure to read, and any failure to
 /// write (a shared folder briefly gone), may pass.
 fn input_code(e: &std::io::Error) -> i32 {
-    if e.kind() == std::io::ErrorKind::NotFound { code::BAD_INPUT } else { code::IO }
+    use std::io::ErrorKind::{InvalidInput, IsADirectory, NotADirectory, NotFound};
+    // A folder where a file was named, or a path through a file, is a wrong name: no retry helps.
+    if matches!(e.kind(), NotFound | IsADirectory | NotADirectory | InvalidInput) { code::BAD_INPUT } else { code::IO }
 }
 
 fn piece_code(e: &PieceError) -> i32 {
@@ -180,6 +183,13 @@ pub struct Report {
     pub texture_bytes: Option<u64>,
     pub bvh: Option<BvhReport>,
     pub frames: Vec<FrameReport>,
+    /// Whether `frames` is kept (`--report` was given): a range of millions of frames holds no
+    /// line per frame otherwise.
+    #[serde(skip)]
+    pub keep_frames: bool,
+    /// Samples the outputs' films dropped, over all frames: non-finite, or of radiance 2^44 or
+    /// more ([`arbor::render::film`]). Each is a hole in its pixel's mean; stderr says so too.
+    pub dropped_samples: u64,
     /// `merge` only: the pieces merged.
     pub pieces: Vec<PathBuf>,
     pub wall_seconds: f64,
@@ -211,4 +221,15 @@ pub struct FrameReport {
     pub render_seconds: f64,
     /// Rays traced in this run.
     pub rays: u64,
+    /// Samples the output's film dropped (its total, a resumed state's included).
+    pub dropped_samples: u64,
+}
+
+impl Report {
+    /// Adds `frame` to `frames` where they are kept.
+    pub fn push_frame(&mut self, frame: FrameReport) {
+        if self.keep_frames {
+            self.frames.push(frame);
+        }
+    }
 }

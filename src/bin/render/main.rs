@@ -17,8 +17,11 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use arbor::bvh::{TraceLayout, Tracing};
 use arbor::device::{BuilderChoice, DeviceChoice, Renderer};
-use arbor::distributed::{Job, JobError, Plan, Request, Start};
+use arbor::distributed::film_file;
+use arbor::distributed::overwrite::{Named, Overwrite, check_overwrites};
+use arbor::distributed::{Job, JobError, Plan, PlanError, Request, Start};
 use arbor::image_io::{check_output_path, write_image};
+use arbor::render::film::Film;
 use arbor::render::geometry::wants_instancing;
 use arbor::render::pass::Progress;
 use arbor::scene::{RenderSettings, Scene};
@@ -62,7 +65,13 @@ fn main() {
             job::exit_code(e)
         }
     };
-    if let Some(path) = &args.report {
+    // A report refused as an output that would overwrite another file is not written at all.
+    let report_refused = result
+        .as_ref()
+        .err()
+        .and_then(overwrite_of)
+        .is_some_and(|o| o.output.what == "--report" || o.other.what == "--report");
+    if let Some(path) = args.report.as_ref().filter(|_| !report_refused) {
         report.exit_code = exit;
         report.error = result.err().map(|e| format!("{e:#}"));
         report.threads = rayon::current_num_threads();
@@ -88,6 +97,14 @@ fn main() {
         }
     }
     std::process::exit(exit);
+}
+
+/// The [`Overwrite`] that `error` is, if any (a [`PlanError`] wraps it in place).
+fn overwrite_of(error: &anyhow::Error) -> Option<&Overwrite> {
+    error.chain().find_map(|c| match c.downcast_ref::<PlanError>() {
+        Some(PlanError::Overwrite(o)) => Some(o),
+        _ => c.downcast_ref::<Overwrite>(),
+    })
 }
 
 fn bad(message: impl Into<String>) -> anyhow::Error {
@@ -125,6 +142,12 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
     cli::init_threads(args.threads).map_err(|e| bad(e.to_string()))?;
     // The one place the trace form is chosen: every tree this render builds is given it.
     let tracing = Tracing::from_env(args.trace).map_err(|e| bad(e.to_string()))?;
+    // The report is written whatever happens after, a failed load included: it must not be the
+    // scene (or the output) it reports on. The scene's other files are checked once it is read.
+    if let Some(r) = &args.report {
+        let others = [Named::new("the scene", scene_path), Named::new("-o", &args.output)];
+        check_overwrites(&[Named::new("--report", r)], None, &others)?;
+    }
     let load = Instant::now();
     let scene = Scene::load(scene_path)?;
     report.load_seconds = Some(load.elapsed().as_secs_f64());
@@ -138,6 +161,14 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
     report.rect = Some([region.rect.x0, region.rect.y0, region.rect.x1, region.rect.y1]);
     report.samples = Some([region.samples.start, region.samples.end]);
     let frames = plan.frames(&scene)?;
+    let inputs: Vec<Named> = scene.input_files().into_iter().map(|(what, path)| Named::new(what, path)).collect();
+    plan.check_overwrites(frames.as_ref(), &inputs, args.report.as_deref())?;
+    let outputs = frames.as_ref().map_or(1, |f| f.len());
+    if args.report.is_some() {
+        // A line of the report for every frame, held until it is written.
+        arbor::memory::check_fits(&format!("--report for {outputs} frames"), outputs as f64 * 400.0)?;
+        report.keep_frames = true;
+    }
     let device_choice = match args.device {
         Device::Cpu => DeviceChoice::Cpu,
         Device::Gpu => DeviceChoice::Gpu,
@@ -154,31 +185,31 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
     // A frame range moves the scene to each frame (its BVH update is reported); a still renders
     // the scene as built, at its first frame.
     let moves = frames.is_some();
-    // Outputs already complete are skipped (--skip-existing); states are read (--resume).
-    let mut jobs = Vec::new();
+    // Outputs already complete are skipped (--skip-existing); states are checked (--resume)
+    // before any work. What is left is kept as runs of frames: a range may hold millions.
+    let mut pending = Pending::default();
     for job in plan.jobs(frames, &scene, &scene_hash, device.name()) {
-        match job.start()? {
-            Start::Skip => {
-                if !args.quiet {
-                    outln!("{}: complete, skipped (--skip-existing)", job.output.display());
-                }
-                let held = [region.samples.start, region.samples.end];
-                report.frames.push(frame_report(&job, "skipped", held, None));
+        if job.skips() {
+            if !args.quiet {
+                outln!("{}: complete, skipped (--skip-existing)", job.output.display());
             }
-            Start::Fresh => jobs.push((job, None)),
-            Start::Resume(carried) => jobs.push((job, Some(carried))),
+            let held = [region.samples.start, region.samples.end];
+            report.push_frame(frame_report(&job, "skipped", held, None));
+        } else {
+            job.check_state()?;
+            pending.push(job.frame);
         }
     }
-    if jobs.is_empty() {
-        return Ok(());
-    }
+    let Some(first) = pending.first() else { return Ok(()) };
+    let first_time = plan.job(first, &scene, &scene_hash, device.name()).time;
     // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
     if device.name() == "gpu" || !wants_instancing(&scene) {
         let binary = device.name() == "gpu" || tracing.layout == TraceLayout::Binary;
         scene.check_flat_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
     }
     let builder = named.unwrap_or_else(|| BuilderChoice::default_for(device, &scene));
-    let mut renderer = Renderer::new(device, &scene, &builder, tracing, settings, jobs.len(), jobs[0].0.time)?;
+    let count = pending.count();
+    let mut renderer = Renderer::new(device, &scene, &builder, tracing, settings, count, first_time)?;
     let build = renderer.build_report();
     report.bvh = Some(BvhReport {
         builder: build.builder.clone(),
@@ -192,7 +223,13 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
             outln!("{note}");
         }
     }
-    for (job, carried) in jobs {
+    for frame in pending.frames() {
+        let job = plan.job(frame, &scene, &scene_hash, device.name());
+        let carried = match job.start()? {
+            Start::Skip => continue,
+            Start::Fresh => None,
+            Start::Resume(carried) => Some(carried),
+        };
         let update_ms = if moves { renderer.set_time(&scene, job.time)? } else { None };
         render_job(args, &mut renderer, &job, carried, update_ms, stop, report)?;
     }
@@ -202,10 +239,52 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
     Ok(())
 }
 
+/// The outputs left to render: runs of consecutive frames (or the still), so that a range of
+/// millions of frames costs no memory per frame.
+#[derive(Default)]
+struct Pending {
+    /// `(first frame, count)`; the still is `(None, 1)`.
+    runs: Vec<(Option<u32>, u32)>,
+}
+
+impl Pending {
+    fn push(&mut self, frame: Option<u32>) {
+        if let (Some(f), Some((Some(first), n))) = (frame, self.runs.last_mut()) {
+            if *first + *n == f {
+                *n += 1;
+                return;
+            }
+        }
+        self.runs.push((frame, 1));
+    }
+
+    fn first(&self) -> Option<Option<u32>> {
+        self.runs.first().map(|r| r.0)
+    }
+
+    fn count(&self) -> usize {
+        self.runs.iter().map(|r| r.1 as usize).sum()
+    }
+
+    fn frames(&self) -> impl Iterator<Item = Option<u32>> + '_ {
+        self.runs.iter().flat_map(|&(first, n)| (0..n).map(move |k| first.map(|f| f + k)))
+    }
+}
+
 /// A line of the report's `frames` for `job`, of no rendering in this run.
 fn frame_report(job: &Job, status: &'static str, held: [u32; 2], bvh_update_ms: Option<f64>) -> FrameReport {
     let output = job.output.clone();
-    FrameReport { frame: job.frame, output, status, samples_done: held, bvh_update_ms, render_seconds: 0.0, rays: 0 }
+    let (render_seconds, rays, dropped_samples) = (0.0, 0, 0);
+    FrameReport {
+        frame: job.frame,
+        output,
+        status,
+        samples_done: held,
+        bvh_update_ms,
+        render_seconds,
+        rays,
+        dropped_samples,
+    }
 }
 
 /// Renders and writes one job, carrying on from `carried` (`--resume`), with a progress bar.
@@ -235,11 +314,15 @@ fn render_job(
     bar.finish_and_clear();
     let frame = frame.inspect_err(|e| {
         if let JobError::Interrupted { done, .. } = e {
-            report.frames.push(frame_report(job, "interrupted", [samples.start, *done], update_ms));
+            report.push_frame(frame_report(job, "interrupted", [samples.start, *done], update_ms));
         }
     })?;
     let done = samples.start + frame.samples;
-    report.frames.push(FrameReport {
+    let dropped = frame.film.non_finite_count();
+    report.dropped_samples += dropped;
+    print::warn_dropped(&job.output, dropped);
+    report.push_frame(FrameReport {
+        dropped_samples: dropped,
         status: if resumed { "resumed" } else { "rendered" },
         render_seconds: frame.seconds - before.1,
         rays: frame.rays - before.0,
@@ -255,25 +338,56 @@ fn render_job(
 /// `render --merge`: checks the pieces and writes the image.
 fn merge(args: &Args, report: &mut Report) -> Result<()> {
     check_output_path(&args.output)?;
+    let pieces: Vec<Named> = args.merge.iter().map(|p| Named::new("a piece", p)).collect();
+    let mut outputs = vec![Named::new("-o", &args.output)];
+    outputs.extend(args.report.as_ref().map(|r| Named::new("--report", r)));
+    check_overwrites(&outputs, None, &pieces)?;
     arbor::atomic_file::prepare(&args.output).with_context(|| format!("cannot write {}", args.output.display()))?;
     report.pieces.clone_from(&args.merge);
+    report.keep_frames = args.report.is_some();
     let start = Instant::now();
-    let (info, film) = arbor::distributed::film_file::merge_files(&args.merge)?;
-    write_image(&args.output, &film.mean())?;
+    let skipped = if args.skip_existing {
+        // The pieces' headers say the image's size; an output of that size, whole, is this merge
+        // done before (a retried merge job does nothing twice).
+        let infos =
+            args.merge.iter().map(|p| Ok((p.clone(), film_file::piece_info(p)?))).collect::<Result<Vec<_>>>()?;
+        let merged = film_file::check_pieces(&infos)?;
+        arbor::image_io::is_whole_image(&args.output, merged.width, merged.height).then_some(merged)
+    } else {
+        None
+    };
+    let (info, film) = match skipped {
+        Some(info) => (info, None),
+        None => {
+            let (info, film) = film_file::merge_files(&args.merge)?;
+            write_image(&args.output, &film.mean())?;
+            (info, Some(film))
+        }
+    };
     report.scene_hash = Some(info.scene_hash.clone());
     report.seed = Some(info.seed);
     report.max_depth = Some(info.max_depth);
     report.resolution = Some([info.width, info.height]);
     report.samples = Some([info.samples.start, info.samples.end]);
-    report.frames.push(FrameReport {
+    let dropped = film.as_ref().map_or(0, Film::non_finite_count);
+    report.dropped_samples = dropped;
+    report.push_frame(FrameReport {
         frame: info.frame,
         output: args.output.clone(),
-        status: "merged",
+        status: if film.is_some() { "merged" } else { "skipped" },
         samples_done: [info.samples.start, info.samples.end],
         bvh_update_ms: None,
         render_seconds: info.seconds,
         rays: info.rays,
+        dropped_samples: dropped,
     });
+    let Some(film) = film else {
+        if !args.quiet {
+            outln!("{}: complete, skipped (--skip-existing)", args.output.display());
+        }
+        return Ok(());
+    };
+    print::warn_dropped(&args.output, dropped);
     if !args.quiet {
         outln!(
             "{}: {} pieces merged in {:.2} s: {}x{}, samples {}..{}, {:.2} s of rendering{}",

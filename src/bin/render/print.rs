@@ -58,6 +58,18 @@ pub fn dropped(film: &arbor::render::film::Film) -> String {
     }
 }
 
+/// A warning on stderr, whatever `--quiet` says, where `output`'s film dropped samples: its
+/// image is darker where they fell, which a summary alone would hide.
+pub fn warn_dropped(output: &std::path::Path, dropped: u64) {
+    if dropped > 0 {
+        eprintln!(
+            "render: warning: {}: {dropped} samples dropped (non-finite, or of radiance 2^44 or more): the image \
+             lacks their light",
+            output.display()
+        );
+    }
+}
+
 /// `, peak memory M MB (B bytes per triangle)` where the system reports it.
 fn peak_memory(triangles: usize) -> String {
     match arbor::memory::peak_rss_bytes() {
