@@ -525,7 +525,7 @@ impl Renderer {
     }
 
     fn render_cpu(&mut self, frame: RenderedFrame, pass: &Pass<'_, RenderedFrame>) -> RenderedFrame {
-        let Pass { settings: s, ref region, progress, pause, .. } = *pass;
+        let Pass { settings: s, ref region, progress, pause, abandon, .. } = *pass;
         let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: taken, timed_seconds } =
             frame;
         let (first, end) = (region.samples.start, region.samples.end);
@@ -559,7 +559,13 @@ impl Renderer {
             samples,
             filter: &|_| true,
             progress: &|_| {},
+            abandon,
         };
+        // Passes render into `fresh`, added to `film` at each whole sample count (every pixel
+        // holding the same samples): an abandoned pass (`abandon`, a signal) is dropped with
+        // it, and the film returned is whole, of `whole` samples.
+        let mut fresh = Film::new(film.width(), film.height());
+        let mut whole = done;
         while done < end {
             let deciding = slice < slices && self.refiner.as_ref().is_some_and(Refiner::is_active);
             let pass_start = Instant::now();
@@ -577,18 +583,27 @@ impl Renderer {
                 let k = slice;
                 let filter = move |y: u32| if deciding { y % slices == k } else { y % slices >= k };
                 let rows = Rows { filter: &filter, progress: &report(1), ..rows(done..done + 1) };
-                self.render_scene.render_rows(&mut film, &rows);
+                self.render_scene.render_rows(&mut fresh, &rows);
                 slice = if deciding { k + 1 } else { slices };
                 f64::from(slice - k) / f64::from(slices)
             } else {
                 let n = pass_spp.min(end - done);
                 let rows = Rows { progress: &report(n), ..rows(done..done + n) };
-                self.render_scene.render_rows(&mut film, &rows);
+                self.render_scene.render_rows(&mut fresh, &rows);
                 done += n;
                 f64::from(n)
             };
+            if abandon() {
+                done = whole;
+                break;
+            }
             if slice == slices {
                 (slice, done) = (0, done + 1);
+            }
+            if slice == 0 {
+                film.merge(&fresh);
+                fresh.pixels_mut().fill(Default::default());
+                whole = done;
             }
             let elapsed = seconds_before + start.elapsed().as_secs_f64();
             if slice == 0 && (s.time.is_some_and(|t| elapsed >= t) || (done < end && pause(done - first))) {
@@ -630,7 +645,7 @@ impl Renderer {
         frame: RenderedFrame,
         pass: &Pass<'_, RenderedFrame>,
     ) -> Result<RenderedFrame, DeviceError> {
-        let Pass { settings: s, ref region, progress, pause, .. } = *pass;
+        let Pass { settings: s, ref region, progress, pause, abandon, .. } = *pass;
         let gpu = self.gpu.as_mut().expect("a GPU renderer holds its uploaded scene");
         let RenderedFrame { mut film, rays: rays_before, seconds: seconds_before, samples: taken, timed_seconds } =
             frame;
@@ -649,8 +664,11 @@ impl Renderer {
             |p: Progress| progress(Progress { done: p.done + u64::from(taken) * height, total, rays: 0 });
         let device_pause = |n: u32| pause(n + taken);
         let rest = Region { rect: region.rect, samples: first + taken..region.samples.end };
-        let device_pass =
-            Pass::new(&settings, rest).carrying(timed).with_progress(&device_progress).with_pause(&device_pause);
+        let device_pass = Pass::new(&settings, rest)
+            .carrying(timed)
+            .with_progress(&device_progress)
+            .with_pause(&device_pause)
+            .with_abandon(abandon);
         let out = trace::render_from(ctx, &gpu.scene, device_pass).map_err(DeviceError::Render)?;
         // The device's sums are exact, as the host's: adding them to the samples carried gives
         // the film of an uninterrupted render.

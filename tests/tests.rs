@@ -32,6 +32,7 @@ mod textures;
 
 // The `render` command line, and renders split into jobs and merged.
 mod distributed;
+mod reliability;
 mod render_cli;
 
 // The GPU backend.

@@ -173,9 +173,10 @@ impl Plan {
     /// that the outputs can be written: the output's name, and the first output's folder
     /// (made, as [`crate::atomic_file::prepare`] does).
     pub fn frames(&self, scene: &Scene) -> Result<Option<Range<u32>>, PlanError> {
-        // The film's sums, the tiles' and the image written: about three times a pixel's sums.
+        // The film's sums, a pass's (dropped if a signal cuts it), the tiles' and the image
+        // written: about four times a pixel's sums.
         let film_bytes =
-            self.region.rect.pixel_count() as f64 * 3.0 * size_of::<crate::render::film::PixelAccum>() as f64;
+            self.region.rect.pixel_count() as f64 * 4.0 * size_of::<crate::render::film::PixelAccum>() as f64;
         crate::memory::check_fits(&format!("{}: the image", resolution(&self.request, scene)), film_bytes)?;
         check_outputs(&self.request, scene)
     }
@@ -449,8 +450,12 @@ impl Job {
         loop {
             let since = Instant::now();
             let pause = |_| stopped() || self.checkpoint.is_some_and(|c| since.elapsed().as_secs_f64() >= c);
-            let pass =
-                Pass::new(settings, region.clone()).carrying(carried.take()).with_progress(progress).with_pause(&pause);
+            // A signal abandons the pass in flight: the state written is the last whole pass.
+            let pass = Pass::new(settings, region.clone())
+                .carrying(carried.take())
+                .with_progress(progress)
+                .with_pause(&pause)
+                .with_abandon(&stopped);
             let frame = renderer.render_region(pass)?;
             let out_of_time = settings.time.is_some_and(|t| frame.seconds >= t);
             if frame.samples == wanted || out_of_time {

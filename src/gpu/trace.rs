@@ -95,8 +95,16 @@ use crate::texture::environment::EnvironmentMap;
 /// path tracer, in order. `tests/gpu_layout.rs` validates them together, every variant.
 pub const SHADER_FILES: [&str; 2] = ["bsdf.wgsl", "trace.wgsl"];
 
-/// Samples per pixel per submission.
+/// Samples per pixel per pass.
 pub const PASS_SPP: u32 = 4;
+
+/// About how long one submission of a pass (a band of its rows) runs: short enough that a
+/// signal is acted on within a scheduler's grace period with room to spare, long enough that
+/// a submission's fixed cost (milliseconds on lavapipe) stays small beside it.
+const BAND_SECONDS: f64 = 0.25;
+
+/// The first pass's band, before the pace is known: 64 rows.
+const FIRST_BAND_ROWS: u32 = 8 * TRACE_WORKGROUP;
 
 /// What a scene needs of the path tracer: each `false` removes that code from its variant.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -481,28 +489,36 @@ fn pipeline(ctx: &GpuContext, scene: &GpuScene) -> wgpu::ComputePipeline {
 }
 
 /// The bind group of a render of `scene` with these parameters and film.
+/// The kernel's bindings, the film as `(buffer, offset, size)` in bytes: a band of rows of it.
 fn bind_group(
     ctx: &GpuContext,
     pipeline: &wgpu::ComputePipeline,
     scene: &GpuScene,
     params: &wgpu::Buffer,
-    film: &wgpu::Buffer,
+    film: (&wgpu::Buffer, u64, u64),
 ) -> wgpu::BindGroup {
-    ctx.bind_group(
-        pipeline,
-        &[
-            (0, params),
-            (1, &scene.nodes),
-            (2, &scene.triangles),
-            (3, &scene.materials),
-            (4, &scene.lights),
-            (5, film),
-            (6, &scene.normals),
-            (7, &scene.env_map),
-            (8, &scene.textures),
-            (9, &scene.uvs),
-        ],
-    )
+    fn whole(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+        wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }
+    }
+    let (buffer, offset, size) = film;
+    let film = wgpu::BufferBinding { buffer, offset, size: std::num::NonZeroU64::new(size) };
+    let entries = [
+        whole(0, params),
+        whole(1, &scene.nodes),
+        whole(2, &scene.triangles),
+        whole(3, &scene.materials),
+        whole(4, &scene.lights),
+        wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::Buffer(film) },
+        whole(6, &scene.normals),
+        whole(7, &scene.env_map),
+        whole(8, &scene.textures),
+        whole(9, &scene.uvs),
+    ];
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    })
 }
 
 /// Compiles `scene`'s variant, if this context has not yet, and runs it once on no pixels:
@@ -513,7 +529,7 @@ pub fn compile(ctx: &GpuContext, scene: &GpuScene) -> Result<(), GpuError> {
     let params = TraceParams { width: 0, height: 0, ..scene.params };
     let params = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
     let film = ctx.storage_buffer_zeroed("film", size_of::<GpuPixel>() as u64)?;
-    let bind_group = bind_group(ctx, &pipeline, scene, &params, &film);
+    let bind_group = bind_group(ctx, &pipeline, scene, &params, (&film, 0, size_of::<GpuPixel>() as u64));
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
     {
         let mut pass = encoder.begin_compute_pass(&Default::default());
@@ -616,7 +632,7 @@ fn film_key(scene: &GpuScene, seed: u64, max_depth: u32, rect: Rect) -> FilmKey 
 /// The passes of [`render_from`] (its carried film already checked), the film left on the
 /// device; its `samples` is the sample index reached.
 fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Result<PartialFilm, GpuError> {
-    let Pass { settings, region: Region { rect, samples }, carried: start, progress, pause } = pass;
+    let Pass { settings, region: Region { rect, samples }, carried: start, progress, pause, abandon } = pass;
     let (seed, max_depth) = (settings.seed, settings.max_depth);
     // The time budget counts from here, setting up included, as the render's seconds do.
     let budget_clock = std::time::Instant::now();
@@ -632,7 +648,7 @@ fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Re
         )));
     }
     let key = film_key(scene, seed, max_depth, rect);
-    let (film_buffer, mut done, mut seconds) = match start {
+    let (mut film_buffer, mut done, mut seconds) = match start {
         Some(s) => (s.buffer, s.samples, s.seconds),
         None => {
             (ctx.storage_buffer_zeroed("film", (pixels.max(1) * size_of::<GpuPixel>()) as u64)?, samples.start, 0.0)
@@ -652,29 +668,76 @@ fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Re
     // shader at every dispatch, which cost time and leaked memory on every pass of this kernel.
     let params_buffer = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
     let pipeline = pipeline(ctx, scene);
-    let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, &film_buffer);
     let started = std::time::Instant::now();
     let (height, total) = (u64::from(rect.height()), u64::from(samples.len() as u32) * u64::from(rect.height()));
     let carried_seconds = seconds;
     let within_budget =
         || settings.time.is_none_or(|budget| carried_seconds + budget_clock.elapsed().as_secs_f64() < budget);
+    // A pass is submitted in bands of rows, each short enough (about BAND_SECONDS) that a signal
+    // is heard between them. A pass cut by `abandon` is dropped whole: the film as it was before
+    // it is kept in `backup` while a pass runs in more than one band.
+    let film_bytes = (pixels.max(1) * size_of::<GpuPixel>()) as u64;
+    let row_bytes = u64::from(rect.width()) * size_of::<GpuPixel>() as u64;
+    let mut band_rows = rect.height().min(FIRST_BAND_ROWS);
+    let mut backup: Option<wgpu::Buffer> = None;
     while done < samples.end && pixels > 0 {
-        params.sample_start = done;
-        params.sample_count = PASS_SPP.min(samples.end - done);
-        ctx.queue.write_buffer(&params_buffer, 0, bytemuck::bytes_of(&params));
-        let mut encoder = ctx.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace"), timestamp_writes: None });
-            pass.set_pipeline(&pipeline);
-            pass.set_bind_group(0, &bind_group, &[]);
-            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        let count = PASS_SPP.min(samples.end - done);
+        let banded = band_rows < rect.height();
+        if banded {
+            let copy = match backup.take() {
+                Some(b) => b,
+                None => ctx.storage_buffer_zeroed("film backup", film_bytes)?,
+            };
+            let mut encoder = ctx.device.create_command_encoder(&Default::default());
+            encoder.copy_buffer_to_buffer(&film_buffer, 0, &copy, 0, film_bytes);
+            ctx.queue.submit([encoder.finish()]);
+            backup = Some(copy);
         }
-        ctx.queue.submit([encoder.finish()]);
-        ctx.wait()?;
-        done += params.sample_count;
+        let mut y = 0;
+        let mut abandoned = false;
+        while y < rect.height() {
+            let rows = band_rows.min(rect.height() - y);
+            params.sample_start = done;
+            params.sample_count = count;
+            params.origin_y = rect.y0 + y;
+            params.rect_height = rows;
+            ctx.queue.write_buffer(&params_buffer, 0, bytemuck::bytes_of(&params));
+            // The film's rows of the band: the kernel indexes the film from the band's first row.
+            let band_film = (&film_buffer, u64::from(y) * row_bytes, u64::from(rows) * row_bytes);
+            let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, band_film);
+            let band_start = std::time::Instant::now();
+            let mut encoder = ctx.device.create_command_encoder(&Default::default());
+            {
+                let mut pass = encoder
+                    .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("trace"), timestamp_writes: None });
+                pass.set_pipeline(&pipeline);
+                pass.set_bind_group(0, &bind_group, &[]);
+                pass.dispatch_workgroups(groups.0, rows.div_ceil(TRACE_WORKGROUP), 1);
+            }
+            ctx.queue.submit([encoder.finish()]);
+            ctx.wait()?;
+            y += rows;
+            // The next band's height from this one's pace, in whole workgroup rows (which also
+            // keeps the film's offsets aligned: 8 rows of 96-byte pixels are a multiple of 256
+            // bytes).
+            let per_row = band_start.elapsed().as_secs_f64() / f64::from(rows);
+            let fit = (BAND_SECONDS / per_row.max(1e-9)).min(f64::from(rect.height())) as u32;
+            band_rows = (fit / TRACE_WORKGROUP * TRACE_WORKGROUP).max(TRACE_WORKGROUP);
+            if y < rect.height() && abandon() {
+                abandoned = true;
+                break;
+            }
+        }
+        if abandoned {
+            // Only a banded pass is cut, so the backup holds the film before it.
+            if let Some(before) = backup.take() {
+                film_buffer = before;
+            }
+            break;
+        }
+        done += count;
         progress(Progress { done: u64::from(done - samples.start) * height, total, rays: 0 });
-        if !within_budget() || (done < samples.end && pause(done - samples.start)) {
+        if !within_budget() || (done < samples.end && (pause(done - samples.start) || abandon())) {
             break;
         }
     }

@@ -36,12 +36,17 @@ pub struct Pass<'a, C> {
     /// Asked between passes with the samples per pixel taken so far (of the region's); yes
     /// returns there, to be carried on later.
     pub pause: &'a (dyn Fn(u32) -> bool + Sync),
+    /// Asked often while a pass runs (the CPU: at every pixel; the GPU: between its
+    /// submissions); yes abandons the pass at once, its samples dropped, and the render returns
+    /// at the last whole pass: what a signal asks, when a pass may take longer than a
+    /// scheduler's grace period.
+    pub abandon: &'a (dyn Fn() -> bool + Sync),
 }
 
 impl<'a, C> Pass<'a, C> {
     /// `region` under `settings`, from scratch, heard by nobody and never paused.
     pub fn new(settings: &'a RenderSettings, region: Region) -> Self {
-        Self { settings, region, carried: None, progress: &|_| {}, pause: &|_| false }
+        Self { settings, region, carried: None, progress: &|_| {}, pause: &|_| false, abandon: &|| false }
     }
 
     /// The pass carrying on from `carried`.
@@ -57,5 +62,10 @@ impl<'a, C> Pass<'a, C> {
     /// The pass asking `pause` between passes.
     pub fn with_pause(self, pause: &'a (dyn Fn(u32) -> bool + Sync)) -> Self {
         Self { pause, ..self }
+    }
+
+    /// The pass asking `abandon` while it runs.
+    pub fn with_abandon(self, abandon: &'a (dyn Fn() -> bool + Sync)) -> Self {
+        Self { abandon, ..self }
     }
 }

@@ -22,14 +22,17 @@ impl RenderScene {
         samples: std::ops::Range<u32>,
         progress: &(dyn Fn(u64) + Sync),
     ) -> u64 {
-        self.render_rows(film, &Rows { origin: (0, 0), seed, max_depth, samples, filter: &|_| true, progress })
+        let abandon = &|| false;
+        self.render_rows(film, &Rows { origin: (0, 0), seed, max_depth, samples, filter: &|_| true, progress, abandon })
     }
 
     /// [`RenderScene::render`] for the film's rows that `rows` names, with its seed, depth and
     /// samples. A pixel's samples may be added by several calls, rows in any order, and the film
-    /// is the same as long as each pixel gets its samples in increasing order.
+    /// is the same as long as each pixel gets its samples in increasing order. Once
+    /// `rows.abandon` says yes, the rows stop where they are: the film is then partly rendered,
+    /// for the caller to drop.
     pub fn render_rows(&self, film: &mut Film, rows: &Rows<'_>) -> u64 {
-        let Rows { origin, seed, max_depth, ref samples, filter, progress } = *rows;
+        let Rows { origin, seed, max_depth, ref samples, filter, progress, abandon } = *rows;
         let width = self.width as u64;
         film.rows_mut()
             .filter(|(y, _)| filter(*y))
@@ -37,6 +40,9 @@ impl RenderScene {
                 let mut rays = 0u64;
                 let y = y + origin.1;
                 for (x, px) in row.iter_mut().enumerate() {
+                    if abandon() {
+                        break;
+                    }
                     let x = x as u32 + origin.0;
                     let pixel = y as u64 * width + x as u64;
                     for s in samples.clone() {
@@ -75,4 +81,6 @@ pub struct Rows<'a> {
     pub filter: &'a (dyn Fn(u32) -> bool + Sync),
     /// Hears of the rays of each finished row.
     pub progress: &'a (dyn Fn(u64) + Sync),
+    /// Asked at every pixel: yes stops the rows there ([`RenderScene::render_rows`]).
+    pub abandon: &'a (dyn Fn() -> bool + Sync),
 }

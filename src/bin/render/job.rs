@@ -118,14 +118,21 @@ fn image_code(e: &ImageError) -> i32 {
 /// How `render` answers SIGTERM (what Slurm and Kubernetes send before they kill a job) and
 /// SIGINT. Installed first thing, so that a signal in the first milliseconds is not lost.
 pub struct Signals {
-    /// Raised by either signal: a render finishes its pass, writes its state and exits with
-    /// [`code::INTERRUPTED`]. A second SIGINT ends the process at once, as an impatient Ctrl-C
+    /// Raised by either signal: a render abandons its pass, writes its state (its last whole
+    /// pass) and exits with [`code::INTERRUPTED`]. A second SIGINT ends the process at once, as an impatient Ctrl-C
     /// expects.
     pub stop: Arc<AtomicBool>,
     /// Once raised ([`Signals::die_on_signal`]), either signal ends the process at once (a
     /// merge, which has no state worth keeping).
     die: Arc<AtomicBool>,
+    /// Raised while the scene loads and its BVH builds: a signal then ends the process within
+    /// [`LOADING_POLL`] with [`code::INTERRUPTED`] and nothing written (there is no state yet, so
+    /// a retry starts afresh), instead of at the first pass, which may be a minute away.
+    pub loading: Arc<AtomicBool>,
 }
+
+/// How often a watcher looks at the stop flag while the scene loads.
+const LOADING_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 
 impl Signals {
     pub fn install() -> std::io::Result<Signals> {
@@ -139,12 +146,24 @@ impl Signals {
         signal_hook::flag::register_conditional_shutdown(SIGINT, 130, Arc::clone(&stop))?;
         signal_hook::flag::register(SIGINT, Arc::clone(&stop))?;
         signal_hook::flag::register(SIGTERM, Arc::clone(&stop))?;
-        Ok(Signals { stop, die })
+        let loading = Arc::new(AtomicBool::new(true));
+        let (watched, watching) = (Arc::clone(&stop), Arc::clone(&loading));
+        std::thread::Builder::new().name("signal watcher".into()).spawn(move || {
+            while watching.load(Ordering::SeqCst) {
+                if stopped(&watched) && watching.load(Ordering::SeqCst) {
+                    eprintln!("render: stopped by a signal while loading the scene; nothing written");
+                    std::process::exit(code::INTERRUPTED);
+                }
+                std::thread::sleep(LOADING_POLL);
+            }
+        })?;
+        Ok(Signals { stop, die, loading })
     }
 
     /// From now on a signal ends the process as if no handler were installed; one that came
     /// already does so now.
     pub fn die_on_signal(&self) {
+        self.loading.store(false, Ordering::SeqCst);
         self.die.store(true, Ordering::SeqCst);
         if stopped(&self.stop) {
             eprintln!("render: stopped by a signal");

@@ -53,7 +53,7 @@ fn main() {
         ..Default::default()
     };
     let result = if args.merge.is_empty() {
-        run(&args, &signals.stop, &mut report)
+        run(&args, &signals, &mut report)
     } else {
         signals.die_on_signal();
         merge(&args, &mut report)
@@ -133,7 +133,8 @@ fn request(args: &Args, scene_path: &Path, scene: &Scene) -> Request {
     }
 }
 
-fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
+fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
+    let stop: &AtomicBool = &signals.stop;
     let scene_path = args.scene.as_deref().expect("clap requires a scene without --merge");
     report.scene = Some(scene_path.to_path_buf());
     // A bad name fails before any work; the default depends on the device and the scene.
@@ -223,6 +224,8 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
             outln!("{note}");
         }
     }
+    // From here a signal is heard by the render, which writes its state.
+    signals.loading.store(false, std::sync::atomic::Ordering::SeqCst);
     for frame in pending.frames() {
         let job = plan.job(frame, &scene, &scene_hash, device.name());
         let carried = match job.start()? {
