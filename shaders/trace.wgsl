@@ -14,7 +14,7 @@
 // Each triangle's vertex normals, nine floats in leaf order (HAS_SHADING_NORMALS).
 @group(0) @binding(6) var<storage, read> normals: array<f32>;
 // The environment map (HAS_ENV_MAP), src/gpu/trace.rs's env_map_data: RGB texels, then the
-// sampling density per texel, the marginal CDF and the rows' conditional CDFs.
+// sampling density per cell, the marginal CDF and the cell rows' conditional CDFs.
 @group(0) @binding(7) var<storage, read> env_map: array<f32>;
 // Textures (HAS_TEXTURES), src/gpu/texture.rs's gpu_texture_data: the sRGB decoding table,
 // four header words a texture, the texels; and each triangle's texture coordinates, six floats
@@ -652,13 +652,19 @@ fn env_texel(c: u32, r: u32) -> vec3<f32> {
     return vec3<f32>(env_map[i], env_map[i + 1u], env_map[i + 2u]);
 }
 
-// EnvironmentMap::eval: bilinear between texel centres, wrapping in u, held at the poles.
+// The rows of cells in the map's distribution: sampling_rows in src/texture/environment.rs.
+fn env_rows() -> u32 {
+    return max(params.env_height, 2u) - 1u;
+}
+
+// EnvironmentMap::eval: bilinear between texels, column j at u = (j + 0.5) / W (wrapping) and
+// row i at v = i / (H - 1).
 fn env_eval(dir: vec3<f32>) -> vec3<f32> {
     let uv = env_uv(env_local(dir));
     let w = f32(params.env_width);
     let h = f32(params.env_height);
     let x = uv.x * w - 0.5;
-    let y = clamp(uv.y * h - 0.5, 0.0, h - 1.0);
+    let y = clamp(uv.y * (h - 1.0), 0.0, h - 1.0);
     let x0 = floor(x);
     let y0 = floor(y);
     let fx = x - x0;
@@ -673,7 +679,8 @@ fn env_eval(dir: vec3<f32>) -> vec3<f32> {
     return top * (1.0 - fy) + bottom * fy;
 }
 
-// EnvironmentMap::pdf: the density per steradian of drawing world direction `dir`.
+// EnvironmentMap::pdf: the density per steradian of drawing world direction `dir`; the cell as
+// Distribution::pdf_at finds it.
 fn env_pdf(dir: vec3<f32>) -> f32 {
     let d = env_local(dir);
     let sin_theta = sqrt(d.x * d.x + d.z * d.z);
@@ -681,8 +688,13 @@ fn env_pdf(dir: vec3<f32>) -> f32 {
         return 0.0;
     }
     let uv = env_uv(d);
-    let c = min(u32(uv.x * f32(params.env_width)), params.env_width - 1u);
-    let r = min(u32(uv.y * f32(params.env_height)), params.env_height - 1u);
+    let rows = env_rows();
+    var x = uv.x * f32(params.env_width) - 0.5;
+    if x < 0.0 {
+        x += f32(params.env_width);
+    }
+    let c = min(u32(x), params.env_width - 1u);
+    let r = min(u32(uv.y * f32(rows)), rows - 1u);
     let pdf = env_map[3u * params.env_width * params.env_height + r * params.env_width + c];
     return pdf / (2.0 * PI * PI * sin_theta);
 }
@@ -717,16 +729,20 @@ fn next_down(x: f32) -> f32 {
 fn env_sample(u: vec2<f32>) -> vec4<f32> {
     let w = params.env_width;
     let h = params.env_height;
-    let marginal = 4u * w * h;
-    let r = env_cdf_find(marginal, h, u.y);
-    let row = marginal + h + 1u + r * (w + 1u);
+    let rows = env_rows();
+    let marginal = 3u * w * h + w * rows;
+    let r = env_cdf_find(marginal, rows, u.y);
+    let row = marginal + rows + 1u + r * (w + 1u);
     let c = env_cdf_find(row, w, u.x);
     let dv = env_within(env_map[marginal + r], env_map[marginal + r + 1u], u.y);
     let du = env_within(env_map[row + c], env_map[row + c + 1u], u.x);
-    let uv = vec2<f32>(
-        min((f32(c) + du) / f32(w), next_down(f32(c + 1u) / f32(w))),
-        min((f32(r) + dv) / f32(h), next_down(f32(r + 1u) / f32(h))),
-    );
+    // Kept inside the cell, which starts at column c's centre (Distribution::sample).
+    let x = min(f32(c) + du, next_down(f32(c + 1u)));
+    var su = (x + 0.5) / f32(w);
+    if su >= 1.0 {
+        su -= 1.0;
+    }
+    let uv = vec2<f32>(su, min((f32(r) + dv) / f32(rows), next_down(f32(r + 1u) / f32(rows))));
     let p = env_map[3u * w * h + r * w + c];
     let phi = 2.0 * PI * uv.x;
     let theta = PI * uv.y;

@@ -1,6 +1,6 @@
-//! Environment maps: loading and its errors, the furnace under a constant map, importance
-//! sampling against uniform sampling (agreement, and the error at equal samples), and the two
-//! devices against each other.
+//! Environment maps: loading and its errors, the furnace under a constant map, the mapping
+//! against Mitsuba 3's lookup, importance sampling against uniform sampling (agreement, and the
+//! error at equal samples), and the two devices against each other.
 //!
 //! Tolerances are numbers of combined standard errors of region means (from the films'
 //! per-pixel variances), except where the answer is exact.
@@ -13,7 +13,7 @@ use arbor::image_io::{Image, write_image};
 use arbor::render::film::Film;
 use arbor::scene::{RenderSettings, Scene};
 use arbor::texture::environment::Sampling;
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 
 use crate::render_accuracy::devices;
 
@@ -342,5 +342,149 @@ fn a_map_and_a_lamp_add_up() {
         let sum = quadrant_sums(&map, &lamp);
         let together = quadrant_means(&render(device, &both, 128, 3, 13));
         assert_quadrants_agree(&format!("{}: map + lamp against each alone", device.name()), together, sum, 4.5);
+    }
+}
+
+/// A 16 x 9 sky of sharp steps for [`a_sky_seen_directly_is_mitsubas_lookup`]: bright rows over
+/// a dark ground, the step between rows 2 and 3 (45° and 22.5° up), each column and channel
+/// scaled differently so that a column or a channel out of place shows too.
+fn stepped_sky() -> Image {
+    const ROWS: [f32; 9] = [3.0, 5.0, 8.0, 0.25, 0.2, 0.15, 0.1, 0.1, 0.1];
+    let pixels = (0..9usize)
+        .flat_map(|y| (0..16usize).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let column = 1.0 + 0.5 * (x % 3) as f32 + 0.1 * x as f32;
+            [1.0, 0.8, 0.6].map(|tint| ROWS[y] * column * tint)
+        })
+        .collect();
+    Image { width: 16, height: 9, pixels }
+}
+
+/// Mitsuba 3's `envmap` lookup (v3.9 on) of `sky` along `d`, in the map's frame: `u =
+/// atan2(d.x, -d.z) / 2π` and `v = acos(d.y) / π` (`docs/scene-format.md`), texel column `j` at
+/// `u = (j + 0.5) / W` (periodic), row `i` at `v = i / (H - 1)` (`H` at least 2), bilinear
+/// between them.
+fn mitsuba_lookup(sky: &Image, d: DVec3) -> [f64; 3] {
+    use std::f64::consts::PI;
+    let (w, h) = (sky.width as usize, sky.height as usize);
+    let u = (d.x.atan2(-d.z) / (2.0 * PI)).rem_euclid(1.0);
+    let v = d.y.clamp(-1.0, 1.0).acos() / PI;
+    let x = u * w as f64 - 0.5;
+    let fx = x - x.floor();
+    let j0 = (x.floor() as i64).rem_euclid(w as i64) as usize;
+    let j1 = (j0 + 1) % w;
+    let y = v * (h - 1) as f64;
+    let i0 = (y.floor() as usize).min(h - 2);
+    let (i1, fy) = (i0 + 1, y - i0 as f64);
+    let t = |i: usize, j: usize, c: usize| f64::from(sky.pixels[i * w + j][c]);
+    std::array::from_fn(|c| {
+        (1.0 - fy) * ((1.0 - fx) * t(i0, j0, c) + fx * t(i0, j1, c))
+            + fy * ((1.0 - fx) * t(i1, j0, c) + fx * t(i1, j1, c))
+    })
+}
+
+/// A pinhole camera at the origin, as `src/render/camera.rs`'s docs give it (up is +y).
+#[derive(Clone, Copy)]
+struct PinholeAt {
+    look_at: DVec3,
+    /// The vertical opening angle, in degrees.
+    fov: f64,
+    width: u32,
+    height: u32,
+}
+
+impl PinholeAt {
+    /// The unit direction through film position `(px, py)`, in pixels from the top-left corner.
+    fn ray(&self, px: f64, py: f64) -> DVec3 {
+        let forward = self.look_at.normalize();
+        let right = forward.cross(DVec3::Y).normalize();
+        let up = right.cross(forward);
+        let tan_y = (self.fov.to_radians() * 0.5).tan();
+        let tan_x = tan_y * f64::from(self.width) / f64::from(self.height);
+        let sx = (2.0 * px / f64::from(self.width) - 1.0) * tan_x;
+        let sy = (1.0 - 2.0 * py / f64::from(self.height)) * tan_y;
+        (forward + right * sx + up * sy).normalize()
+    }
+
+    /// Each pixel's mean of `radiance` over its square (where a render spreads its samples), by
+    /// the midpoint rule on a 32 x 32 grid; row-major.
+    fn pixel_means(&self, radiance: impl Fn(DVec3) -> [f64; 3]) -> Vec<[f64; 3]> {
+        const GRID: u32 = 32;
+        let weight = 1.0 / f64::from(GRID * GRID);
+        (0..self.height)
+            .flat_map(|y| (0..self.width).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let mut sum = [0.0f64; 3];
+                for k in 0..GRID * GRID {
+                    let px = f64::from(x) + (f64::from(k % GRID) + 0.5) / f64::from(GRID);
+                    let py = f64::from(y) + (f64::from(k / GRID) + 0.5) / f64::from(GRID);
+                    let l = radiance(self.ray(px, py));
+                    sum = std::array::from_fn(|c| sum[c] + l[c] * weight);
+                }
+                sum
+            })
+            .collect()
+    }
+}
+
+/// Issue 34: a map renders as in Mitsuba 3, whose `envmap` puts texel row `i` at `v = i / (H -
+/// 1)`, row 0 straight up and the last row straight down (Arbor had put it at `(i + 0.5) / H`,
+/// up to half a texel off towards the poles; the two agree only at the horizon). A sky of sharp
+/// steps seen directly (`max_depth = 1`, no objects), on both devices, against
+/// [`mitsuba_lookup`] of the texels read back from the file, averaged over each pixel on a
+/// 32 x 32 grid of film positions through the pinhole camera of `src/render/camera.rs`'s docs
+/// (a pixel's samples are spread uniformly over it). Tolerance: every pixel channel within 5 of
+/// its standard errors (the spread of the lookup over the pixel, at 256 samples) plus 10⁻³ of
+/// its value (f32 directions, the quadrature). The old rows miss by about 380 standard errors on
+/// the CPU and 400 on the GPU (lavapipe), and Mitsuba's columns before 3.9 (`u = j / W`) by 570.
+#[test]
+fn a_sky_seen_directly_is_mitsubas_lookup() {
+    let dir = temp_dir("mitsuba-rows");
+    write_image(dir.join("sky.exr"), &stepped_sky()).unwrap();
+    let sky = arbor::image_io::read_exr(dir.join("sky.exr")).unwrap();
+    let camera = PinholeAt { look_at: DVec3::new(1.0, 0.7, 0.3), fov: 40.0, width: 32, height: 24 };
+    let PinholeAt { look_at, fov, width, height } = camera;
+    std::fs::write(
+        dir.join("scene.toml"),
+        format!(
+            "[camera]\nposition = [0, 0, 0]\nlook_at = [{}, {}, {}]\nfov = {fov}\nresolution = [{width}, {height}]\n\
+             [environment]\nmap = \"sky.exr\"\n",
+            look_at.x, look_at.y, look_at.z
+        ),
+    )
+    .unwrap();
+    let scene = Scene::load(dir.join("scene.toml")).unwrap();
+    let reference = camera.pixel_means(|d| mitsuba_lookup(&sky, d));
+    for device in devices("a_sky_seen_directly_is_mitsubas_lookup") {
+        let film = render(device, &scene, 256, 1, 21);
+        let (mean, se) = (film.mean(), film.stderr());
+        let mut worst = (0.0f64, 0usize, 0usize);
+        for (i, want) in reference.iter().enumerate() {
+            for (c, &want) in want.iter().enumerate() {
+                let (got, se) = (f64::from(mean.pixels[i][c]), f64::from(se.pixels[i][c]));
+                let excess = (got - want).abs() - 1e-3 * want;
+                let z = excess / se.max(1e-12);
+                if excess > 0.0 && z > worst.0 {
+                    worst = (z, i, c);
+                }
+            }
+        }
+        let (z, i, c) = worst;
+        let (x, y) = (i % width as usize, i / width as usize);
+        println!(
+            "{}: worst pixel ({x}, {y}) channel {c}: {} against {} ± {} (z = {z:.1})",
+            device.name(),
+            mean.pixels[i][c],
+            reference[i][c],
+            se.pixels[i][c]
+        );
+        assert!(
+            z <= 5.0,
+            "{}: pixel ({x}, {y}) channel {c} is {}, Mitsuba's lookup {} (standard error {}; z = {z:.1} past 10⁻³)",
+            device.name(),
+            mean.pixels[i][c],
+            reference[i][c],
+            se.pixels[i][c]
+        );
     }
 }

@@ -325,10 +325,17 @@ fn gpu_material(m: &RenderMaterial) -> GpuMaterial {
 }
 
 /// An environment map as `shaders/trace.wgsl` reads it, one array of f32: the texels' RGB
-/// (row-major, row 0 at the top), then the distribution's per-texel density, its marginal CDF
-/// (`height + 1` values) and its conditional CDFs (`width + 1` values a row).
+/// (row-major, row 0 at the top), then the distribution's per-cell density (`width` x
+/// `sampling_rows(height)` cells), its marginal CDF (`sampling_rows(height) + 1` values) and
+/// its conditional CDFs (`width + 1` values a row); the shader finds each part from the map's
+/// size alone.
 fn env_map_data(map: &EnvironmentMap) -> Vec<f32> {
     let d = &map.distribution;
+    let (w, rows) = (map.width as usize, crate::texture::environment::sampling_rows(map.height) as usize);
+    assert!(
+        d.pdf.len() == w * rows && d.marginal.len() == rows + 1 && d.conditional.len() == rows * (w + 1),
+        "the shader finds the tables from the map's size: {w} x {rows} cells"
+    );
     let mut data = Vec::with_capacity(map.texels.len() * 3 + d.pdf.len() + d.marginal.len() + d.conditional.len());
     data.extend(map.texels.iter().flatten());
     data.extend(&d.pdf);

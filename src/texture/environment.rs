@@ -4,14 +4,19 @@
 //! renderer's (`render::environment`, whose docs give the convention and the sampling method).
 //!
 //! **Tables** (Pharr, Jakob and Humphreys, *Physically Based Rendering*, 4th ed., §12.5.2 and
-//! A.5.3): a piecewise-constant density over the image, one constant per texel, proportional to
-//! the texel's luminance times `sin θ` at its centre, with a marginal CDF over rows and each
-//! row's conditional CDF. Departure: the luminance taken for a texel is the mean over the texel
-//! of the bilinearly filtered radiance, not the texel's own value (`render::environment` says
-//! why). Sums are taken in f64 and stored as f32, the form both devices sample from
-//! (`shaders/trace.wgsl` reads the same arrays).
+//! A.5.3): a piecewise-constant density over the `(u, v)` square with a marginal CDF over rows
+//! of cells and each row's conditional CDF. Departure: the cells are not the texels. Mitsuba 3
+//! puts texel column `j` at `u = (j + 0.5) / W` and row `i` at `v = i / (H - 1)`, and the
+//! radiance between four neighbouring texel centres is their bilinear interpolant; a cell is one
+//! such patch ([`sampling_rows`] rows of `W` cells, the last column's patch wrapping round to
+//! column 0), weighted by the mean luminance of its four corners (the mean of the interpolant
+//! over the patch) times the mean of `sin θ` over its rows (its share of solid angle). The
+//! density is then positive wherever the radiance is, which keeps light sampling alone unbiased,
+//! and follows it within each patch as closely as a constant can. Sums are taken in f64 and
+//! stored as f32, the form both devices sample from (`shaders/trace.wgsl` reads the same
+//! arrays).
 
-use std::f32::consts::PI;
+use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
 use glam::{Mat3, Vec3};
@@ -40,28 +45,36 @@ pub struct EnvironmentMap {
 pub enum Sampling {
     /// In proportion to luminance × sin θ (the module docs).
     Luminance,
-    /// Uniformly over the sphere (every texel weighted by its solid angle only).
+    /// Uniformly over the sphere (every cell weighted by its solid angle only).
     Uniform,
 }
 
-/// A piecewise-constant density over the unit square, one constant per texel, and the CDFs that
-/// sample it.
+/// A piecewise-constant density over the unit square, one constant per cell (module docs:
+/// `width` x [`sampling_rows`]`(height)` cells, each the patch between four texel centres), and
+/// the CDFs that sample it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Distribution {
-    /// The density over `(u, v)` in each texel, row-major: it integrates to 1 over the square.
+    /// The density over `(u, v)` in each cell, row-major: it integrates to 1 over the square.
     pub pdf: Vec<f32>,
-    /// The rows' CDF: `height + 1` values rising from 0 to exactly 1.
+    /// The cell rows' CDF: `sampling_rows(height) + 1` values rising from 0 to exactly 1.
     pub marginal: Vec<f32>,
-    /// Each row's CDF over its texels: `width + 1` values a row, from 0 to exactly 1 (all 0 in a
-    /// row of no weight, which the marginal never picks).
+    /// Each cell row's CDF over its cells: `width + 1` values a row, from 0 to exactly 1 (all 0
+    /// in a row of no weight, which the marginal never picks).
     pub conditional: Vec<f32>,
+}
+
+/// Rows of cells in the distribution of a map `height` texels high: the `height - 1` intervals
+/// between its rows' centres, or one for a single row, whose radiance is then the same at
+/// every `v`.
+pub fn sampling_rows(height: u32) -> u32 {
+    height.saturating_sub(1).max(1)
 }
 
 /// Why a map cannot be used: each names the file (the error of any image file).
 pub type EnvironmentError = super::TextureError;
 
-/// Bytes a map holds per texel once loaded: its radiance, its density and its row CDF, and the
-/// decoder's own copy while it is read.
+/// Bytes a map holds per texel once loaded: its radiance, its cell's density and row CDF (about
+/// a cell a texel), and the decoder's own copy while it is read.
 pub const BYTES_PER_TEXEL: f64 = 12.0 + 4.0 + 4.0 + 16.0;
 
 /// Texels at most: 2^28 (a 23170² map), well past the 16k × 8k of the largest skies published.
@@ -139,42 +152,36 @@ impl EnvironmentMap {
 impl Distribution {
     /// The distribution of a `width` x `height` map's `texels` (module docs).
     pub fn new(width: u32, height: u32, texels: &[[f32; 3]], sampling: Sampling) -> Self {
-        let (w, h) = (width as usize, height as usize);
+        let (w, h, rows) = (width as usize, height as usize, sampling_rows(height) as usize);
         let lum: Vec<f32> = texels.iter().map(|&t| luminance(Vec3::from(t)).max(0.0)).collect();
-        let mut weights = vec![0.0f64; w * h];
-        for r in 0..h {
-            let sin_theta = (PI * (r as f32 + 0.5) / height as f32).sin().max(0.0);
+        let mut weights = vec![0.0f64; w * rows];
+        for r in 0..rows {
+            // The mean of sin θ over the row's θ from π r / rows to π (r + 1) / rows.
+            let (theta0, theta1) = (PI * r as f64 / rows as f64, PI * (r + 1) as f64 / rows as f64);
+            let sin_theta = ((theta0.cos() - theta1.cos()) / (theta1 - theta0)).max(0.0);
+            let (r0, r1) = (r, (r + 1).min(h - 1));
             for c in 0..w {
                 let value = match sampling {
                     Sampling::Uniform => 1.0,
                     Sampling::Luminance => {
-                        // The mean over the texel of the bilinear interpolant: the texel and its
-                        // neighbours weighted by 1/8, 6/8, 1/8 along each axis (rows held at
-                        // the poles, columns wrapped, as `eval` reads them).
-                        const K: [f32; 3] = [0.125, 0.75, 0.125];
-                        let mut m = 0.0f32;
-                        for (dr, kr) in K.iter().enumerate() {
-                            let rr = (r + dr).saturating_sub(1).min(h - 1);
-                            for (dc, kc) in K.iter().enumerate() {
-                                m += kr * kc * lum[rr * w + (c + w + dc - 1) % w];
-                            }
-                        }
-                        m
+                        let c1 = (c + 1) % w;
+                        let corners = [r0 * w + c, r0 * w + c1, r1 * w + c, r1 * w + c1];
+                        0.25 * corners.iter().map(|&i| f64::from(lum[i])).sum::<f64>()
                     }
                 };
-                weights[r * w + c] = f64::from(value) * f64::from(sin_theta);
+                weights[r * w + c] = value * sin_theta;
             }
         }
         let row_sums: Vec<f64> = weights.chunks(w).map(|row| row.iter().sum()).collect();
         let total: f64 = row_sums.iter().sum();
-        let mut conditional = vec![0.0f32; h * (w + 1)];
-        let mut marginal = vec![0.0f32; h + 1];
-        let mut pdf = vec![0.0f32; w * h];
+        let mut conditional = vec![0.0f32; rows * (w + 1)];
+        let mut marginal = vec![0.0f32; rows + 1];
+        let mut pdf = vec![0.0f32; w * rows];
         if !(total > 0.0 && total.is_finite()) {
             return Self { pdf, marginal, conditional };
         }
-        let scale = (w * h) as f64 / total;
-        for r in 0..h {
+        let scale = (w * rows) as f64 / total;
+        for r in 0..rows {
             let cdf = &mut conditional[r * (w + 1)..(r + 1) * (w + 1)];
             if row_sums[r] > 0.0 {
                 let mut acc = 0.0;
@@ -187,11 +194,11 @@ impl Distribution {
             }
         }
         let mut acc = 0.0;
-        for r in 0..h {
+        for r in 0..rows {
             acc += row_sums[r];
             marginal[r + 1] = (acc / total) as f32;
         }
-        marginal[h] = 1.0;
+        marginal[rows] = 1.0;
         Self { pdf, marginal, conditional }
     }
 }
