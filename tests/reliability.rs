@@ -475,3 +475,58 @@ fn a_signal_abandons_the_pass_in_flight_on_the_gpu() {
     }
     a_signal_abandons_the_pass_in_flight("gpu");
 }
+
+/// Samples dropped (non-finite, or of radiance 2^44 or more) are said on stderr, even with
+/// `--quiet`, and in the report's `dropped_samples`: here a merge of pieces whose films dropped
+/// some (a valid scene gives none since emitters above 2^40 are refused at load, and next-event
+/// estimation is weighted by multiple importance).
+#[test]
+fn dropped_samples_are_reported_on_stderr_and_in_the_report() {
+    use arbor::distributed::film_file::{PieceInfo, write_piece};
+    use arbor::render::film::Film;
+    use arbor::render::region::Rect;
+
+    let dir = temp_dir("dropped");
+    let (w, h) = (6, 4);
+    let mut pieces = Vec::new();
+    for (i, rect) in [Rect { x0: 0, y0: 0, x1: 3, y1: 4 }, Rect { x0: 3, y0: 0, x1: 6, y1: 4 }].into_iter().enumerate()
+    {
+        let mut film = Film::new(rect.width(), rect.height());
+        for y in 0..rect.height() {
+            for x in 0..rect.width() {
+                for s in 0..3 {
+                    let bad = i == 1 && s == 0 && x < 2;
+                    film.add_sample(x, y, if bad { glam::Vec3::NAN } else { glam::Vec3::splat(0.5) });
+                }
+            }
+        }
+        let info = PieceInfo {
+            scene_hash: "0".repeat(64),
+            seed: 1,
+            max_depth: 2,
+            clamp: None,
+            width: w,
+            height: h,
+            frame: None,
+            device: "cpu".into(),
+            rect,
+            samples: 0..3,
+            done: 3,
+            rays: 1,
+            seconds: 0.5,
+        };
+        let path = dir.join(format!("p{i}.exr"));
+        write_piece(&path, &info, &film).unwrap();
+        pieces.push(path);
+    }
+    let out = dir.join("merged.exr");
+    let report = dir.join("merged.json");
+    let o = run(render().arg("--merge").args(&pieces).arg("-o").arg(&out).arg("--quiet").arg("--report").arg(&report));
+    let err = String::from_utf8_lossy(&o.stderr);
+    // Two columns of four rows of the second piece dropped their first sample.
+    assert!(err.contains(&format!("{}: 8 samples dropped", out.display())), "{err}");
+    let json: serde_json::Value = serde_json::from_slice(&bytes(&report)).unwrap();
+    assert_eq!(json["dropped_samples"], 8);
+    assert_eq!(json["frames"][0]["dropped_samples"], 8);
+    let _ = std::fs::remove_dir_all(&dir);
+}
