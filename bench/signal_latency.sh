@@ -5,12 +5,12 @@
 #
 #   bash bench/signal_latency.sh [DEVICE...]     (default: cpu; e.g. `cpu gpu`)
 #
-# Needs a release build (`cargo build --release --bin render`) and ../shared/models for the
-# dragon. Prints one line per trial: scene, device, when the signal came (seconds after the
+# Needs a release build (`cargo build --release --bin render`; RENDER=path picks another) and
+# ../shared/models for the dragon. Prints one line per trial: scene, device, when the signal came (seconds after the
 # start), the exit code and the seconds from the signal to the exit.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-render=target/release/render
+render=${RENDER:-target/release/render}
 [[ -x $render ]] || { echo "build first: cargo build --release --bin render" >&2; exit 1; }
 devices=("${@:-cpu}")
 work=$(mktemp -d)

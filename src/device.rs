@@ -621,7 +621,7 @@ impl Renderer {
                     };
                     let pass_seconds = pass_start.elapsed().as_secs_f64();
                     let refiner = self.refiner.as_mut().expect("deciding");
-                    refiner.after_pass(&mut self.render_scene, (pass_seconds, share), taken, &rest);
+                    refiner.after_pass(&mut self.render_scene, (pass_seconds, share), taken, &rest, abandon);
                 }
             }
         }

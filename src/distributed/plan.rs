@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use super::film_file::{PieceError, PieceInfo, piece_info, read_info, read_piece, write_piece};
+use super::film_file::{PieceError, PieceInfo, piece_info, read_info, read_piece, write_piece, write_piece_quickly};
 use super::frames::{frame_path, has_frame_pattern};
 use super::overwrite::{Named, check_overwrites};
 use crate::device::{DeviceError, RenderedFrame, Renderer};
@@ -461,11 +461,12 @@ impl Job {
             if frame.samples == wanted || out_of_time {
                 return Ok(frame);
             }
-            write_piece(&self.state, &self.held(&frame), &frame.film)?;
             if stopped() {
+                write_piece_quickly(&self.state, &self.held(&frame), &frame.film)?;
                 let done = region.samples.start + frame.samples;
                 return Err(JobError::Interrupted { state: self.state.clone(), done, of: region.samples.end });
             }
+            write_piece(&self.state, &self.held(&frame), &frame.film)?;
             carried = Some(frame);
         }
     }

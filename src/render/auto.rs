@@ -128,11 +128,11 @@ fn sweep_config() -> PrbvhConfig {
     PrbvhConfig { collapse: None, ..Default::default() }
 }
 
-/// `auto`'s first sweep on `bvh` (μ iterations, one search of every node), and the share of the
-/// SAH it removed.
-pub(crate) fn first_sweep(bvh: &mut crate::bvh::Bvh) -> (prbvh::PrbvhStats, f64) {
+/// `auto`'s first sweep on `bvh` (μ iterations, one search of every node, or fewer where
+/// `abandon` says so between them: a signal), and the share of the SAH it removed.
+pub(crate) fn first_sweep(bvh: &mut crate::bvh::Bvh, abandon: &dyn Fn() -> bool) -> (prbvh::PrbvhStats, f64) {
     let config = sweep_config();
-    let s = prbvh::optimize_while(bvh, &PrbvhConfig { max_iterations: config.mu, ..config }, |_| true);
+    let s = prbvh::optimize_while(bvh, &PrbvhConfig { max_iterations: config.mu, ..config }, |_| !abandon());
     let sah_fraction = (s.initial_sah - s.sah_before_collapse) / s.initial_sah;
     (s, sah_fraction)
 }
@@ -144,11 +144,12 @@ pub(crate) fn first_sweep(bvh: &mut crate::bvh::Bvh) -> (prbvh::PrbvhStats, f64)
 /// Judged over a whole sweep (μ iterations) only: one iteration searches a μ-th of the nodes,
 /// and the Cornell box's first one after a paying sweep found nothing, which stopped it at SAH
 /// 30.89 where a full run reaches 30.57. (Where the μ/ε rule lowers μ, the window spans more
-/// than one search, which only makes it slower to stop.)
+/// than one search, which only makes it slower to stop.) `abandon` stops it between iterations.
 pub(crate) fn sweeps_while_they_pay(
     bvh: &mut crate::bvh::Bvh,
     render_seconds: f64,
     efficiency: f64,
+    abandon: &dyn Fn() -> bool,
 ) -> prbvh::PrbvhStats {
     let config = sweep_config();
     let mu = config.mu as usize;
@@ -160,7 +161,7 @@ pub(crate) fn sweeps_while_they_pay(
             window.pop_front();
         }
         let (saved, spent) = window.iter().fold((0.0, 0.0), |a, w| (a.0 + w.0, a.1 + w.1));
-        window.len() < mu || saved > spent
+        !abandon() && (window.len() < mu || saved > spent)
     })
 }
 
@@ -340,7 +341,7 @@ impl RenderScene {
             // The probe below assembles its own scene: one at a time.
             drop(timed.take());
             let sweep_start = Instant::now();
-            let (s1, sah_fraction) = first_sweep(bvh);
+            let (s1, sah_fraction) = first_sweep(bvh, &|| false);
             let spent = sweep_start.elapsed().as_secs_f64();
             iterations += s1.iterations.len();
             let (after, swept_scene) = probe(bvh);
@@ -352,7 +353,7 @@ impl RenderScene {
             if gained > spent && sah_fraction > 0.0 {
                 let efficiency = sweep_efficiency(gained / *render_seconds, sah_fraction);
                 *render_seconds = after;
-                let rest = sweeps_while_they_pay(bvh, *render_seconds, efficiency);
+                let rest = sweeps_while_they_pay(bvh, *render_seconds, efficiency, &|| false);
                 iterations += rest.iterations.len();
                 if !rest.iterations.is_empty() {
                     *timed = None;

@@ -152,13 +152,16 @@ impl Refiner {
     /// sample): `samples_done` is the samples per pixel taken so far in this frame, and
     /// `rest(per_sample)` the render's remaining seconds at `per_sample` seconds per sample
     /// (module docs). Passes are added up until they make [`MIN_TIMED_SECONDS`]; then it
-    /// decides, and gives `rs` a better tree where that pays. Returns whether it did.
+    /// decides, and gives `rs` a better tree where that pays. Returns whether it did. The
+    /// optimisation stops between its iterations where `abandon` says so (a signal), with the
+    /// tree as far as it came.
     pub fn after_pass(
         &mut self,
         rs: &mut RenderScene,
         pass: (f64, f64),
         samples_done: f64,
         rest: &dyn Fn(f64) -> f64,
+        abandon: &dyn Fn() -> bool,
     ) -> bool {
         if std::mem::take(&mut self.cold) {
             return false;
@@ -169,14 +172,21 @@ impl Refiner {
         }
         let per_sample = self.timed.0 / self.timed.1;
         self.timed = (0.0, 0.0);
-        let changed = self.decide(rs, per_sample, samples_done, rest(per_sample));
+        let changed = self.decide(rs, per_sample, samples_done, rest(per_sample), abandon);
         if !self.is_active() {
             self.finish();
         }
         changed
     }
 
-    fn decide(&mut self, rs: &mut RenderScene, per_sample: f64, samples_done: f64, rest: f64) -> bool {
+    fn decide(
+        &mut self,
+        rs: &mut RenderScene,
+        per_sample: f64,
+        samples_done: f64,
+        rest: f64,
+        abandon: &dyn Fn() -> bool,
+    ) -> bool {
         match self.state {
             State::Start => {
                 self.report.estimate = Some(rest + per_sample * samples_done);
@@ -190,7 +200,7 @@ impl Refiner {
                 // Rendering waits meanwhile: the traced tree goes first, so that it and the
                 // optimisation's own memory are never held at once.
                 Self::drop_tree(rs);
-                let (s, sah_fraction) = first_sweep(&mut self.bvh);
+                let (s, sah_fraction) = first_sweep(&mut self.bvh, abandon);
                 self.report.iterations += s.iterations.len();
                 self.retree(rs);
                 let cost = t.elapsed().as_secs_f64();
@@ -211,7 +221,7 @@ impl Refiner {
                 }
                 let t = Instant::now();
                 Self::drop_tree(rs);
-                let s = sweeps_while_they_pay(&mut self.bvh, rest, sweep_efficiency(gain, sah_fraction));
+                let s = sweeps_while_they_pay(&mut self.bvh, rest, sweep_efficiency(gain, sah_fraction), abandon);
                 self.report.iterations += s.iterations.len();
                 self.retree(rs);
                 self.report.seconds += t.elapsed().as_secs_f64();

@@ -152,7 +152,9 @@ impl Signals {
             while watching.load(Ordering::SeqCst) {
                 if stopped(&watched) && watching.load(Ordering::SeqCst) {
                     eprintln!("render: stopped by a signal while loading the scene; nothing written");
-                    std::process::exit(code::INTERRUPTED);
+                    // `_exit`: the main thread may be inside a driver (a GPU's set-up), whose
+                    // exit handlers must not run under it.
+                    signal_hook::low_level::exit(code::INTERRUPTED);
                 }
                 std::thread::sleep(LOADING_POLL);
             }
