@@ -162,14 +162,12 @@ fn outputs_that_would_overwrite_what_the_run_reads_are_refused() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A piece as the `exr` crate decodes it: every channel, every attribute.
+type ExrPiece = exr::prelude::Image<exr::prelude::Layer<exr::prelude::AnyChannels<exr::prelude::FlatSamples>>>;
+
 /// The EXR at `path` decoded, changed by `change`, and written back whole and well-formed: what a
 /// damaged transfer that was then recompressed would leave.
-fn tamper(
-    path: &Path,
-    change: &dyn Fn(
-        &mut exr::prelude::Image<exr::prelude::Layer<exr::prelude::AnyChannels<exr::prelude::FlatSamples>>>,
-    ),
-) {
+fn tamper(path: &Path, change: &dyn Fn(&mut ExrPiece)) {
     use exr::prelude::{ReadChannels, ReadLayers, WritableImage, read};
     let mut image = read()
         .no_deep_data()

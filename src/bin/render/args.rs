@@ -16,8 +16,10 @@ use clap::{Parser, ValueEnum};
 ///
 /// Split renders (docs/distributed.md): `--tile I/N`, `--crop` and `--samples` render part of
 /// the image or of its samples to a partial film (EXR); `render --merge PIECE.exr... -o OUT`
-/// makes the image, bit for bit the one a single render makes. Exit codes: 0 done, 2 bad input,
-/// 3 out of memory, 69 device, 74 I/O, 75 stopped by a signal (state written), 1 other.
+/// makes the image, bit for bit the one a single render makes. An output that would overwrite
+/// an input (or another output) is refused before any work. Exit codes: 0 done, 2 bad input,
+/// 3 out of memory, 69 device, 74 I/O (a full disk too), 75 stopped by a signal (state
+/// written), 1 other.
 #[derive(Parser, Debug)]
 #[command(name = "render", version, allow_negative_numbers = true)]
 pub struct Args {
@@ -96,7 +98,9 @@ pub struct Args {
     /// Carry on from the state a checkpoint or a signal left (start afresh where there is none).
     #[arg(long)]
     pub resume: bool,
-    /// Do nothing for an output that is already complete.
+    /// Do nothing for an output that is already complete and whole (it decodes to the end at
+    /// the right size; a piece also passes its integrity check). With --merge: do nothing where
+    /// the merged image is already whole.
     #[arg(long)]
     pub skip_existing: bool,
     /// Write a JSON report of what ran and what it cost to this file.
