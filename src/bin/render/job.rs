@@ -79,6 +79,7 @@ fn cause_code(cause: &(dyn std::error::Error + 'static)) -> Option<i32> {
         return Some(match e {
             SceneError::Read { error, .. } => input_code(error),
             SceneError::Invalid { .. } => code::BAD_INPUT,
+            SceneError::Memory { .. } => code::NO_MEMORY,
         });
     }
     if let Some(e) = cause.downcast_ref::<PieceError>() {
@@ -90,10 +91,16 @@ fn cause_code(cause: &(dyn std::error::Error + 'static)) -> Option<i32> {
     cause.is::<std::io::Error>().then_some(code::IO)
 }
 
-/// An input that is not there is bad input; any other failure to read, and any failure to
-/// write (a shared folder briefly gone), may pass.
+/// An input that is not there, or is a folder or a device rather than a file, is bad input;
+/// one too long to read in the memory available needs more; any other failure to read, and
+/// any failure to write (a shared folder briefly gone), may pass.
 fn input_code(e: &std::io::Error) -> i32 {
-    if e.kind() == std::io::ErrorKind::NotFound { code::BAD_INPUT } else { code::IO }
+    use std::io::ErrorKind;
+    match e.kind() {
+        ErrorKind::NotFound | ErrorKind::IsADirectory | ErrorKind::InvalidInput => code::BAD_INPUT,
+        ErrorKind::OutOfMemory => code::NO_MEMORY,
+        _ => code::IO,
+    }
 }
 
 fn piece_code(e: &PieceError) -> i32 {

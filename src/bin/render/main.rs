@@ -173,9 +173,11 @@ fn run(args: &Args, stop: &AtomicBool, report: &mut Report) -> Result<()> {
         return Ok(());
     }
     // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
+    let binary = device.name() == "gpu" || tracing.layout == TraceLayout::Binary;
     if device.name() == "gpu" || !wants_instancing(&scene) {
-        let binary = device.name() == "gpu" || tracing.layout == TraceLayout::Binary;
         scene.check_flat_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
+    } else {
+        scene.check_instanced_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
     }
     let builder = named.unwrap_or_else(|| BuilderChoice::default_for(device, &scene));
     let mut renderer = Renderer::new(device, &scene, &builder, tracing, settings, jobs.len(), jobs[0].0.time)?;
