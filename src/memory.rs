@@ -1,4 +1,6 @@
-//! The process's memory as the kernel counts it, for reports (peak memory per triangle).
+//! The process's memory as the kernel counts it, for reports (peak memory per triangle) and for
+//! refusing work that would not fit before it allocates; and the one reader of whole files,
+//! which refuses what is not a regular file before opening it.
 //!
 //! Read from `/proc/self/status` (Linux): `VmHWM`, the peak resident set, and `VmRSS`, the
 //! current one. Elsewhere both are `None` and reports leave the figures out. Resident memory
@@ -17,17 +19,40 @@ pub fn rss_bytes() -> Option<u64> {
 
 /// Memory the system can give this process now without swapping, bytes; `None` where unknown:
 /// the machine's `MemAvailable` (`/proc/meminfo`, Linux), or less where the process's control
-/// group has a memory limit ([`cgroup_available_bytes`]). Under Slurm or Kubernetes the job's
-/// cgroup limit, not the machine, is what ends a job that asks too much.
+/// group has a memory limit ([`cgroup_available_bytes`]) or the process a resource limit
+/// ([`rlimit_available_bytes`]). Under Slurm or Kubernetes the job's cgroup limit, not the
+/// machine, is what ends a job that asks too much; under `ulimit -v` an allocation past the
+/// limit fails and the process aborts.
 pub fn available_bytes() -> Option<u64> {
     let machine = std::fs::read_to_string("/proc/meminfo").ok().and_then(|info| kib_field(&info, "MemAvailable:"));
     let machine = machine.map(|k| k * 1024);
     let cgroup =
         std::fs::read_to_string("/proc/self/cgroup").ok().and_then(|c| cgroup_available_bytes(Path::new("/"), &c));
-    match (machine, cgroup) {
-        (Some(m), Some(c)) => Some(m.min(c)),
-        (m, c) => m.or(c),
-    }
+    let read = |name: &str| std::fs::read_to_string(Path::new("/proc/self").join(name)).ok();
+    let rlimit = read("limits").zip(read("status")).and_then(|(l, s)| rlimit_available_bytes(&l, &s));
+    [machine, cgroup, rlimit].into_iter().flatten().min()
+}
+
+/// What the process's resource limits leave unused, bytes: `limits` is the text of
+/// `/proc/self/limits` and `status` of `/proc/self/status`. The address space's soft limit
+/// (`RLIMIT_AS`, `ulimit -v`) less `VmSize`, and the data segment's (`RLIMIT_DATA`, `ulimit -d`,
+/// which since Linux 4.7 counts every private writable mapping) less `VmData`; the lesser of
+/// the two, `None` where neither is limited. Both count address space reserved and not yet
+/// touched (thread stacks, the allocator's arenas), as the kernel does when it refuses a
+/// mapping.
+///
+/// Read from `/proc` like the rest of this module, not by `getrlimit`: the same numbers, with
+/// no `unsafe` and no dependency on `libc`.
+pub fn rlimit_available_bytes(limits: &str, status: &str) -> Option<u64> {
+    let soft_limit = |name: &str| -> Option<u64> {
+        let rest = limits.lines().find_map(|l| l.strip_prefix(name))?;
+        // "unlimited", or bytes.
+        rest.split_whitespace().next()?.parse().ok()
+    };
+    let left = |name: &str, used: &str| {
+        soft_limit(name).map(|limit| limit.saturating_sub(kib_field(status, used).unwrap_or(0) * 1024))
+    };
+    [left("Max address space", "VmSize:"), left("Max data size", "VmData:")].into_iter().flatten().min()
 }
 
 /// What the memory limits of the control groups in `cgroups` (the text of `/proc/self/cgroup`)
@@ -83,13 +108,19 @@ pub fn check_fits(what: &str, bytes: f64) -> Result<(), OutOfMemory> {
 }
 
 /// What [`check_fits`] refuses.
-#[derive(Debug, thiserror::Error)]
-#[error("{what} needs about {:.1} GB of memory, and {:.1} GB is available", bytes / 1e9, *available as f64 / 1e9)]
+#[derive(Clone, Debug, thiserror::Error)]
+#[error("{what} needs about {} of memory, and {} is available", shown(*bytes), shown(*available as f64))]
 pub struct OutOfMemory {
     /// What needs the memory, as the user knows it (a file, a line, a key).
     pub what: String,
     pub bytes: f64,
     pub available: u64,
+}
+
+/// `bytes` for a message: in GB to one decimal, or below 1 GB in MB (a limit of 200 MB is not
+/// "0.0 GB").
+fn shown(bytes: f64) -> String {
+    if bytes >= 1e9 { format!("{:.1} GB", bytes / 1e9) } else { format!("{:.0} MB", bytes / 1e6) }
 }
 
 /// Peak bytes per triangle of a flat scene rendered on the CPU, its BVH built and collapsed and
@@ -101,33 +132,152 @@ pub const RENDER_BYTES_PER_TRIANGLE: f64 = 480.0;
 /// render that traces the binary tree (measured before the wide form existed).
 pub const RENDER_BYTES_PER_TRIANGLE_BINARY: f64 = 320.0;
 
+/// Peak bytes per instance of a render as instances (the CPU's two levels), besides its meshes'
+/// BVHs: the scene's object, the instance, its share of the top-level BVH and of what is built
+/// beside it. 520 and 536 were measured on 3 and 10 million scattered boxes; with room.
+pub const RENDER_BYTES_PER_INSTANCE: f64 = 640.0;
+
 /// The peak bytes per triangle a flat render is checked against: with the wide form, or
 /// (`binary`) with the binary tree alone.
 pub fn render_bytes_per_triangle(binary: bool) -> f64 {
     if binary { RENDER_BYTES_PER_TRIANGLE_BINARY } else { RENDER_BYTES_PER_TRIANGLE }
 }
 
-/// The whole file at `path`, refusing one longer than `limit` bytes: a path that never ends
-/// (`/dev/zero`, a FIFO fed without end) is an error once past it, not a read until memory runs
-/// out.
-pub fn read_at_most(path: &std::path::Path, limit: u64) -> std::io::Result<Vec<u8>> {
+/// Bytes a text file is taken to need per byte once read and parsed: the text, and the copies
+/// and structures parsing makes beside it (a quarter of the memory available is the longest
+/// file read whole, [`text_file_limit`]).
+pub const TEXT_BYTES_PER_BYTE: f64 = 4.0;
+
+/// The whole of the regular file at `path` (OBJ, MTL, PLY, glTF): refused before it is opened
+/// where it is not a regular file ([`regular_file_len`]), and where its text read and parsed
+/// would not fit in memory ([`TEXT_BYTES_PER_BYTE`]; an error of kind
+/// [`std::io::ErrorKind::OutOfMemory`] whose payload is the [`OutOfMemory`]).
+pub fn read_file(path: &Path) -> std::io::Result<Vec<u8>> {
+    let len = regular_file_len(path)?;
+    let what = format!("its {:.1} MB, read and parsed,", len as f64 / 1e6);
+    check_fits(&what, len as f64 * TEXT_BYTES_PER_BYTE)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::OutOfMemory, e))?;
+    read_limited(std::fs::File::open(path)?, Some(len), text_file_limit())
+}
+
+/// [`read_file`] that also reads a named pipe to its end: the scene file, which a user may give
+/// as `render <(generate) ...`. A pipe longer than [`text_file_limit`] is an error of kind
+/// [`std::io::ErrorKind::OutOfMemory`] once past it, not a read until memory runs out. A folder
+/// is an error of kind [`std::io::ErrorKind::IsADirectory`].
+pub fn read_file_or_pipe(path: &Path) -> std::io::Result<Vec<u8>> {
+    let meta = std::fs::metadata(path)?;
+    if !is_fifo(&meta) {
+        return read_file(path);
+    }
+    read_limited(std::fs::File::open(path)?, None, text_file_limit())
+}
+
+/// The whole of the regular file at `path`, checked as [`read_file`] checks it but against
+/// `limit` bytes rather than the memory available: a longer file is an error of kind
+/// [`std::io::ErrorKind::OutOfMemory`] (a limit is the memory's, as [`text_file_limit`] is),
+/// found from its length before it is opened.
+pub fn read_at_most(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
+    let len = regular_file_len(path)?;
+    if len > limit {
+        return Err(longer_than(limit));
+    }
+    read_limited(std::fs::File::open(path)?, Some(len), limit)
+}
+
+/// The first `len` bytes of the regular file at `path` (a glTF buffer of `byteLength` bytes):
+/// an error of kind [`std::io::ErrorKind::UnexpectedEof`] where it holds fewer; bytes past
+/// them are never read, however many there are.
+pub fn read_prefix(path: &Path, len: u64) -> std::io::Result<Vec<u8>> {
+    let held = regular_file_len(path)?;
+    if held < len {
+        let message = format!("holds {held} bytes, fewer than {len}");
+        return Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, message));
+    }
     use std::io::Read as _;
-    let mut file = std::fs::File::open(path)?;
-    // Room for the whole file up front where its size is known: growing by doubling copied a
-    // 20 MB file about twice over and took as long as parsing it.
-    let size = file.metadata().ok().map(|m| m.len()).filter(|&n| n <= limit);
-    let mut bytes = Vec::with_capacity(size.map_or(0, |n| usize::try_from(n).unwrap_or(0)));
-    file.by_ref().take(limit.saturating_add(1)).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > limit {
-        return Err(std::io::Error::other(format!("longer than {:.1} GB", limit as f64 / 1e9)));
+    let mut bytes = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
+    std::fs::File::open(path)?.take(len).read_to_end(&mut bytes)?;
+    if (bytes.len() as u64) < len {
+        let message = format!("ended after {} bytes, before {len} (did it shrink?)", bytes.len());
+        return Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, message));
     }
     Ok(bytes)
 }
 
+/// The length of the regular file at `path` (links followed), from its metadata: anything else
+/// is an error before it is opened, which for a named pipe waits for a writer for ever, and
+/// which for a device may never end (`/dev/zero`). A folder is an error of kind
+/// [`std::io::ErrorKind::IsADirectory`], the rest of kind [`std::io::ErrorKind::InvalidInput`].
+pub fn regular_file_len(path: &Path) -> std::io::Result<u64> {
+    use std::io::{Error, ErrorKind};
+    let meta = std::fs::metadata(path)?;
+    if meta.is_file() {
+        return Ok(meta.len());
+    }
+    if meta.is_dir() {
+        return Err(Error::new(ErrorKind::IsADirectory, "is a directory, not a regular file"));
+    }
+    Err(Error::new(ErrorKind::InvalidInput, format!("is {}, not a regular file", kind_of(&meta))))
+}
+
+/// What a file that is not regular nor a folder is, for messages.
+fn kind_of(meta: &std::fs::Metadata) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt as _;
+        let t = meta.file_type();
+        if t.is_fifo() {
+            return "a named pipe (FIFO)";
+        }
+        if t.is_char_device() {
+            return "a character device";
+        }
+        if t.is_block_device() {
+            return "a block device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    let _ = meta;
+    "a special file"
+}
+
+fn is_fifo(meta: &std::fs::Metadata) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt as _;
+        meta.file_type().is_fifo()
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = meta;
+        false
+    }
+}
+
+/// `file` read to its end, refusing more than `limit` bytes; `size` is its length where known,
+/// the room taken up front: growing by doubling copied a 20 MB file about twice over and took
+/// as long as parsing it.
+fn read_limited(file: std::fs::File, size: Option<u64>, limit: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read as _;
+    let room = size.filter(|&n| n <= limit).map_or(0, |n| usize::try_from(n).unwrap_or(0));
+    let mut bytes = Vec::with_capacity(room);
+    file.take(limit.saturating_add(1)).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > limit {
+        return Err(longer_than(limit));
+    }
+    Ok(bytes)
+}
+
+fn longer_than(limit: u64) -> std::io::Error {
+    std::io::Error::new(std::io::ErrorKind::OutOfMemory, format!("longer than {}", shown(limit as f64)))
+}
+
 /// The longest text file worth reading whole: a quarter of the memory available (parsing keeps
-/// copies of the text beside what it makes), and no limit where that is unknown.
+/// copies of the text beside what it makes, [`TEXT_BYTES_PER_BYTE`]), and no limit where that
+/// is unknown.
 pub fn text_file_limit() -> u64 {
-    available_bytes().map_or(u64::MAX, |a| a / 4)
+    available_bytes().map_or(u64::MAX, |a| (a as f64 / TEXT_BYTES_PER_BYTE) as u64)
 }
 
 use std::path::Path;
@@ -147,15 +297,50 @@ mod tests {
     use super::*;
 
     #[test]
-    fn reads_stop_at_the_limit() {
-        let path = std::env::temp_dir().join(format!("arbor-memory-read-{}", std::process::id()));
+    fn reads_stop_at_the_limit_and_refuse_what_is_not_a_regular_file() {
+        use std::io::ErrorKind;
+        let dir = std::env::temp_dir().join(format!("arbor-memory-read-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("ten");
         std::fs::write(&path, b"0123456789").unwrap();
+        let open = || std::fs::File::open(&path).unwrap();
+        assert_eq!(read_limited(open(), Some(10), 10).unwrap(), b"0123456789");
+        let long = read_limited(open(), None, 9).unwrap_err();
+        assert!(long.kind() == ErrorKind::OutOfMemory && long.to_string().starts_with("longer than"), "{long}");
         assert_eq!(read_at_most(&path, 10).unwrap(), b"0123456789");
-        assert!(read_at_most(&path, 9).unwrap_err().to_string().starts_with("longer than"));
-        std::fs::remove_file(&path).unwrap();
-        if std::path::Path::new("/dev/zero").exists() {
-            assert!(read_at_most(std::path::Path::new("/dev/zero"), 1 << 20).is_err());
+        assert_eq!(read_at_most(&path, 9).unwrap_err().kind(), ErrorKind::OutOfMemory);
+        assert_eq!(read_file(&path).unwrap(), b"0123456789");
+        assert_eq!(read_file_or_pipe(&path).unwrap(), b"0123456789");
+        assert_eq!(read_prefix(&path, 4).unwrap(), b"0123");
+        assert_eq!(read_prefix(&path, 11).unwrap_err().kind(), ErrorKind::UnexpectedEof);
+        assert_eq!(read_file(&dir).unwrap_err().kind(), ErrorKind::IsADirectory);
+        assert_eq!(read_file_or_pipe(&dir).unwrap_err().kind(), ErrorKind::IsADirectory);
+        assert_eq!(read_file(&dir.join("none")).unwrap_err().kind(), ErrorKind::NotFound);
+        if Path::new("/dev/zero").exists() {
+            let zero = read_file(Path::new("/dev/zero")).unwrap_err();
+            assert_eq!(zero.kind(), ErrorKind::InvalidInput);
+            assert_eq!(zero.to_string(), "is a character device, not a regular file");
+            assert!(read_prefix(Path::new("/dev/zero"), 4).is_err());
+            assert_eq!(read_at_most(Path::new("/dev/zero"), 1 << 20).unwrap_err().kind(), ErrorKind::InvalidInput);
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The address space's and the data segment's soft limits, less what the process maps;
+    /// `unlimited` is no limit.
+    #[test]
+    fn resource_limits_leave_the_limit_less_what_is_mapped() {
+        let limits = "Limit                     Soft Limit           Hard Limit           Units     \n\
+                      Max data size             unlimited            unlimited            bytes     \n\
+                      Max address space         204800000            unlimited            bytes     \n";
+        let status = "Name:\trender\nVmSize:\t  100000 kB\nVmData:\t   50000 kB\n";
+        assert_eq!(rlimit_available_bytes(limits, status), Some(204_800_000 - 102_400_000));
+        let data = limits.replace("Max data size             unlimited", "Max data size             60000000 ");
+        assert_eq!(rlimit_available_bytes(&data, status), Some(60_000_000 - 51_200_000));
+        let none = limits.replace("204800000", "unlimited");
+        assert_eq!(rlimit_available_bytes(&none, status), None);
+        let over = limits.replace("204800000", "1000");
+        assert_eq!(rlimit_available_bytes(&over, status), Some(0));
     }
 
     #[test]

@@ -5,7 +5,8 @@
 //! index type give the documented triangles; interleaved, normalized, sparse and unbacked
 //! accessors are read, unknown attributes ignored; materials map as documented, the reader keeping their
 //! full description; a camera comes from the file; scatter and keyframes move a file's nodes as
-//! one; and every kind of bad file is an error that names the scene file, line and key, the glTF
+//! one; `extras` may be any JSON value; a buffer's file is read only as far as its `byteLength`;
+//! and every kind of bad file is an error that names the scene file, line and key, the glTF
 //! file, and the place in it.
 
 use crate::common::gltf::{BYTE, Doc, FLOAT, UNSIGNED_BYTE, UNSIGNED_INT, UNSIGNED_SHORT, triangle_doc};
@@ -588,4 +589,67 @@ fn camera_errors_name_the_key_and_the_camera() {
     std::fs::write(dir.join("m.gltf"), hierarchy().gltf_embedded()).unwrap();
     let err = error("from = \"m.gltf\"\naperture = 0.1");
     assert!(err.starts_with(&format!("{s}:3: camera.focus_distance: a thin lens")), "{err}");
+}
+
+/// `extras` may be any JSON value (glTF 2.0, 3.2 and the schema's `extras`): an array at the
+/// root, a string on a node, a number on a mesh, `null` on the asset. Each was refused as "not a
+/// struct".
+#[test]
+fn extras_may_be_any_json_value() {
+    let d = doc_with(|d| {
+        d.json["extras"] = json!([1, "two", { "three": 3 }]);
+        d.json["asset"]["extras"] = json!(null);
+        d.json["nodes"][0]["extras"] = json!("a note");
+        d.json["meshes"][0]["extras"] = json!(4.5);
+        d.json["scenes"][0]["extras"] = json!(true);
+    });
+    let dir = temp_dir("extras");
+    let scene = load(&dir, &[("m.gltf", &d.gltf_embedded())], &object("m.gltf")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.world_triangle_count(), 1);
+}
+
+/// Emission above 2^40 (the factor times `KHR_materials_emissive_strength`, or times the
+/// emissive texture's brightest texel) is refused, naming the material: the film drops every
+/// sample above 2^44, so such a lamp rendered black.
+#[test]
+fn emission_above_two_to_the_forty_is_an_error_naming_the_material() {
+    let strong = doc_with(|d| {
+        d.push(
+            "materials",
+            json!({ "emissiveFactor": [1, 0.5, 0], "extensions": { "KHR_materials_emissive_strength": { "emissiveStrength": 1e38 } } }),
+        );
+        d.json["meshes"][0]["primitives"][0]["material"] = json!(0);
+    });
+    let rest = mesh_error("strength", "m.gltf", &[("m.gltf", &strong.gltf_embedded())]);
+    assert_says("emissive strength", &rest, "materials[0]", "2^40");
+    let textured = doc_with(|d| {
+        d.push("images", json!({ "uri": "hot.exr" }));
+        d.push("textures", json!({ "source": 0 }));
+        d.push("materials", json!({ "emissiveFactor": [1, 1, 1], "emissiveTexture": { "index": 0 } }));
+        d.json["meshes"][0]["primitives"][0]["material"] = json!(0);
+    });
+    let mut hot = arbor::image_io::Image::new(2, 2);
+    hot.pixels[3] = [3e38, 1.0, 1.0];
+    let dir = temp_dir("hot-texture");
+    arbor::image_io::write_image(dir.join("hot.exr"), &hot).unwrap();
+    let err = load(&dir, &[("m.gltf", &textured.gltf_embedded())], &object("m.gltf")).map(|_| ()).unwrap_err();
+    let at =
+        format!("{}:8: objects[0].mesh: {}: materials[0]", dir.join("s.toml").display(), dir.join("m.gltf").display());
+    assert!(err.starts_with(&at) && err.contains("hot.exr") && err.contains("2^40"), "{err}");
+}
+
+/// A buffer's file is read only as far as its `byteLength`: a file far longer (here a sparse
+/// file of 64 GB) is not read whole, as one was before failing at a quarter of the memory.
+#[test]
+fn a_buffer_file_longer_than_its_byte_length_is_read_only_that_far() {
+    let dir = temp_dir("long-bin");
+    let (gltf, bin) = doc_with(|_| {}).gltf_external("long.bin");
+    let long = std::fs::File::create(dir.join("long.bin")).unwrap();
+    std::io::Write::write_all(&mut &long, &bin).unwrap();
+    long.set_len(64 << 30).unwrap();
+    let started = std::time::Instant::now();
+    let scene = load(&dir, &[("m.gltf", &gltf)], &object("m.gltf")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.world_triangle_count(), 1);
+    assert!(started.elapsed().as_secs_f64() < 5.0, "took {:?}", started.elapsed());
+    std::fs::remove_file(dir.join("long.bin")).unwrap();
 }

@@ -1,4 +1,6 @@
-//! `render` as a user runs it: outputs, the summary line, overrides, and clear errors.
+//! `render` as a user runs it: outputs, the summary line, overrides, and clear errors with the
+//! exit codes a scheduler reads (files that are not regular files: 2; scenes that do not fit in
+//! the memory allowed: 3).
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -449,4 +451,228 @@ fn gpu_builds_its_own_bvh_for_lbvh_builders() {
         let c = image.get(image.width / 2, image.height / 2).unwrap();
         assert!(c.iter().all(|v| (v - 0.8).abs() < 1e-5), "{b}: centre {c:?}");
     }
+}
+
+/// `render` with `args`, killed if it runs past `limit`: its exit code (`None` where it was
+/// killed) and its standard error. A reader blocked on a FIFO that nobody writes never ends.
+fn run_within(args: &[&std::ffi::OsStr], limit: std::time::Duration) -> (Option<i32>, String) {
+    let mut child =
+        render().args(args).stdout(std::process::Stdio::null()).stderr(std::process::Stdio::piped()).spawn().unwrap();
+    let started = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > limit {
+            child.kill().unwrap();
+            let o = child.wait_with_output().unwrap();
+            return (None, format!("killed after {limit:?}: {}", String::from_utf8_lossy(&o.stderr)));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let o = child.wait_with_output().unwrap();
+    (o.status.code(), String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+fn mkfifo(path: &std::path::Path) {
+    let o = Command::new("mkfifo").arg(path).output().expect("mkfifo runs");
+    assert!(o.status.success(), "mkfifo {}: {}", path.display(), String::from_utf8_lossy(&o.stderr));
+}
+
+const SMALL_CAMERA: &str = "[camera]\nposition = [0, 0, 4]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n";
+
+/// A mesh, an MTL file, a glTF file, its buffers and images, a texture and a sky map that are
+/// named pipes or devices are refused before they are opened (opening a FIFO waits for a writer
+/// for ever; a glTF buffer of `/dev/zero` was read for 6 GB), with exit code 2 and the scene's
+/// file, line and key; a scene file given as a folder is bad input too (it was an I/O error,
+/// code 74), and a scene file that is itself a pipe (`render <(generate)`) still renders.
+#[cfg(unix)]
+#[test]
+fn files_that_are_not_regular_files_are_refused_before_opening() {
+    let dir = temp_dir("not-regular");
+    for name in ["pipe.obj", "pipe.ply", "pipe.gltf", "pipe.mtl", "pipe.bin", "pipe.png", "pipe.exr", "pipe.hdr"] {
+        let _ = std::fs::remove_file(dir.join(name));
+        mkfifo(&dir.join(name));
+    }
+    std::fs::write(dir.join("m.obj"), "mtllib pipe.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n").unwrap();
+    let gltf = |buffer: &str, image: Option<&str>| {
+        let mut d = common::gltf::triangle_doc();
+        d.node(serde_json::json!({ "mesh": 0 }), true);
+        if let Some(uri) = image {
+            d.push("images", serde_json::json!({ "uri": uri }));
+            d.push("textures", serde_json::json!({ "source": 0 }));
+            d.push("materials", serde_json::json!({ "pbrMetallicRoughness": { "baseColorTexture": { "index": 0 } } }));
+            d.json["meshes"][0]["primitives"][0]["material"] = serde_json::json!(0);
+        }
+        let (text, bin) = d.gltf_external(buffer);
+        if !buffer.starts_with('/') && !buffer.starts_with("pipe") {
+            std::fs::write(dir.join(buffer), bin).unwrap();
+        }
+        text
+    };
+    std::fs::write(dir.join("zero.gltf"), gltf("/dev/zero", None)).unwrap();
+    std::fs::write(dir.join("fifo-buffer.gltf"), gltf("pipe.bin", None)).unwrap();
+    std::fs::write(dir.join("fifo-image.gltf"), gltf("tri.bin", Some("pipe.png"))).unwrap();
+    let lamp = "[materials.lamp]\ntype = \"emissive\"\nradiance = [1, 1, 1]\n";
+    let object = |mesh: &str| format!("{lamp}\n[[objects]]\nmesh = \"{mesh}\"\nmaterial = \"lamp\"\n");
+    let quad = |material: &str| format!("{material}\n[[objects]]\nshape = \"quad\"\nmaterial = \"m\"\n");
+    // (scene after the camera, the key at fault, the file it must name)
+    let cases: Vec<(String, &str, &str)> = vec![
+        (object("pipe.obj"), "objects[0].mesh", "pipe.obj"),
+        (object("pipe.ply"), "objects[0].mesh", "pipe.ply"),
+        (object("pipe.gltf"), "objects[0].mesh", "pipe.gltf"),
+        (object("zero.gltf"), "objects[0].mesh", "/dev/zero"),
+        (object("fifo-buffer.gltf"), "objects[0].mesh", "pipe.bin"),
+        (object("fifo-image.gltf"), "objects[0].mesh", "pipe.png"),
+        // The OBJ file's own material comes from the MTL file.
+        ("[[objects]]\nmesh = \"m.obj\"\n".to_owned(), "objects[0].mesh", "pipe.mtl"),
+        (quad("[materials.m]\ntype = \"diffuse\"\ntexture = \"pipe.png\"\n"), "materials.m.texture", "pipe.png"),
+        (quad("[materials.m]\ntype = \"diffuse\"\ntexture = \"pipe.exr\"\n"), "materials.m.texture", "pipe.exr"),
+        (format!("[environment]\nmap = \"pipe.exr\"\n\n{}", object("m.obj")), "environment.map", "pipe.exr"),
+        (format!("[environment]\nmap = \"pipe.hdr\"\n\n{}", object("m.obj")), "environment.map", "pipe.hdr"),
+        ("[camera]\nfrom = \"pipe.gltf\"\nresolution = [8, 8]\n".to_owned(), "camera.from", "pipe.gltf"),
+    ];
+    let out = dir.join("never.exr");
+    for (i, (text, key, file)) in cases.iter().enumerate() {
+        let scene = dir.join(format!("s{i}.toml"));
+        let text = if text.starts_with("[camera]") { text.clone() } else { format!("{SMALL_CAMERA}\n{text}") };
+        std::fs::write(&scene, &text).unwrap();
+        let line = text
+            .lines()
+            .position(|l| {
+                l.contains(file.trim_start_matches('/')) || (*key == "objects[0].mesh" && l.starts_with("mesh"))
+            })
+            .unwrap()
+            + 1;
+        let (code, stderr) =
+            run_within(&[scene.as_os_str(), "-o".as_ref(), out.as_os_str()], std::time::Duration::from_secs(20));
+        assert_eq!(code, Some(2), "{key} naming {file}: {stderr}");
+        let at = format!("{}:{line}: {key}: ", scene.display());
+        assert!(stderr.contains(&at) && stderr.contains(file), "{key}: want `{at}` and {file} in: {stderr}");
+        assert!(stderr.contains("not a regular file"), "{key}: {stderr}");
+        assert!(!out.exists());
+    }
+
+    // The scene file itself: a folder is bad input; a pipe renders.
+    let (code, stderr) =
+        run_within(&[dir.as_os_str(), "-o".as_ref(), out.as_os_str()], std::time::Duration::from_secs(20));
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains(&format!("{}: cannot read: is a directory", dir.display())), "{stderr}");
+    let piped = dir.join("scene-pipe.toml");
+    let _ = std::fs::remove_file(&piped);
+    mkfifo(&piped);
+    let image = dir.join("piped.exr");
+    let child = std::thread::spawn({
+        let (piped, image) = (piped.clone(), image.clone());
+        move || run_within(&[piped.as_os_str(), "-o".as_ref(), image.as_os_str()], std::time::Duration::from_secs(60))
+    });
+    std::fs::write(&piped, format!("{SMALL_CAMERA}\n{lamp}\n[[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\n"))
+        .unwrap();
+    let (code, stderr) = child.join().unwrap();
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(image.exists());
+}
+
+/// `render` under an address-space limit of `bytes` (`ulimit -v`, which `available_bytes`
+/// honours as it does a control group's limit), on the CPU.
+#[cfg(unix)]
+fn render_limited(bytes: u64, scene: &std::path::Path, out: &std::path::Path) -> std::process::Output {
+    Command::new("sh")
+        .arg("-c")
+        .arg(format!("ulimit -v {} && exec \"$0\" \"$@\"", bytes / 1024))
+        .arg(env!("CARGO_BIN_EXE_render"))
+        .arg(scene)
+        .arg("-o")
+        .arg(out)
+        .args(["--device", "cpu", "--spp", "1", "--threads", "2"])
+        .output()
+        .unwrap()
+}
+
+/// Under 200 MB, scenes that need more are refused before they allocate, with exit code 3
+/// (retry with more memory) and the estimate, where they were killed or aborted: 3M and 10M
+/// scattered instances, eight spheres of subdivision 8, four of subdivision 7 whose meshes fit
+/// but not their instanced BVH, a glTF file of 10^6 nodes and one of 3·10^5 (whose text fits),
+/// a city whose flattened BVH needs 0.3 GB (exit code 1, as the error hid its cause), 5M
+/// procedural triangles, a texture and a sky map whose texels do not fit (exit code 2). A small
+/// scene still renders under the same limit.
+#[cfg(unix)]
+#[test]
+fn scenes_too_large_for_the_memory_limit_exit_3_with_the_estimate() {
+    const LIMIT: u64 = 200_000_000;
+    let dir = temp_dir("memory-limit");
+    let grey =
+        "[materials.grey]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\n[environment]\nradiance = [1, 1, 1]\n";
+    let scatter = |count: u64| {
+        format!(
+            "{grey}\n[[objects]]\nshape = \"box\"\nmaterial = \"grey\"\n[objects.scatter]\ncount = {count}\nmin = [-9, 0, -9]\nmax = [9, 0, 9]\n"
+        )
+    };
+    let spheres = |n: u32, level: u32| -> String {
+        (0..n)
+            .map(|i| {
+                format!(
+                    "\n[[objects]]\nshape = \"sphere\"\nsubdivisions = {level}\nmaterial = \"grey\"\ntranslate = [{i}, 0, 0]\n"
+                )
+            })
+            .collect()
+    };
+    let procedural = |n: u64| format!("{grey}\n[[objects]]\nshape = \"city\"\ntriangles = {n}\nmaterial = \"grey\"\n");
+    // 10^6 nodes placing one triangle: 18 MB of JSON, some 0.5 GB once parsed; 3·10^5 nodes,
+    // 5 MB, which fit in memory as text but not parsed.
+    let doc = common::gltf::triangle_doc();
+    let (_, bin) = doc.gltf_external("tri.bin");
+    std::fs::write(dir.join("tri.bin"), &bin).unwrap();
+    let rest = serde_json::json!({
+        "meshes": doc.json["meshes"], "accessors": doc.json["accessors"], "bufferViews": doc.json["bufferViews"],
+        "buffers": [{ "byteLength": bin.len(), "uri": "tri.bin" }],
+    });
+    for (name, n) in [("nodes.gltf", 1_000_000), ("some-nodes.gltf", 300_000)] {
+        let roots: Vec<String> = (0..n).map(|i| i.to_string()).collect();
+        let nodes = vec!["{\"mesh\":0}"; n].join(",");
+        let text = format!(
+            "{{\"asset\":{{\"version\":\"2.0\"}},\"scene\":0,\"scenes\":[{{\"nodes\":[{}]}}],\"nodes\":[{nodes}],{}",
+            roots.join(","),
+            &rest.to_string()[1..]
+        );
+        std::fs::write(dir.join(name), text).unwrap();
+    }
+    // Radiance HDR headers: the size is read before the texels, which are not there.
+    std::fs::write(dir.join("huge.hdr"), b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 16384 +X 16384\n").unwrap();
+    let cases: Vec<(&str, String, &str)> = vec![
+        ("scatter3m", scatter(3_000_000), "objects[0].scatter.count"),
+        ("scatter10m", scatter(10_000_000), "objects[0].scatter.count"),
+        ("spheres", format!("{grey}{}", spheres(8, 8)), "needs about"),
+        // Four spheres of subdivision 7 fit as meshes; rendered as instances, their BVH does not.
+        ("instanced", format!("{grey}{}", spheres(4, 7)), "the scene as 4 instances of 327680 triangles"),
+        ("nodes", format!("{grey}\n[[objects]]\nmesh = \"nodes.gltf\"\nmaterial = \"grey\"\n"), "objects[0].mesh"),
+        ("some-nodes", format!("{grey}\n[[objects]]\nmesh = \"some-nodes.gltf\"\n"), "objects), parsed, needs about"),
+        ("flattened", procedural(600_000), "not enough memory: the scene flattened ("),
+        ("procedural", procedural(5_000_000), "objects[0].triangles"),
+        (
+            "texture",
+            "[materials.t]\ntype = \"diffuse\"\ntexture = \"huge.hdr\"\n\n[[objects]]\nshape = \"quad\"\nmaterial = \"t\"\n".into(),
+            "materials.t.texture",
+        ),
+        (
+            "sky",
+            "[environment]\nmap = \"huge.hdr\"\n\n[materials.grey]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\n\
+             [[objects]]\nshape = \"quad\"\nmaterial = \"grey\"\n"
+                .into(),
+            "environment.map",
+        ),
+    ];
+    let out = dir.join("never.exr");
+    for (name, text, says) in &cases {
+        let scene = dir.join(format!("{name}.toml"));
+        std::fs::write(&scene, format!("{SMALL_CAMERA}\n{text}")).unwrap();
+        let o = render_limited(LIMIT, &scene, &out);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(3), "{name}: {stderr}");
+        assert!(
+            stderr.contains(&scene.display().to_string()) && stderr.contains(says),
+            "{name}: want `{says}`: {stderr}"
+        );
+        assert!(stderr.contains("needs about") && stderr.contains("is available"), "{name}: {stderr}");
+        assert!(!out.exists());
+    }
+    let small = render_limited(LIMIT, &scene("furnace.toml"), &dir.join("small.exr"));
+    assert!(small.status.success(), "{}", String::from_utf8_lossy(&small.stderr));
 }

@@ -922,3 +922,76 @@ fn mirrors_keep_each_triangle_front() {
         }
     }
 }
+
+/// Radiance above 2^40 is refused at load, naming the file, the line and the key (and the MTL
+/// file and its line): an emitter's radiance, an emission texture's brightest texel times the
+/// radiance it multiplies, an MTL `Ke`, a constant sky, a sky map's texels times its `scale`.
+/// The film drops every sample above 2^44, so such a scene rendered black with exit code 0.
+/// Exactly 2^40 loads.
+#[test]
+fn radiance_above_two_to_the_forty_is_refused() {
+    use arbor::image_io::{Image, write_image};
+    let dir = temp_dir("radiance");
+    let mut hot = Image::new(4, 2);
+    hot.pixels[5] = [1.0, 3e38, 1.0];
+    write_image(dir.join("hot.exr"), &hot).unwrap();
+    let mut warm = Image::new(4, 2);
+    warm.pixels[2] = [2e6, 0.5, 0.5];
+    write_image(dir.join("warm.exr"), &warm).unwrap();
+    std::fs::write(dir.join("ke.obj"), "mtllib ke.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl glow\nf 1 2 3\n").unwrap();
+    std::fs::write(dir.join("ke.mtl"), "newmtl glow\nKd 0.5 0.5 0.5\nKe 1e38 1 1\n").unwrap();
+    let head = "[camera]\nposition = [0, 0, 4]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\n";
+    let lamp = |keys: &str| {
+        format!(
+            "{head}[materials.lamp]\ntype = \"emissive\"\n{keys}\n[[objects]]\nshape = \"quad\"\nmaterial = \"lamp\"\n"
+        )
+    };
+    let sky = |keys: &str| {
+        format!(
+            "{head}[environment]\n{keys}\n[[objects]]\nmesh = \"ke.obj\"\nmaterial = \"x\"\n[materials.x]\ntype = \"diffuse\"\nalbedo = [1, 1, 1]\n"
+        )
+    };
+    // (scene, line, key, words)
+    let cases: Vec<(String, usize, &str, &[&str])> = vec![
+        (lamp("radiance = [3e38, 1, 1]\n"), 9, "materials.lamp.radiance", &["2^40"]),
+        (
+            lamp("radiance = [1, 1, 1]\nemission_texture = \"hot.exr\"\n"),
+            10,
+            "materials.lamp.emission_texture",
+            &["hot.exr", "2^40"],
+        ),
+        // Each below the limit, their product above it.
+        (
+            lamp("radiance = [1e7, 1, 1]\nemission_texture = \"warm.exr\"\n"),
+            10,
+            "materials.lamp.emission_texture",
+            &["warm.exr", "2^40"],
+        ),
+        (format!("{head}[[objects]]\nmesh = \"ke.obj\"\n"), 8, "objects[0].mesh", &["ke.mtl:3", "Ke", "2^40"]),
+        (sky("radiance = [3e38, 3e38, 3e38]\n"), 8, "environment.radiance", &["2^40"]),
+        (sky("map = \"warm.exr\"\nscale = 1e38\n"), 9, "environment.scale", &["warm.exr", "2^40"]),
+        (sky("map = \"hot.exr\"\n"), 8, "environment.map", &["hot.exr", "(1, 1)", "2^40"]),
+    ];
+    let mut failures = Vec::new();
+    for (k, (text, line, key, words)) in cases.iter().enumerate() {
+        let path = dir.join(format!("r{k}.toml"));
+        std::fs::write(&path, text).unwrap();
+        let err = match Scene::load(&path) {
+            Ok(_) => {
+                failures.push(format!("case {k} ({key}) loaded"));
+                continue;
+            }
+            Err(e) => e.to_string(),
+        };
+        let prefix = format!("{}:{line}: {key}: ", path.display());
+        if !err.starts_with(&prefix) || !words.iter().all(|w| err.contains(w)) {
+            failures.push(format!("case {k}: expected `{prefix}` and {words:?}, got `{err}`"));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    // At the limit: loads.
+    let limit = 2f32.powi(40);
+    std::fs::write(dir.join("at.toml"), lamp(&format!("radiance = [{limit:?}, 1, 1]\n"))).unwrap();
+    let scene = Scene::load(dir.join("at.toml")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.materials[0].emission, Some(Vec3::new(limit, 1.0, 1.0)));
+}

@@ -40,6 +40,10 @@ pub enum MeshError {
     /// What tobj finds only when an object ends, past the line at fault.
     #[error("{path}: cannot read OBJ: {error}")]
     Obj { path: PathBuf, error: tobj::LoadError },
+    /// What the file declares at `line` would not fit in memory: a render that may fit
+    /// elsewhere, not a bad file.
+    #[error("{path}:{line}: {error}")]
+    Memory { path: PathBuf, line: usize, error: crate::memory::OutOfMemory },
 }
 
 impl TriangleMesh {

@@ -37,8 +37,7 @@ pub(crate) struct ObjFile {
 pub(crate) fn read_obj(path: &Path, materials: bool) -> Result<ObjFile, MeshError> {
     // One rewrite of the text alive at a time beside the next (the file read is dropped here).
     let text = without_comments(&lossy_utf8(
-        crate::memory::read_at_most(path, crate::memory::text_file_limit())
-            .map_err(|error| MeshError::Read { path: path.to_owned(), error })?,
+        crate::memory::read_file(path).map_err(|error| MeshError::Read { path: path.to_owned(), error })?,
     ));
     let usemtl = check_obj(path, &text)?;
     let text = for_tobj(text);
@@ -166,8 +165,8 @@ fn load_mtl(path: &Path, error: &RefCell<Option<MeshError>>) -> tobj::MTLLoadRes
         error.borrow_mut().get_or_insert(e);
         tobj::LoadError::GenericFailure
     };
-    let file = crate::memory::read_at_most(path, crate::memory::text_file_limit())
-        .map_err(|error| fail(MeshError::Read { path: path.to_owned(), error }))?;
+    let file =
+        crate::memory::read_file(path).map_err(|error| fail(MeshError::Read { path: path.to_owned(), error }))?;
     let text = without_comments(&lossy_utf8(file));
     check_mtl(path, &text).map_err(fail)?;
     let mut reader = Cursor::new(&text[..]);

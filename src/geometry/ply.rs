@@ -52,8 +52,7 @@ use super::obj::triangulate_polygon;
 
 /// Reads the PLY file at `path` ([`parse_ply`]).
 pub(crate) fn read_ply(path: &Path) -> Result<TriangleMesh, MeshError> {
-    let bytes = crate::memory::read_at_most(path, crate::memory::text_file_limit())
-        .map_err(|error| MeshError::Read { path: path.to_owned(), error })?;
+    let bytes = crate::memory::read_file(path).map_err(|error| MeshError::Read { path: path.to_owned(), error })?;
     parse_ply(path, &bytes)
 }
 
@@ -66,7 +65,11 @@ pub(crate) fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriangleMesh, MeshE
     };
     let header = parse_header(bytes).map_err(fail)?;
     let plan = Plan::new(&header, bytes.len()).map_err(fail)?;
-    let mut out = Builder::new(&header, &plan).map_err(fail)?;
+    let mut out = Builder::new(&header, &plan).map_err(|(line, error)| MeshError::Memory {
+        path: path.to_owned(),
+        line,
+        error,
+    })?;
     let body = &bytes[header.body..];
     match header.encoding {
         Encoding::Ascii => read_body(&mut Ascii::new(body, header.lines), &header, &plan, &mut out),
@@ -860,8 +863,9 @@ struct Builder {
 
 impl Builder {
     /// Room for the header's vertices and faces (one triangle each), which [`check_size`] keeps
-    /// within the file's size, once they are known to fit in memory.
-    fn new(header: &Header, plan: &Plan) -> Result<Self, (At, String)> {
+    /// within the file's size, once they are known to fit in memory (else the line of the
+    /// vertex element, and the estimate).
+    fn new(header: &Header, plan: &Plan) -> Result<Self, (usize, crate::memory::OutOfMemory)> {
         let (mut vertices, mut faces, mut line) = (0, 0, 1);
         let (mut normals, mut uvs) = (false, false);
         for (e, role) in header.elements.iter().zip(&plan.roles) {
@@ -874,7 +878,7 @@ impl Builder {
         let bytes = vertices as f64 * (12.0 + 12.0 * f64::from(u8::from(normals)) + 8.0 * f64::from(u8::from(uvs)))
             + faces as f64 * 12.0;
         let what = format!("{vertices} vertices and {faces} faces");
-        crate::memory::check_fits(&what, bytes).map_err(|e| (At::Line(line), e.to_string()))?;
+        crate::memory::check_fits(&what, bytes).map_err(|e| (line, e))?;
         Ok(Builder {
             positions: Vec::with_capacity(vertices),
             normals: Vec::with_capacity(if normals { vertices } else { 0 }),

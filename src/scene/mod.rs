@@ -47,9 +47,22 @@ pub struct Camera {
 pub enum FlatSceneError {
     #[error("{}: the scene flattened ({triangles} triangles) is more than one BVH holds (2^31 triangles)", file.display())]
     TooManyTriangles { file: PathBuf, triangles: u64 },
-    #[error(transparent)]
-    Memory(#[from] crate::memory::OutOfMemory),
+    /// The estimate is the error's source, not part of its message: `render` finds its exit
+    /// code (3, out of memory) by walking the chain of sources, which an error that wrapped it
+    /// in place (`transparent`) ended here. A report of the chain (`{:#}`) says both.
+    #[error("{}: not enough memory", file.display())]
+    Memory { file: PathBuf, source: crate::memory::OutOfMemory },
 }
+
+/// The most radiance an emitter (its emission times its texture's brightest texel) or the sky
+/// (a texel of its map times its `scale`) may have: 2^40. The film drops a sample of 2^44 or
+/// more as it drops a NaN (`render::film::SAMPLE_LIMIT_LOG2`: 2^32 samples of it still sum in
+/// its fixed point), and a sample carries a light's radiance times the weights of its path,
+/// which light sampling and MIS can make several times 1: 2^40 leaves them 2^4. A scene
+/// brighter than that rendered black, with no error. Nothing real comes near: the sun's disc is
+/// about 1.6·10^9 cd/m², below 2^31.
+pub const MAX_RADIANCE: f32 = 1_099_511_627_776.0;
+const _: () = assert!(MAX_RADIANCE == (1u64 << 40) as f32);
 
 /// How to render: the one settings struct of every render, on either device. A scene file's
 /// `[render]` table gives the first four; `render`'s flags override them, and the benchmarks
@@ -204,6 +217,12 @@ pub enum SceneError {
     Read { file: PathBuf, error: std::io::Error },
     #[error("{file}:{line}: {key}: {message}")]
     Invalid { file: PathBuf, line: usize, key: String, message: String },
+    /// What the value at the key asks for (a mesh, instances, a file's contents) would not fit
+    /// in the memory available: a render that may fit elsewhere, not bad input. `message` says
+    /// what and the estimate; `error` is the estimate alone (not a `source`, as the message
+    /// already says it).
+    #[error("{file}:{line}: {key}: {message}")]
+    Memory { file: PathBuf, line: usize, key: String, message: String, error: crate::memory::OutOfMemory },
 }
 
 impl Scene {
@@ -241,8 +260,25 @@ impl Scene {
         if n >= 1 << 31 {
             return Err(FlatSceneError::TooManyTriangles { file: file.to_path_buf(), triangles: n });
         }
-        let what = format!("{}: the scene flattened ({n} triangles)", file.display());
-        Ok(crate::memory::check_fits(&what, n as f64 * bytes_per_triangle)?)
+        let what = format!("the scene flattened ({n} triangles)");
+        crate::memory::check_fits(&what, n as f64 * bytes_per_triangle)
+            .map_err(|source| FlatSceneError::Memory { file: file.to_path_buf(), source })
+    }
+
+    /// An error where the scene rendered as instances would not fit (the CPU's two levels, for an
+    /// animated or heavily instanced scene, which [`Scene::check_flat_fits`] does not judge):
+    /// every mesh's BVH at `bytes_per_triangle`, and every object's instance at
+    /// [`crate::memory::RENDER_BYTES_PER_INSTANCE`]. `file` names the scene in the message.
+    pub fn check_instanced_fits(
+        &self,
+        file: &std::path::Path,
+        bytes_per_triangle: f64,
+    ) -> Result<(), crate::memory::OutOfMemory> {
+        let triangles: u64 = self.meshes.iter().map(|m| m.mesh.indices.len() as u64).sum();
+        let instances = self.objects.len() as u64;
+        let what = format!("{}: the scene as {instances} instances of {triangles} triangles", file.display());
+        let bytes = triangles as f64 * bytes_per_triangle + instances as f64 * crate::memory::RENDER_BYTES_PER_INSTANCE;
+        crate::memory::check_fits(&what, bytes)
     }
 
     /// Every object's triangles in world space at time 0, with their material ids: the same as

@@ -86,11 +86,13 @@ impl EnvironmentMap {
     pub fn load(path: &Path, world_from_map: Mat3, sampling: Sampling) -> Result<Self, EnvironmentError> {
         let invalid = |message: String| EnvironmentError::Invalid { path: path.to_owned(), message };
         let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        let (width, height) = match ext.as_deref() {
-            Some("exr") => exr_size(path)?,
-            Some("hdr") => hdr_size(path)?,
-            _ => return Err(invalid("is not an environment map: give an .exr or .hdr file".into())),
-        };
+        if !matches!(ext.as_deref(), Some("exr" | "hdr")) {
+            return Err(invalid("is not an environment map: give an .exr or .hdr file".into()));
+        }
+        // Before anything opens it: opening a named pipe waits for a writer for ever.
+        crate::memory::regular_file_len(path)
+            .map_err(|e| EnvironmentError::Read { path: path.to_owned(), error: e.to_string() })?;
+        let (width, height) = if ext.as_deref() == Some("exr") { exr_size(path)? } else { hdr_size(path)? };
         let texels = u64::from(width) * u64::from(height);
         if texels == 0 || texels > MAX_TEXELS {
             return Err(invalid(format!("is {width}x{height}: a map must have 1 to 2^28 texels")));

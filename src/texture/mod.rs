@@ -91,6 +91,9 @@ impl Texture {
             let message = "is not a supported image: give a .png, .jpg, .tga, .bmp, .exr or .hdr file".into();
             return Err(TextureError::Invalid { path: path.to_owned(), message });
         }
+        // Before anything opens it: opening a named pipe waits for a writer for ever.
+        crate::memory::regular_file_len(path)
+            .map_err(|e| TextureError::Read { path: path.to_owned(), error: e.to_string() })?;
         if ext.as_deref() != Some("exr") {
             return Self::decode(|| reader(path), path, ext.as_deref() == Some("hdr"));
         }
@@ -152,6 +155,24 @@ impl Texture {
             return Err(TextureError::Invalid { path: path.to_owned(), message });
         }
         Ok(Self { source: path.to_owned(), width, height, format, texels, has_alpha })
+    }
+
+    /// The largest value of each colour channel over the texels, as stored (8-bit colour as
+    /// code / 255, which its sRGB decoding never exceeds): what an emission texture can
+    /// multiply a radiance by.
+    pub fn brightest(&self) -> Vec3 {
+        match self.format {
+            TexelFormat::Rgba8 => {
+                let max = self.texels.iter().fold([0u8; 3], |m, &w| {
+                    let [r, g, b, _] = w.to_le_bytes();
+                    [m[0].max(r), m[1].max(g), m[2].max(b)]
+                });
+                Vec3::from(max.map(|c| f32::from(c) / 255.0))
+            }
+            TexelFormat::Rgba32F => self.texels.chunks_exact(4).fold(Vec3::ZERO, |m, w| {
+                m.max(Vec3::new(f32::from_bits(w[0]), f32::from_bits(w[1]), f32::from_bits(w[2])))
+            }),
+        }
     }
 
     /// Bytes the texels take.
@@ -324,16 +345,17 @@ impl TextureCache {
     }
 
     /// The index of an image held in memory, decoded the first time `key` (the file holding
-    /// it and where in it) is asked for.
-    pub fn get_embedded(
+    /// it and where in it) is asked for; `bytes` fails with the caller's own error, which a
+    /// failure to decode becomes too.
+    pub fn get_embedded<E: From<TextureError>>(
         &mut self,
         key: PathBuf,
-        bytes: impl FnOnce() -> Result<Vec<u8>, String>,
-    ) -> Result<u32, String> {
+        bytes: impl FnOnce() -> Result<Vec<u8>, E>,
+    ) -> Result<u32, E> {
         if let Some(&i) = self.by_path.get(&key) {
             return Ok(i);
         }
-        let texture = Texture::from_bytes(&bytes()?, &key).map_err(|e| e.to_string())?;
+        let texture = Texture::from_bytes(&bytes()?, &key)?;
         Ok(self.insert(key, texture))
     }
 

@@ -11,7 +11,7 @@ use arbor::distributed::overwrite::Overwrite;
 use arbor::distributed::{JobError, PlanError};
 use arbor::image_io::ImageError;
 use arbor::memory::OutOfMemory;
-use arbor::scene::SceneError;
+use arbor::scene::{FlatSceneError, SceneError};
 use serde::Serialize;
 
 /// Exit codes, stable: a scheduler decides on them.
@@ -76,10 +76,18 @@ fn cause_code(cause: &(dyn std::error::Error + 'static)) -> Option<i32> {
     if cause.is::<DeviceError>() {
         return Some(code::DEVICE);
     }
+    if let Some(e) = cause.downcast_ref::<FlatSceneError>() {
+        // More triangles than one tree indexes is no machine's limit: the scene must change.
+        return Some(match e {
+            FlatSceneError::TooManyTriangles { .. } => code::BAD_INPUT,
+            FlatSceneError::Memory { .. } => code::NO_MEMORY,
+        });
+    }
     if let Some(e) = cause.downcast_ref::<SceneError>() {
         return Some(match e {
             SceneError::Read { error, .. } => input_code(error),
             SceneError::Invalid { .. } => code::BAD_INPUT,
+            SceneError::Memory { .. } => code::NO_MEMORY,
         });
     }
     if let Some(e) = cause.downcast_ref::<PieceError>() {
@@ -91,12 +99,18 @@ fn cause_code(cause: &(dyn std::error::Error + 'static)) -> Option<i32> {
     cause.is::<std::io::Error>().then_some(code::IO)
 }
 
-/// An input that is not there, or is a folder, is bad input; any other failure to read, and any failure to
-/// write (a shared folder briefly gone), may pass.
+/// An input that is not there, or is a folder or a device rather than a file, or a path through
+/// a file, is bad input; one too long to read in the memory available needs more; any other
+/// failure to read, and any failure to write (a shared folder briefly gone), may pass.
 fn input_code(e: &std::io::Error) -> i32 {
-    use std::io::ErrorKind::{InvalidInput, IsADirectory, NotADirectory, NotFound};
-    // A folder where a file was named, or a path through a file, is a wrong name: no retry helps.
-    if matches!(e.kind(), NotFound | IsADirectory | NotADirectory | InvalidInput) { code::BAD_INPUT } else { code::IO }
+    use std::io::ErrorKind;
+    match e.kind() {
+        ErrorKind::NotFound | ErrorKind::IsADirectory | ErrorKind::NotADirectory | ErrorKind::InvalidInput => {
+            code::BAD_INPUT
+        }
+        ErrorKind::OutOfMemory => code::NO_MEMORY,
+        _ => code::IO,
+    }
 }
 
 fn piece_code(e: &PieceError) -> i32 {

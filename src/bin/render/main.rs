@@ -204,9 +204,11 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
     let Some(first) = pending.first() else { return Ok(()) };
     let first_time = plan.job(first, &scene, &scene_hash, device.name()).time;
     // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
+    let binary = device.name() == "gpu" || tracing.layout == TraceLayout::Binary;
     if device.name() == "gpu" || !wants_instancing(&scene) {
-        let binary = device.name() == "gpu" || tracing.layout == TraceLayout::Binary;
         scene.check_flat_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
+    } else {
+        scene.check_instanced_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
     }
     let builder = named.unwrap_or_else(|| BuilderChoice::default_for(device, &scene));
     let count = pending.count();

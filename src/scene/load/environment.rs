@@ -5,10 +5,10 @@ use std::sync::Arc;
 
 use glam::Vec3;
 
-use super::Ctx;
 use super::objects::trs;
+use super::{ABOVE_MAX_RADIANCE, Ctx};
 use crate::scene::file::{EnvironmentFile, S, ScaleFile};
-use crate::scene::{Environment, SceneError};
+use crate::scene::{Environment, MAX_RADIANCE, SceneError};
 use crate::texture::environment::{EnvironmentMap, Sampling};
 
 /// The `[environment]` table: a constant `radiance`, or a `map` with its `scale` and `rotate`.
@@ -24,7 +24,12 @@ pub(super) fn environment(ctx: &Ctx, e: &S<EnvironmentFile>, file: &Path) -> Res
         let radiance = f.radiance.as_ref().ok_or_else(|| {
             ctx.err(e.span(), "environment", "give `radiance` (a constant) or `map` (an .exr or .hdr file)")
         })?;
-        return Ok(Environment { radiance: ctx.color(radiance, "environment.radiance")?, map: None });
+        let value = ctx.color(radiance, "environment.radiance")?;
+        if value.max_element() > MAX_RADIANCE {
+            let message = format!("{:?} is {ABOVE_MAX_RADIANCE}", value.to_array());
+            return Err(ctx.err(radiance.span(), "environment.radiance", message));
+        }
+        return Ok(Environment { radiance: value, map: None });
     };
     if let Some(r) = &f.radiance {
         return Err(ctx.err(r.span(), "environment.radiance", "give either `radiance` or `map` (with `scale`)"));
@@ -50,6 +55,25 @@ pub(super) fn environment(ctx: &Ctx, e: &S<EnvironmentFile>, file: &Path) -> Res
     }
     let path = file.parent().unwrap_or(Path::new(".")).join(map.get_ref());
     let loaded = EnvironmentMap::load(&path, glam::Mat3::from_quat(rotation), Sampling::Luminance)
-        .map_err(|e| ctx.err(map.span(), "environment.map", e.to_string()))?;
+        .map_err(|e| ctx.file_err(map.span(), "environment.map", &e))?;
+    // The brightest radiance the map gives: its texel times the scale.
+    let scaled = |t: &[f32; 3]| (Vec3::from(*t) * radiance).max_element();
+    let brightest =
+        (0..loaded.texels.len()).max_by(|&a, &b| scaled(&loaded.texels[a]).total_cmp(&scaled(&loaded.texels[b])));
+    if let Some(i) = brightest.filter(|&i| scaled(&loaded.texels[i]) > MAX_RADIANCE) {
+        let texel = loaded.texels[i];
+        let (x, y) = (i % loaded.width as usize, i / loaded.width as usize);
+        let at = format!("{}: texel ({x}, {y}) is {texel:?}", path.display());
+        // The map's fault where the texel alone is over, else the scale's.
+        let (message, span, key) = match &f.scale {
+            Some(s) if Vec3::from(texel).max_element() <= MAX_RADIANCE => (
+                format!("{at}, and times the scale {:?} its radiance is {ABOVE_MAX_RADIANCE}", radiance.to_array()),
+                s.span(),
+                "environment.scale",
+            ),
+            _ => (format!("{at}, {ABOVE_MAX_RADIANCE}"), map.span(), "environment.map"),
+        };
+        return Err(ctx.err(span, key, message));
+    }
     Ok(Environment { radiance, map: Some(Arc::new(loaded)) })
 }

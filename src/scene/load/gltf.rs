@@ -9,8 +9,10 @@ use std::rc::Rc;
 
 use glam::Vec3;
 
-use super::Ctx;
+use super::materials::too_bright;
 use super::objects::{Built, Parts, invertible};
+use super::{Ctx, FileError, FileFailure, io_out_of_memory};
+use crate::memory::OutOfMemory;
 use crate::scene::file::{S, SceneFile};
 use crate::scene::gltf::{
     AlphaMode, DEFAULT_MATERIAL, GltfCameraNode, GltfError, GltfFile, GltfImageSource, GltfMaterial, GltfProjection,
@@ -18,6 +20,16 @@ use crate::scene::gltf::{
 };
 use crate::scene::{MaterialTextures, SceneError, SceneMesh};
 use crate::texture::{TextureCache, TextureRef, Wrap};
+
+impl FileError for GltfError {
+    fn out_of_memory(&self) -> Option<&OutOfMemory> {
+        match self {
+            GltfError::Memory { error, .. } => Some(error),
+            GltfError::Read { error, .. } => io_out_of_memory(error),
+            GltfError::Invalid { .. } => None,
+        }
+    }
+}
 
 /// The glTF files a scene names, by canonical path: each read once, by the camera and the
 /// objects naming it.
@@ -53,9 +65,9 @@ fn gltf_textures(
     index: usize,
     m: &GltfMaterial,
     cache: &mut TextureCache,
-) -> Result<MaterialTextures, String> {
+) -> Result<MaterialTextures, FileFailure> {
     let mut out = MaterialTextures { normal_scale: 1.0, ..Default::default() };
-    let mut load = |t: &GltfTexture, what: &str, srgb: bool| -> Result<Option<TextureRef>, String> {
+    let mut load = |t: &GltfTexture, what: &str, srgb: bool| -> Result<Option<TextureRef>, FileFailure> {
         if t.tex_coord != 0 {
             return Ok(None);
         }
@@ -63,13 +75,14 @@ fn gltf_textures(
         let texture = match file.embedded_image(t) {
             None => {
                 let GltfImageSource::File { path, .. } = &t.source else { unreachable!("only files are not embedded") };
-                cache.get(path).map_err(|e| format!("{place}: {e}"))?
+                cache.get(path).map_err(|e| FileFailure::at(&place, &e))?
             }
             Some(bytes) => {
                 let key = PathBuf::from(format!("{}#images[{}]", file.path.display(), t.image));
+                let read = |e: GltfError| FileFailure { message: e.to_string(), memory: e.out_of_memory().cloned() };
                 cache
-                    .get_embedded(key, || bytes.map(|(b, _)| b).map_err(|e| e.to_string()))
-                    .map_err(|e| format!("{place}: {e}"))?
+                    .get_embedded(key, || bytes.map(|(b, _)| b).map_err(read))
+                    .map_err(|e| FileFailure { message: format!("{place}: {}", e.message), ..e })?
             }
         };
         let wrap = match t.sampler.wrap_s {
@@ -118,15 +131,23 @@ pub(super) fn gltf_parts(
     if let Some(parts) = out.gltf.parts.get(&id) {
         return Ok(parts.clone());
     }
-    let err = |e: GltfError| ctx.err(rel.span(), key, e.to_string());
+    let err = |e: GltfError| ctx.file_err(rel.span(), key, &e);
     let file = out.gltf.open(&path).map_err(err)?;
     let stem = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
     let first = out.materials.len() as u32;
     for (i, m) in file.materials.iter().enumerate() {
         let id = add_material(out, &stem, m.name.clone().unwrap_or_else(|| i.to_string()), m);
-        let textures = gltf_textures(&file, i, m, &mut out.textures)
-            .map_err(|e| ctx.err(rel.span(), key, format!("{}: {e}", path.display())))?;
+        let textures = gltf_textures(&file, i, m, &mut out.textures).map_err(|e| {
+            ctx.file_err(rel.span(), key, &FileFailure { message: format!("{}: {e}", path.display()), ..e })
+        })?;
         out.materials[id as usize].textures = textures;
+        let material = &out.materials[id as usize];
+        // The factor times the strength, and times the emissive texture's brightest texel.
+        let texture = material.textures.emission.map(|t| &*out.textures.textures[t.texture as usize]);
+        if let Some((why, _)) = material.emission.and_then(|e| too_bright(e, texture)) {
+            let message = format!("{}: materials[{i}]: emission: {why}", path.display());
+            return Err(ctx.err(rel.span(), key, message));
+        }
     }
     let mut default = None;
     let mut scene_mesh: HashMap<usize, Option<usize>> = HashMap::new();
@@ -196,7 +217,7 @@ pub(super) fn file_camera(
     gltf: &mut GltfFiles,
 ) -> Result<(Vec3, Vec3, Vec3, f32), SceneError> {
     let path = base.join(from.get_ref());
-    let file = gltf.open(&path).map_err(|e| ctx.err(from.span(), "camera.from", e.to_string()))?;
+    let file = gltf.open(&path).map_err(|e| ctx.file_err(from.span(), "camera.from", &e))?;
     let (node, span, key) = camera_node(ctx, f, from, &path, &file)?;
     let what = format!("{}: {}", path.display(), node_label(node));
     let yfov = match file.projection(node.camera).map_err(|e| ctx.err(span.clone(), key, e.to_string()))? {

@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::Ctx;
+use super::{ABOVE_MAX_RADIANCE, Ctx, FileFailure};
 use crate::scene::file::{MaterialFile, S};
-use crate::scene::{ConductorFresnel, Material, MaterialTextures, Scattering, SceneError};
-use crate::texture::{TextureCache, TextureRef, Wrap};
+use crate::scene::{ConductorFresnel, MAX_RADIANCE, Material, MaterialTextures, Scattering, SceneError};
+use crate::texture::{Texture, TextureCache, TextureRef, Wrap};
 
 /// Largest conductor `eta` or `k` (see the conductor material).
 const MAX_CONDUCTOR_INDEX: f32 = 1e6;
@@ -55,9 +55,14 @@ pub(super) fn material(
         None if f.roughness_texture.is_some() => 1.0,
         None => 0.0,
     };
-    let textures = material_textures(ctx, &key, f, base, textures)?;
-    let mut out =
-        Material { name: name.to_owned(), scattering: Scattering::Black, emission: None, two_sided: false, textures };
+    let maps = material_textures(ctx, &key, f, base, textures)?;
+    let mut out = Material {
+        name: name.to_owned(),
+        scattering: Scattering::Black,
+        emission: None,
+        two_sided: false,
+        textures: maps,
+    };
     // A texture alone gives the colour: `albedo` (or `base_color`) then defaults to white.
     let textured = out.textures.base_color.is_some();
     match kind {
@@ -69,10 +74,20 @@ pub(super) fn material(
             out.scattering = Scattering::Diffuse { albedo }
         }
         "emissive" => {
-            out.emission = Some(match (&f.radiance, out.textures.emission.is_some()) {
+            let emission = match (&f.radiance, out.textures.emission.is_some()) {
                 (None, true) => Vec3::ONE,
                 _ => ctx.color(required(ctx, &f.radiance, m, key("radiance"))?, &key("radiance"))?,
-            });
+            };
+            let texture = out.textures.emission.map(|t| &*textures.textures[t.texture as usize]);
+            if let Some((message, texture_too)) = too_bright(emission, texture) {
+                let (k, span) = match (&f.radiance, &f.emission_texture) {
+                    (Some(_), Some(t)) if texture_too => ("emission_texture", t.span()),
+                    (Some(r), _) => ("radiance", r.span()),
+                    (None, t) => ("emission_texture", t.as_ref().map_or(m.span(), |t| t.span())),
+                };
+                return Err(ctx.err(span, key(k), message));
+            }
+            out.emission = Some(emission);
             out.two_sided = f.two_sided.as_ref().is_some_and(|b| *b.get_ref());
             if let Some(a) = &f.albedo {
                 out.scattering = Scattering::Diffuse { albedo: ctx.color(a, &key("albedo"))? };
@@ -159,7 +174,7 @@ fn material_textures(
         if t.get_ref().trim().is_empty() {
             return Err(ctx.err(t.span(), key(k), "is empty: name an image file"));
         }
-        let index = cache.get(&base.join(t.get_ref())).map_err(|e| ctx.err(t.span(), key(k), e.to_string()))?;
+        let index = cache.get(&base.join(t.get_ref())).map_err(|e| ctx.file_err(t.span(), key(k), &e))?;
         Ok(Some(TextureRef { texture: index, wrap: Wrap::Repeat, srgb }))
     };
     Ok(MaterialTextures {
@@ -227,6 +242,43 @@ fn coated(
     Ok(Scattering::Coated { base_color, metallic, alpha: roughness * roughness, ior: ior(ctx, key, f)? })
 }
 
+/// Why `emission`, times the brightest texel of its emission `texture` where it has one, is more
+/// radiance than [`MAX_RADIANCE`], or `None`; with whether the texture takes it over (the
+/// emission alone is within the limit).
+pub(super) fn too_bright(emission: Vec3, texture: Option<&Texture>) -> Option<(String, bool)> {
+    if emission.max_element() > MAX_RADIANCE {
+        return Some((format!("radiance {:?} is {ABOVE_MAX_RADIANCE}", emission.to_array()), false));
+    }
+    let texture = texture?;
+    let brightest = texture.brightest();
+    (emission * brightest).max_element().gt(&MAX_RADIANCE).then(|| {
+        let message = format!(
+            "radiance {:?} times the brightest texel of {}, {:?}, is {ABOVE_MAX_RADIANCE}",
+            emission.to_array(),
+            texture.source.display(),
+            brightest.to_array()
+        );
+        (message, true)
+    })
+}
+
+/// Why MTL material `m`, made into `material` (its textures loaded into `cache`), emits more
+/// radiance than [`MAX_RADIANCE`], as the MTL file, the line and the statement at fault (`Ke`, or
+/// `map_Ke` where the texture takes it over) and why (`texts`: each MTL file the OBJ file named,
+/// and its bytes); `None` where it does not.
+pub(super) fn mtl_too_bright(
+    texts: &[(PathBuf, Vec<u8>)],
+    m: &tobj::Material,
+    material: &Material,
+    cache: &TextureCache,
+) -> Option<String> {
+    let texture = material.textures.emission.map(|t| &*cache.textures[t.texture as usize]);
+    let (message, texture_too) = too_bright(material.emission?, texture)?;
+    let statement = if texture_too || m.emissive.is_none() { "map_Ke" } else { "Ke" };
+    let (mtl, line) = statement_line(texts, &m.name, &[statement]);
+    Some(format!("{}:{line}: `{statement}`: {message}", mtl.display()))
+}
+
 /// MTL to Arbor, documented in `docs/scene-format.md`: `Ke` makes an emitter (which also
 /// reflects `Kd`); `d < 1` or `illum` 4, 6, 7, 9 a dielectric of index `Ni`; the PBR extension's
 /// `Pr` or `Pm`, or `Kd` and `Ks` both non-zero, the coated metallic-roughness material of base
@@ -275,7 +327,7 @@ pub(super) fn mtl_textures(
     texts: &[(PathBuf, Vec<u8>)],
     m: &tobj::Material,
     cache: &mut TextureCache,
-) -> Result<MaterialTextures, String> {
+) -> Result<MaterialTextures, FileFailure> {
     let mut out = MaterialTextures { alpha_cutoff: 0.5, normal_scale: 1.0, ..Default::default() };
     // tobj reads `bump` and `map_Bump` as the normal texture, and leaves `norm` unread.
     let (normal_statement, normal) = match (&m.normal_texture, m.unknown_param.get("norm")) {
@@ -293,20 +345,13 @@ pub(super) fn mtl_textures(
     ];
     for (statement, value, srgb) in textures {
         let Some(value) = value else { continue };
-        // The last MTL file defining the material wins, as in tobj.
-        let (mtl, line) = texts
-            .iter()
-            .rev()
-            .find_map(|(f, text)| {
-                let spellings: &[&str] =
-                    if statement == "bump" { &["bump", "map_Bump", "map_bump"] } else { &[statement] };
-                spellings.iter().find_map(|s| mtl_line(text, &m.name, s)).map(|l| (f.as_path(), l))
-            })
-            .unwrap_or((texts.first().map_or(Path::new("?"), |(f, _)| f.as_path()), 0));
+        let spellings: &[&str] = if statement == "bump" { &["bump", "map_Bump", "map_bump"] } else { &[statement] };
+        let (mtl, line) = statement_line(texts, &m.name, spellings);
         let at = format!("{}:{line}: `{statement}`", mtl.display());
-        let (file, wrap) = texture_statement(value).ok_or_else(|| format!("{at}: names no file"))?;
+        let (file, wrap) = texture_statement(value)
+            .ok_or_else(|| FileFailure { message: format!("{at}: names no file"), memory: None })?;
         let path = mtl.parent().unwrap_or(Path::new(".")).join(file);
-        let texture = cache.get(&path).map_err(|e| format!("{at}: {e}"))?;
+        let texture = cache.get(&path).map_err(|e| FileFailure::at(&at, &e))?;
         let r = Some(TextureRef { texture, wrap, srgb });
         match statement {
             "map_Kd" => out.base_color = r,
@@ -319,6 +364,17 @@ pub(super) fn mtl_textures(
         }
     }
     Ok(out)
+}
+
+/// The MTL file of `texts` that defines material `name` with a statement spelt one of
+/// `spellings`, and its line: the last such file, which wins, as in tobj (the first file and
+/// line 0 where none does).
+fn statement_line<'a>(texts: &'a [(PathBuf, Vec<u8>)], name: &str, spellings: &[&str]) -> (&'a Path, usize) {
+    texts
+        .iter()
+        .rev()
+        .find_map(|(f, text)| spellings.iter().find_map(|s| mtl_line(text, name, s)).map(|l| (f.as_path(), l)))
+        .unwrap_or((texts.first().map_or(Path::new("?"), |(f, _)| f.as_path()), 0))
 }
 
 /// The line of statement `key` in material `name`'s block of an MTL file's `text`.

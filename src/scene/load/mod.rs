@@ -27,7 +27,9 @@ use glam::Vec3;
 
 use super::file::{S, SceneFile};
 use super::{AnimationSettings, RenderSettings, Scene, SceneError};
-use crate::texture::TextureCache;
+use crate::geometry::MeshError;
+use crate::memory::OutOfMemory;
+use crate::texture::{TextureCache, TextureError};
 #[cfg(feature = "gltf")]
 use gltf::{GltfFiles, file_camera, gltf_parts};
 #[cfg(not(feature = "gltf"))]
@@ -39,8 +41,9 @@ use objects::{Built, ObjectEnv};
 pub(super) use objects::invertible;
 
 pub(super) fn load(path: PathBuf) -> Result<Scene, SceneError> {
-    let bytes = crate::memory::read_at_most(&path, crate::memory::text_file_limit())
-        .map_err(|error| SceneError::Read { file: path.clone(), error })?;
+    // A pipe too: `render <(generate) -o out.exr`.
+    let bytes =
+        crate::memory::read_file_or_pipe(&path).map_err(|error| SceneError::Read { file: path.clone(), error })?;
     match String::from_utf8(bytes) {
         Ok(text) => parse(&text, path),
         Err(e) => {
@@ -92,6 +95,27 @@ impl Ctx<'_> {
         Ok(c)
     }
 
+    /// The error at `span` and `key` for `e`, the failure of a file the key names: a
+    /// [`SceneError::Memory`] where what the file asks for would not fit, else
+    /// [`SceneError::Invalid`]; either with `e`'s message.
+    fn file_err(&self, span: Range<usize>, key: impl Into<String>, e: &dyn FileError) -> SceneError {
+        match e.out_of_memory() {
+            Some(error) => SceneError::Memory {
+                file: self.file.to_owned(),
+                line: self.line(span),
+                key: key.into(),
+                message: e.to_string(),
+                error: error.clone(),
+            },
+            None => self.err(span, key, e.to_string()),
+        }
+    }
+
+    /// [`SceneError::Memory`] at `span` and `key`, with `error`'s message.
+    fn memory_err(&self, span: Range<usize>, key: impl Into<String>, error: OutOfMemory) -> SceneError {
+        self.file_err(span, key, &error)
+    }
+
     /// A finite number in `range` (inclusive bounds given as text for the message).
     fn number(&self, v: &S<f32>, key: &str, ok: impl Fn(f32) -> bool, what: &str) -> Result<f32, SceneError> {
         let x = *v.get_ref();
@@ -99,6 +123,77 @@ impl Ctx<'_> {
             return Err(self.err(v.span(), key, format!("{x} is not {what}")));
         }
         Ok(x)
+    }
+}
+
+/// How an error says that a radiance is above [`super::MAX_RADIANCE`].
+const ABOVE_MAX_RADIANCE: &str = "above 2^40, the most radiance Arbor renders (the film drops brighter samples)";
+
+/// The error of a file a scene names (a mesh, a texture, a sky map), which may be a refusal for
+/// memory: that is exit code 3 to `render` (retry with more), the rest bad input.
+trait FileError: std::fmt::Display {
+    fn out_of_memory(&self) -> Option<&OutOfMemory>;
+}
+
+impl FileError for OutOfMemory {
+    fn out_of_memory(&self) -> Option<&OutOfMemory> {
+        Some(self)
+    }
+}
+
+/// A refusal by [`crate::memory::read_file`] carries its estimate in the I/O error.
+fn io_out_of_memory(e: &std::io::Error) -> Option<&OutOfMemory> {
+    e.get_ref()?.downcast_ref::<OutOfMemory>()
+}
+
+impl FileError for MeshError {
+    fn out_of_memory(&self) -> Option<&OutOfMemory> {
+        match self {
+            MeshError::Memory { error, .. } => Some(error),
+            MeshError::Read { error, .. } => io_out_of_memory(error),
+            _ => None,
+        }
+    }
+}
+
+impl FileError for TextureError {
+    fn out_of_memory(&self) -> Option<&OutOfMemory> {
+        match self {
+            TextureError::Memory(error) => Some(error),
+            _ => None,
+        }
+    }
+}
+
+/// A file's failure as a message that says where (`file:line: statement: ...`), with the
+/// estimate where memory refused it: what the MTL and glTF textures of a mesh give.
+struct FileFailure {
+    message: String,
+    memory: Option<OutOfMemory>,
+}
+
+impl FileFailure {
+    /// `e` at `at` (the file and the place in it).
+    fn at(at: &str, e: &dyn FileError) -> Self {
+        FileFailure { message: format!("{at}: {e}"), memory: e.out_of_memory().cloned() }
+    }
+}
+
+impl From<TextureError> for FileFailure {
+    fn from(e: TextureError) -> Self {
+        FileFailure { message: e.to_string(), memory: e.out_of_memory().cloned() }
+    }
+}
+
+impl std::fmt::Display for FileFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl FileError for FileFailure {
+    fn out_of_memory(&self) -> Option<&OutOfMemory> {
+        self.memory.as_ref()
     }
 }
 

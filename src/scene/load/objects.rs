@@ -8,9 +8,9 @@ use std::path::{Path, PathBuf};
 
 use glam::{EulerRot, Mat4, Quat, Vec3};
 
-use super::materials::{from_mtl, mtl_textures};
+use super::materials::{from_mtl, mtl_textures, mtl_too_bright};
 use super::scatter::{MAX_SCATTER, scatter};
-use super::{Ctx, GltfFiles, gltf_parts};
+use super::{Ctx, FileFailure, GltfFiles, gltf_parts};
 use crate::geometry::obj::{ObjFile, read_obj};
 use crate::geometry::{TriangleMesh, procedural};
 use crate::scene::file::{KeyframeFile, ObjectFile, S, ScaleFile};
@@ -24,8 +24,8 @@ const MAX_SUBDIVISIONS: u32 = 8;
 /// ([`PROCEDURAL_MESH_BYTES_PER_TRIANGLE`]), and before the scene is flattened for a BVH
 /// ([`crate::scene::Scene::check_flat_fits`]: about 300 bytes per triangle, so 10^8 need about 32 GB).
 const MAX_PROCEDURAL_TRIANGLES: u64 = 100_000_000;
-/// Bytes per triangle of a procedural mesh as made: positions and indices (about 20 for a city),
-/// with room to spare.
+/// Bytes per triangle of a procedural mesh or a sphere as made: positions and indices (about 20
+/// for a city), with room to spare (a sphere of subdivision 8 peaks at 37 while it is made).
 const PROCEDURAL_MESH_BYTES_PER_TRIANGLE: f64 = 64.0;
 /// Most objects in a scene, scattered instances included: a scene file of a few lines must not
 /// ask for unbounded memory (many scatters of `MAX_SCATTER` each).
@@ -199,20 +199,31 @@ fn shape_parts(
 ) -> Result<Parts, SceneError> {
     let key = |k: &str| format!("objects[{index}].{k}");
     let spec = builtin_shape(ctx, index, shape, f)?;
-    // Each procedural shape is within its limit; their sum must be too.
-    if let Some(n) = f.triangles.as_ref().filter(|_| !out.known.contains_key(&MeshKey::Shape(spec))) {
-        out.procedural_triangles += spec.size;
-        if out.procedural_triangles > MAX_PROCEDURAL_TRIANGLES {
-            let msg = format!(
-                "{} more make {} triangles of procedural shapes in the scene, more than {MAX_PROCEDURAL_TRIANGLES}",
-                spec.size, out.procedural_triangles
-            );
-            return Err(ctx.err(n.span(), key("triangles"), msg));
+    if !out.known.contains_key(&MeshKey::Shape(spec)) {
+        // Each procedural shape is within its limit; their sum must fit the render's memory (a
+        // memory refusal, exit code 3: the same shapes fit a larger machine).
+        if let Some(n) = &f.triangles {
+            out.procedural_triangles += spec.size;
+            let total = out.procedural_triangles;
+            let what = format!("{} more make {total} triangles of procedural shapes in the scene, which", spec.size);
+            crate::memory::check_fits(&what, total as f64 * crate::memory::RENDER_BYTES_PER_TRIANGLE)
+                .map_err(|e| ctx.memory_err(n.span(), key("triangles"), e))?;
         }
-        // The meshes themselves, before any BVH (positions and indices, with room).
-        let what = format!("{} triangles of procedural shapes", out.procedural_triangles);
-        crate::memory::check_fits(&what, out.procedural_triangles as f64 * PROCEDURAL_MESH_BYTES_PER_TRIANGLE)
-            .map_err(|e| ctx.err(n.span(), key("triangles"), e.to_string()))?;
+        // The mesh itself, before any BVH (positions and indices, with room); the shapes made
+        // before it are in use already, which the memory available counts.
+        let made = match (&f.triangles, &f.subdivisions) {
+            (Some(n), _) => Some((spec.size, n.span(), "triangles")),
+            // 20 · 4^level.
+            (None, s) if spec.name == "sphere" => {
+                Some((20 << (2 * spec.size), s.as_ref().map_or(shape.span(), |s| s.span()), "subdivisions"))
+            }
+            _ => None,
+        };
+        if let Some((triangles, span, k)) = made {
+            let what = format!("a `{}` of {triangles} triangles", spec.name);
+            crate::memory::check_fits(&what, triangles as f64 * PROCEDURAL_MESH_BYTES_PER_TRIANGLE)
+                .map_err(|e| ctx.memory_err(span, key(k), e))?;
+        }
     }
     let meshes = &mut out.meshes;
     let known = out.known.entry(MeshKey::Shape(spec)).or_insert_with(|| {
@@ -361,12 +372,16 @@ fn obj_mesh(
     materials: &mut Vec<Material>,
     textures: &mut TextureCache,
 ) -> Result<(SceneMesh, Option<String>), SceneError> {
-    let obj = read_obj(path, true).map_err(|e| ctx.err(rel.span(), key, e.to_string()))?;
+    let obj = read_obj(path, true).map_err(|e| ctx.file_err(rel.span(), key, &e))?;
     let mtl_base = materials.len() as u32;
     let stem = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
     let mut needs_material =
         obj.mtl_error.as_ref().map(|e| format!("{}: cannot load its MTL materials: {e}", path.display()));
+    // Each MTL file the OBJ file named, and its bytes: read again for the lines of statements.
     let mut mtl_texts = None;
+    let mut texts = || -> Vec<(PathBuf, Vec<u8>)> {
+        obj.mtl_files.iter().map(|f| (f.clone(), crate::memory::read_file(f).unwrap_or_default())).collect()
+    };
     for m in &obj.materials {
         let mut material = from_mtl(&format!("{stem}/{}", m.name), m);
         if m.diffuse_texture.is_some()
@@ -374,14 +389,24 @@ fn obj_mesh(
             || m.normal_texture.is_some()
             || ["norm", "map_Ke", "map_Pr", "map_Pm"].iter().any(|k| m.unknown_param.contains_key(*k))
         {
-            let texts = mtl_texts.get_or_insert_with(|| {
-                obj.mtl_files.iter().map(|f| (f.clone(), std::fs::read(f).unwrap_or_default())).collect::<Vec<_>>()
-            });
+            let texts = mtl_texts.get_or_insert_with(&mut texts);
             // A texture that cannot be used breaks its material as a broken MTL file does: an
-            // error only where an object uses the file's own materials.
+            // error only where an object uses the file's own materials. One that does not fit
+            // in memory is an error at once.
             match mtl_textures(texts, m, textures) {
                 Ok(t) => material.textures = t,
+                Err(e) if e.memory.is_some() => {
+                    let e = FileFailure { message: format!("{}: {e}", path.display()), ..e };
+                    return Err(ctx.file_err(rel.span(), key, &e));
+                }
                 Err(e) => drop(needs_material.get_or_insert_with(|| format!("{}: {e}", path.display()))),
+            }
+        }
+        // An emitter too bright to render breaks its material the same way.
+        if material.emission.is_some() {
+            let texts = mtl_texts.get_or_insert_with(&mut texts);
+            if let Some(why) = mtl_too_bright(texts, m, &material, textures) {
+                needs_material.get_or_insert_with(|| format!("{}: {why}", path.display()));
             }
         }
         materials.push(material);
@@ -410,7 +435,7 @@ fn obj_mesh(
 /// The PLY mesh at `path` (`rel` as written). A PLY file has no materials: every triangle gets id
 /// `u32::MAX`, and the second value says that an object using the mesh needs its own `material`.
 fn ply_mesh(ctx: &Ctx, key: &str, rel: &S<String>, path: &Path) -> Result<(SceneMesh, Option<String>), SceneError> {
-    let mesh = TriangleMesh::load_ply(path).map_err(|e| ctx.err(rel.span(), key, e.to_string()))?;
+    let mesh = TriangleMesh::load_ply(path).map_err(|e| ctx.file_err(rel.span(), key, &e))?;
     if mesh.indices.is_empty() {
         let msg = format!("{}: no faces (a `face` element with `vertex_indices`)", path.display());
         return Err(ctx.err(rel.span(), key, msg));

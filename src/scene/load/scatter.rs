@@ -13,7 +13,8 @@ use super::objects::MAX_OBJECTS;
 use crate::scene::file::{S, ScatterFile};
 use crate::scene::{Animation, Object, SceneError};
 
-/// Most instances one `scatter` makes (each object is about 100 bytes).
+/// Most instances one `scatter` makes (each object is 112 bytes; whether they fit in memory is
+/// checked too).
 pub(super) const MAX_SCATTER: u64 = 10_000_000;
 /// A scatter's orbit period when none is given, seconds.
 const DEFAULT_PERIOD: f32 = 4.0;
@@ -48,8 +49,12 @@ pub(super) fn scatter(
         let msg = format!("{count} instances make {total} objects in the scene, more than {MAX_OBJECTS}");
         return Err(ctx.err(count_s.span(), key("count"), msg));
     }
+    let made = count * placed.len() as u64;
+    let what = format!("a scatter of {made} objects");
+    crate::memory::check_fits(&what, made as f64 * size_of::<Object>() as f64)
+        .map_err(|e| ctx.memory_err(count_s.span(), key("count"), e))?;
     let mut rng = SplitMix64(seed);
-    objects.reserve((count * placed.len() as u64) as usize);
+    objects.reserve(made as usize);
     for i in 0..count {
         let u = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
         // Clamped: min + (max - min) · u can round one ulp past max.
