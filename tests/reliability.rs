@@ -528,3 +528,25 @@ fn dropped_samples_are_reported_on_stderr_and_in_the_report() {
     assert_eq!(json["frames"][0]["dropped_samples"], 8);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The sum of a scene's procedural triangles past its limit is a memory refusal (exit code 3),
+/// as every other "does not fit" is, not bad input.
+#[test]
+fn the_procedural_triangle_limit_is_a_memory_refusal() {
+    let dir = temp_dir("procedural-limit");
+    let scene = dir.join("hairballs.toml");
+    let hairball = |n: u64, seed: u64| {
+        format!("\n[[objects]]\nshape = \"hairball\"\nmaterial = \"white\"\ntriangles = {n}\nseed = {seed}\n")
+    };
+    let text = format!(
+        "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [8, 8]\n\n\
+         [materials.white]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n{}{}",
+        hairball(1, 0),
+        hairball(100_000_000, 1)
+    );
+    std::fs::write(&scene, text).unwrap();
+    let (code, _, err) = outcome(render().arg(&scene).arg("-o").arg(dir.join("out.png")));
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("objects[1].triangles") && err.contains("more than 100000000"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

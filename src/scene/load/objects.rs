@@ -200,14 +200,25 @@ fn shape_parts(
     let key = |k: &str| format!("objects[{index}].{k}");
     let spec = builtin_shape(ctx, index, shape, f)?;
     if !out.known.contains_key(&MeshKey::Shape(spec)) {
-        // Each procedural shape is within its limit; their sum must fit the render's memory (a
-        // memory refusal, exit code 3: the same shapes fit a larger machine).
+        // Each procedural shape is within its limit; their sum must be too. Past it the meshes
+        // alone would take tens of gigabytes: a memory refusal (exit code 3), as a smaller
+        // scene might fit a larger machine.
         if let Some(n) = &f.triangles {
             out.procedural_triangles += spec.size;
             let total = out.procedural_triangles;
-            let what = format!("{} more make {total} triangles of procedural shapes in the scene, which", spec.size);
-            crate::memory::check_fits(&what, total as f64 * crate::memory::RENDER_BYTES_PER_TRIANGLE)
-                .map_err(|e| ctx.memory_err(n.span(), key("triangles"), e))?;
+            if total > MAX_PROCEDURAL_TRIANGLES {
+                let message = format!(
+                    "{} more make {total} triangles of procedural shapes in the scene, more than {MAX_PROCEDURAL_TRIANGLES}",
+                    spec.size
+                );
+                let error = crate::memory::OutOfMemory {
+                    what: message.clone(),
+                    bytes: total as f64 * PROCEDURAL_MESH_BYTES_PER_TRIANGLE,
+                    available: crate::memory::available_bytes().unwrap_or(0),
+                };
+                let (file, line) = (ctx.file.to_owned(), ctx.line(n.span()));
+                return Err(SceneError::Memory { file, line, key: key("triangles"), message, error });
+            }
         }
         // The mesh itself, before any BVH (positions and indices, with room); the shapes made
         // before it are in use already, which the memory available counts.
