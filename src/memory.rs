@@ -157,7 +157,38 @@ pub fn read_file(path: &Path) -> std::io::Result<Vec<u8>> {
     let what = format!("its {:.1} MB, read and parsed,", len as f64 / 1e6);
     check_fits(&what, len as f64 * TEXT_BYTES_PER_BYTE)
         .map_err(|e| std::io::Error::new(std::io::ErrorKind::OutOfMemory, e))?;
+    note_read(path);
     read_limited(std::fs::File::open(path)?, Some(len), text_file_limit())
+}
+
+thread_local! {
+    /// The files [`read_file`], [`read_at_most`] and [`read_prefix`] opened on this thread
+    /// while [`recording_reads`] runs.
+    static READS: std::cell::RefCell<Option<Vec<std::path::PathBuf>>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Runs `f`, and returns with its result every regular file this module's readers opened on
+/// this thread meanwhile: what a scene's loading read (its MTL files and glTF buffers beside
+/// the files the scene names), which a render must not overwrite.
+pub fn recording_reads<T>(f: impl FnOnce() -> T) -> (T, Vec<std::path::PathBuf>) {
+    let outer = READS.with(|r| r.borrow_mut().replace(Vec::new()));
+    let result = f();
+    let read = READS.with(|r| r.borrow_mut().take()).unwrap_or_default();
+    // A recording around this one hears of these reads too.
+    let outer = outer.map(|mut o| {
+        o.extend(read.iter().cloned());
+        o
+    });
+    READS.with(|r| *r.borrow_mut() = outer);
+    (result, read)
+}
+
+fn note_read(path: &Path) {
+    READS.with(|r| {
+        if let Some(list) = r.borrow_mut().as_mut() {
+            list.push(path.to_path_buf());
+        }
+    });
 }
 
 /// [`read_file`] that also reads a named pipe to its end: the scene file, which a user may give
@@ -181,6 +212,7 @@ pub fn read_at_most(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
     if len > limit {
         return Err(longer_than(limit));
     }
+    note_read(path);
     read_limited(std::fs::File::open(path)?, Some(len), limit)
 }
 
@@ -194,6 +226,7 @@ pub fn read_prefix(path: &Path, len: u64) -> std::io::Result<Vec<u8>> {
         return Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, message));
     }
     use std::io::Read as _;
+    note_read(path);
     let mut bytes = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
     std::fs::File::open(path)?.take(len).read_to_end(&mut bytes)?;
     if (bytes.len() as u64) < len {

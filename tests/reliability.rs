@@ -132,6 +132,18 @@ fn outputs_that_would_overwrite_what_the_run_reads_are_refused() {
     // A frame pattern whose frame 2 is the texture; frames without it render.
     refused(&[o(), dir.join("tex_%04d.png").into(), "--frames".into(), "0..5".into()], "frame 2");
     run(render().arg(&scene).arg("-o").arg(dir.join("tex_%04d.png")).args(["--frames", "3..4", "--quiet"]));
+    // Files the scene's loading reads without naming them in the scene: an OBJ's MTL file.
+    std::fs::write(dir.join("box.obj"), "mtllib box.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n").unwrap();
+    std::fs::write(dir.join("box.mtl"), "newmtl m\nKd 0.5 0.5 0.5\n").unwrap();
+    let obj_scene = dir.join("obj.toml");
+    let obj_text = std::fs::read_to_string(&scene).unwrap().replace("shape = \"quad\"", "mesh = \"box.obj\"");
+    std::fs::write(&obj_scene, obj_text).unwrap();
+    let mtl = bytes(&dir.join("box.mtl"));
+    let (code, _, err) =
+        outcome(render().arg(&obj_scene).arg("-o").arg(dir.join("o.png")).arg("--report").arg(dir.join("box.mtl")));
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("would overwrite a file the scene reads"), "{err}");
+    assert_eq!(bytes(&dir.join("box.mtl")), mtl);
     // The state of a whole render (`OUT.partial.exr`) is an output too.
     let state_named = dir.join("s.png");
     std::fs::copy(&sky, dir.join("s.png.partial.exr")).unwrap();

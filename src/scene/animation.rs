@@ -138,6 +138,7 @@ impl Scene {
             meshes: self.meshes.clone(),
             objects,
             animation: None,
+            read: self.read.clone(),
         }
     }
 }

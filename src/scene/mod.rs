@@ -206,6 +206,10 @@ pub struct Scene {
     pub objects: Vec<Object>,
     /// The `[animation]` table: the frame clock. Present whenever an object is animated.
     pub animation: Option<AnimationSettings>,
+    /// The files read while loading it besides the scene file (meshes, MTL files, glTF files
+    /// and buffers), as named: what a render must not overwrite ([`Scene::input_files`]).
+    /// Textures and the environment map are named by their own fields.
+    pub read: Vec<PathBuf>,
 }
 
 /// What went wrong loading a scene. Each names the file, and where it can the line and key.
@@ -305,7 +309,8 @@ impl Scene {
     }
 
     /// The files the scene was read from, as `(what, path)`: the scene file, its meshes
-    /// (OBJ, PLY, glTF), textures and environment map; what a render must not overwrite.
+    /// (OBJ, PLY, glTF), textures and environment map, and every other file its loading read
+    /// (MTL files, glTF buffers); what a render must not overwrite.
     /// Parts of a file (`car.glb#meshes[2]`) are given as the file; built-in shapes have none.
     pub fn input_files(&self) -> Vec<(&'static str, PathBuf)> {
         let file = |source: &str| -> Option<PathBuf> {
@@ -317,6 +322,7 @@ impl Scene {
         files.extend(self.textures.iter().filter_map(|t| Some(("a texture", file(&t.source.to_string_lossy())?))));
         let map = self.environment.as_ref().and_then(|e| e.map.as_ref());
         files.extend(map.map(|m| ("the environment map", m.source.clone())));
+        files.extend(self.read.iter().map(|p| ("a file the scene reads", p.clone())));
         files.sort_by(|a, b| a.1.cmp(&b.1));
         files.dedup_by(|a, b| a.1 == b.1);
         files

@@ -198,6 +198,12 @@ impl FileError for FileFailure {
 }
 
 pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
+    let (scene, read) = crate::memory::recording_reads(|| parse_text(text, file));
+    scene.map(|scene| Scene { read, ..scene })
+}
+
+/// [`parse`], but for the list of files read.
+fn parse_text(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
     let ctx = Ctx { file: &file, text };
     let parsed = deserialize(&ctx)?;
     let base = file.parent().unwrap_or(Path::new("."));
@@ -220,7 +226,8 @@ pub(super) fn parse(text: &str, file: PathBuf) -> Result<Scene, SceneError> {
     }
     let Built { materials, textures, meshes, objects, .. } = out;
     let textures = textures.textures;
-    Ok(Scene { path: file.clone(), camera, render, environment, materials, textures, meshes, objects, animation })
+    let read = Vec::new();
+    Ok(Scene { path: file.clone(), camera, render, environment, materials, textures, meshes, objects, animation, read })
 }
 
 /// The scene file's text as its schema, or a syntax or schema error at its line and key.
