@@ -174,21 +174,11 @@ fn outputs_that_would_overwrite_what_the_run_reads_are_refused() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A piece as the `exr` crate decodes it: every channel, every attribute.
-type ExrPiece = exr::prelude::Image<exr::prelude::Layer<exr::prelude::AnyChannels<exr::prelude::FlatSamples>>>;
-
 /// The EXR at `path` decoded, changed by `change`, and written back whole and well-formed: what a
 /// damaged transfer that was then recompressed would leave.
-fn tamper(path: &Path, change: &dyn Fn(&mut ExrPiece)) {
-    use exr::prelude::{ReadChannels, ReadLayers, WritableImage, read};
-    let mut image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
-        .unwrap();
+fn tamper(path: &Path, change: &dyn Fn(&mut arbor::distributed::film_file::DecodedPiece)) {
+    use exr::prelude::WritableImage;
+    let mut image = arbor::distributed::film_file::decode(path).unwrap();
     change(&mut image);
     image.write().to_file(path).unwrap();
 }

@@ -413,19 +413,20 @@ pub fn piece_info(path: &Path) -> Result<PieceInfo, PieceError> {
     read_info(path)?.ok_or_else(|| foreign(path, "it has no arbor.format attribute (an image, not a piece)"))
 }
 
+/// A piece's EXR as the `exr` crate decodes it: the first layer, every channel and attribute.
+pub type DecodedPiece = ExrImage<Layer<AnyChannels<FlatSamples>>>;
+
+/// The EXR at `path` decoded whole, as [`read_piece`] decodes it before it checks anything.
+pub fn decode(path: &Path) -> Result<DecodedPiece, exr::error::Error> {
+    read().no_deep_data().largest_resolution_level().all_channels().first_valid_layer().all_attributes().from_file(path)
+}
+
 /// [`read_piece`] of a file whose header has been read: `info`.
 fn read_pixels(path: &Path, info: PieceInfo) -> Result<FilmPiece, PieceError> {
     // The pixels read hold 25 channels of 4 bytes; the film is 96 bytes a pixel.
     let what = format!("{}: a {}x{} piece", path.display(), info.rect.width(), info.rect.height());
     crate::memory::check_fits(&what, info.rect.pixel_count() as f64 * 200.0)?;
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
-        .map_err(|e| exr_error(path, e))?;
+    let image = decode(path).map_err(|e| exr_error(path, e))?;
     let layer = &image.layer_data;
     check_integrity(path, &image.attributes.other, &layer.attributes.other, &layer.channel_data.list)?;
     let (rect, width, height) = (info.rect, info.width as usize, info.height as usize);
