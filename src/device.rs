@@ -16,6 +16,8 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 use crate::bvh::Tracing;
 use crate::bvh::build::{Builder, UnknownBuilder};
 use crate::bvh::dynamic::DynamicConfig;
@@ -566,6 +568,8 @@ impl Renderer {
         // it, and the film returned is whole, of `whole` samples.
         let mut fresh = Film::new(film.width(), film.height());
         let mut whole = done;
+        // The rays of the samples in `film`: an abandoned pass's are not counted.
+        let mut rays_at_whole = rays_before;
         while done < end {
             let deciding = slice < slices && self.refiner.as_ref().is_some_and(Refiner::is_active);
             let pass_start = Instant::now();
@@ -595,15 +599,19 @@ impl Renderer {
             };
             if abandon() {
                 done = whole;
+                rays.store(rays_at_whole, Ordering::Relaxed);
                 break;
             }
             if slice == slices {
                 (slice, done) = (0, done + 1);
             }
             if slice == 0 {
-                film.merge(&fresh);
-                fresh.pixels_mut().fill(Default::default());
+                film.pixels_mut().par_iter_mut().zip(fresh.pixels_mut().par_iter_mut()).for_each(|(to, from)| {
+                    to.merge(from);
+                    *from = Default::default();
+                });
                 whole = done;
+                rays_at_whole = rays.load(Ordering::Relaxed);
             }
             let elapsed = seconds_before + start.elapsed().as_secs_f64();
             if slice == 0 && (s.time.is_some_and(|t| elapsed >= t) || (done < end && pause(done - first))) {

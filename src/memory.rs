@@ -157,19 +157,20 @@ pub fn read_file(path: &Path) -> std::io::Result<Vec<u8>> {
     let what = format!("its {:.1} MB, read and parsed,", len as f64 / 1e6);
     check_fits(&what, len as f64 * TEXT_BYTES_PER_BYTE)
         .map_err(|e| std::io::Error::new(std::io::ErrorKind::OutOfMemory, e))?;
-    note_read(path);
     read_limited(std::fs::File::open(path)?, Some(len), text_file_limit())
 }
 
 thread_local! {
-    /// The files [`read_file`], [`read_at_most`] and [`read_prefix`] opened on this thread
-    /// while [`recording_reads`] runs.
+    /// The regular files [`regular_file_len`] looked at on this thread (every reader here, and
+    /// the texture and sky map readers, look there before they open a file) while
+    /// [`recording_reads`] runs.
     static READS: std::cell::RefCell<Option<Vec<std::path::PathBuf>>> = const { std::cell::RefCell::new(None) };
 }
 
-/// Runs `f`, and returns with its result every regular file this module's readers opened on
-/// this thread meanwhile: what a scene's loading read (its MTL files and glTF buffers beside
-/// the files the scene names), which a render must not overwrite.
+/// Runs `f`, and returns with its result every regular file that [`regular_file_len`] looked at
+/// on this thread meanwhile, so every file a scene's loading read or was about to (its MTL
+/// files and glTF buffers beside the files the scene names), even where loading then failed:
+/// what a render, and its report, must not overwrite.
 pub fn recording_reads<T>(f: impl FnOnce() -> T) -> (T, Vec<std::path::PathBuf>) {
     let outer = READS.with(|r| r.borrow_mut().replace(Vec::new()));
     let result = f();
@@ -212,7 +213,6 @@ pub fn read_at_most(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
     if len > limit {
         return Err(longer_than(limit));
     }
-    note_read(path);
     read_limited(std::fs::File::open(path)?, Some(len), limit)
 }
 
@@ -226,7 +226,6 @@ pub fn read_prefix(path: &Path, len: u64) -> std::io::Result<Vec<u8>> {
         return Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, message));
     }
     use std::io::Read as _;
-    note_read(path);
     let mut bytes = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
     std::fs::File::open(path)?.take(len).read_to_end(&mut bytes)?;
     if (bytes.len() as u64) < len {
@@ -244,6 +243,7 @@ pub fn regular_file_len(path: &Path) -> std::io::Result<u64> {
     use std::io::{Error, ErrorKind};
     let meta = std::fs::metadata(path)?;
     if meta.is_file() {
+        note_read(path);
         return Ok(meta.len());
     }
     if meta.is_dir() {

@@ -144,6 +144,17 @@ fn outputs_that_would_overwrite_what_the_run_reads_are_refused() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("would overwrite a file the scene reads"), "{err}");
     assert_eq!(bytes(&dir.join("box.mtl")), mtl);
+    // A scene that fails to load halfway (a missing texture) still keeps its report off the
+    // files it read.
+    let broken = dir.join("broken.toml");
+    let broken_text = std::fs::read_to_string(&obj_scene).unwrap().replace("\"tex_0002.png\"", "\"missing.png\"");
+    std::fs::write(&broken, broken_text).unwrap();
+    let obj = bytes(&dir.join("box.obj"));
+    let (code, _, err) =
+        outcome(render().arg(&broken).arg("-o").arg(dir.join("o.png")).arg("--report").arg(dir.join("box.obj")));
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("missing.png") && err.contains("--report") && err.contains("not written"), "{err}");
+    assert_eq!(bytes(&dir.join("box.obj")), obj);
     // The state of a whole render (`OUT.partial.exr`) is an output too.
     let state_named = dir.join("s.png");
     std::fs::copy(&sky, dir.join("s.png.partial.exr")).unwrap();
@@ -153,7 +164,7 @@ fn outputs_that_would_overwrite_what_the_run_reads_are_refused() {
     std::fs::write(&scene2, scene_text).unwrap();
     let (code, _, err) = outcome(render().arg(&scene2).arg("-o").arg(&state_named).arg("--quiet"));
     assert_eq!(code, 2, "{err}");
-    assert!(err.contains("the state of -o"), "{err}");
+    assert!(err.contains("-o's state"), "{err}");
     assert!(sky_copy.exists());
 
     // A merge over one of its own pieces, directly or through a link.
@@ -169,6 +180,9 @@ fn outputs_that_would_overwrite_what_the_run_reads_are_refused() {
     let merged = dir.join("m.exr");
     let (code, _, err) =
         outcome(render().arg("--merge").arg(&t0).arg(&t1).arg("-o").arg(&merged).arg("--report").arg(&t1));
+    assert_eq!((code, kept(&[&t0, &t1])), (2, pieces.clone()), "{err}");
+    // Both at fault: the first refusal names `-o`, and the report is not written either.
+    let (code, _, err) = outcome(render().arg("--merge").arg(&t0).arg(&t1).arg("-o").arg(&t0).arg("--report").arg(&t1));
     assert_eq!((code, kept(&[&t0, &t1])), (2, pieces), "{err}");
     assert!(!merged.exists());
     let _ = std::fs::remove_dir_all(&dir);
@@ -271,6 +285,13 @@ fn skip_existing_skips_only_whole_outputs() {
     let full = bytes(&piece);
     std::fs::write(&piece, &full[..full.len() / 2]).unwrap();
     assert!(!skipped(&piece, &["--tile", "0/2"]), "a truncated piece was skipped");
+    // With --resume too (what every job passes): a cut piece is no state, rendered again.
+    let whole_piece = bytes(&piece);
+    let film = arbor::distributed::film_file::read_piece(&piece).unwrap().film;
+    std::fs::write(&piece, &whole_piece[..whole_piece.len() / 2]).unwrap();
+    let o = run(render().arg(&scene).arg("-o").arg(&piece).args(["--skip-existing", "--resume", "--tile", "0/2"]));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("rendering afresh"));
+    assert!(arbor::distributed::film_file::read_piece(&piece).unwrap().film == film);
     tamper(&piece, &|image| {
         let c = image.layer_data.channel_data.list.iter_mut().find(|c| c.name.to_string() == "arbor.sum.G.1").unwrap();
         let exr::prelude::FlatSamples::U32(s) = &mut c.sample_data else { panic!() };

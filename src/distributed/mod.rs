@@ -47,7 +47,7 @@
 //! for job in plan.jobs(frames, &scene, &hash, device.name()) {
 //!     let carried = match job.start()? {
 //!         Start::Skip => continue,
-//!         Start::Fresh => None,
+//!         Start::Fresh | Start::Restart(_) => None,
 //!         Start::Resume(frame) => Some(frame),
 //!     };
 //!     if moves {

@@ -30,7 +30,7 @@ impl Named {
 
 /// An output that would replace a file the run reads, or another of its outputs.
 #[derive(Debug, thiserror::Error)]
-#[error("{} {}: it would overwrite {} {}{}; nothing was written: choose another name", output.what, output.path.display(), other.what, frame_note(*frame), other.path.display())]
+#[error("{} {}: {} {} {}; nothing was written: choose another name", output.what, output.path.display(), written(output, *frame), other.what, other.path.display())]
 pub struct Overwrite {
     pub output: Named,
     /// The frame whose output it is, where the output is a frame pattern.
@@ -38,8 +38,12 @@ pub struct Overwrite {
     pub other: Named,
 }
 
-fn frame_note(frame: Option<u32>) -> String {
-    frame.map_or_else(String::new, |f| format!("(as frame {f}'s output) "))
+/// `it would overwrite`, or for a frame pattern `frame F's output, NAME, would overwrite`.
+fn written(output: &Named, frame: Option<u32>) -> String {
+    match frame {
+        None => "it would overwrite".to_owned(),
+        Some(f) => format!("frame {f}'s output, {}, would overwrite", frame_path(&output.path, f).display()),
+    }
 }
 
 /// Checks that no output replaces an input or another output. `outputs` are written for every

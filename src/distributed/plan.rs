@@ -94,8 +94,9 @@ pub enum PlanError {
         #[source]
         source: std::io::Error,
     },
-    #[error("--frames {}..{}: {} frames in one command; at most {MAX_FRAMES} (split the range into several commands)", frames.start, frames.end, frames.len())]
-    TooManyFrames { frames: Range<u32> },
+    /// `from` is `--frames`, or the scene's `animation.frames` where the range came from there.
+    #[error("{from} {}..{}: {} frames in one command; at most {MAX_FRAMES} (split the range into several commands)", frames.start, frames.end, frames.len())]
+    TooManyFrames { frames: Range<u32>, from: String },
     /// An output would replace a file the run reads, or another of its outputs.
     #[error(transparent)]
     Overwrite(#[from] super::overwrite::Overwrite),
@@ -250,7 +251,7 @@ impl Plan {
     ) -> Result<(), PlanError> {
         let mut outputs = vec![Named::new("-o", &self.request.output)];
         if !self.request.is_split() {
-            outputs.push(Named::new("the state of -o", sidecar(&self.request.output)));
+            outputs.push(Named::new("-o's state", sidecar(&self.request.output)));
         }
         outputs.extend(report.map(|r| Named::new("--report", r)));
         Ok(check_overwrites(&outputs, frames, inputs)?)
@@ -302,7 +303,12 @@ fn check_outputs(request: &Request, scene: &Scene) -> Result<Option<Range<u32>>,
     };
     let first = frames.as_ref().map_or_else(|| output.clone(), |r| frame_path(output, r.start));
     if let Some(f) = frames.as_ref().filter(|f| f.len() > MAX_FRAMES) {
-        return Err(PlanError::TooManyFrames { frames: f.clone() });
+        let from = if request.frames.is_some() {
+            "--frames".to_owned()
+        } else {
+            format!("animation.frames in {}", request.scene.display())
+        };
+        return Err(PlanError::TooManyFrames { frames: f.clone(), from });
     }
     if frames.is_some() && has_frame_pattern(&first) {
         return Err(PlanError::FramePatterns { output: output.clone() });
@@ -351,6 +357,15 @@ pub enum Start {
     Fresh,
     /// From the samples of its state (`--resume`).
     Resume(RenderedFrame),
+    /// From no sample, its state (`--resume`) unreadable: damaged, altered, cut short or of an
+    /// older format (`why`). A state is only a shortcut: it is rendered again, and replaced.
+    Restart(PieceError),
+}
+
+/// Whether `e`, reading a state, says the file is not a whole piece (as opposed to a failing
+/// disk, worth a retry, or too little memory).
+fn is_damage(e: &PieceError) -> bool {
+    !matches!(e, PieceError::Io { .. } | PieceError::Memory(_))
 }
 
 impl Job {
@@ -373,13 +388,24 @@ impl Job {
     }
 
     /// Whether the job carries on from a state (`resume`, and a state is there), its header
-    /// checked: a state of another render, or (for a partial film) one already complete, is an
-    /// error. Reads no pixels: a render checks every job this way before any work.
+    /// checked: a state of another render, or (for a partial film, without `skip_existing`) one
+    /// already complete, is an error. Reads no pixels: a render checks every job this way before
+    /// any work. A state that cannot be read back (damaged, altered, of an older format) is no
+    /// state: the job starts afresh ([`Start::Restart`]).
     pub fn check_state(&self) -> Result<bool, PlanError> {
         if !self.resume || !self.state.exists() {
             return Ok(false);
         }
-        self.check_same(&piece_info(&self.state)?)?;
+        let theirs = match piece_info(&self.state) {
+            Ok(info) => info,
+            Err(e) if is_damage(&e) => return Ok(false),
+            Err(e) => return Err(e.into()),
+        };
+        // A complete piece that `skip_existing` did not skip is not whole: rendered again.
+        if self.split && self.skip_existing && theirs.is_complete() && theirs.same_piece(&self.piece) {
+            return Ok(false);
+        }
+        self.check_same(&theirs)?;
         Ok(true)
     }
 
@@ -403,7 +429,8 @@ impl Job {
 
     /// How the job starts: skipped where it [`skips`](Job::skips); carried on from its state
     /// where `resume` and there is one (checked as [`Job::check_state`] does, and read whole,
-    /// its integrity checked); else afresh.
+    /// its integrity checked), or afresh where that state cannot be read back
+    /// ([`Start::Restart`]); else afresh.
     pub fn start(&self) -> Result<Start, PlanError> {
         if self.skips() {
             return Ok(Start::Skip);
@@ -411,7 +438,15 @@ impl Job {
         if !self.resume || !self.state.exists() {
             return Ok(Start::Fresh);
         }
-        let piece = read_piece(&self.state)?;
+        let piece = match read_piece(&self.state) {
+            Ok(piece) => piece,
+            Err(e) if is_damage(&e) => return Ok(Start::Restart(e)),
+            Err(e) => return Err(e.into()),
+        };
+        if self.split && self.skip_existing && piece.info.is_complete() && piece.info.same_piece(&self.piece) {
+            // Complete, yet not skipped: not whole after all (a race with another writer).
+            return Ok(Start::Fresh);
+        }
         self.check_same(&piece.info)?;
         Ok(Start::Resume(RenderedFrame {
             samples: piece.info.done - piece.info.samples.start,

@@ -690,6 +690,10 @@ fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Re
     while done < samples.end && pixels > 0 {
         let count = PASS_SPP.min(samples.end - done);
         let banded = band_rows < rect.height();
+        if !banded {
+            // A pass of one submission is never cut: its backup's memory can go.
+            backup = None;
+        }
         if banded {
             let copy = match backup.take() {
                 Some(b) => b,
@@ -729,7 +733,13 @@ fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Re
             // bytes).
             let per_row = band_start.elapsed().as_secs_f64() / f64::from(rows);
             let fit = (BAND_SECONDS / per_row.max(1e-9)).min(f64::from(rect.height())) as u32;
-            band_rows = (fit / TRACE_WORKGROUP * TRACE_WORKGROUP).max(TRACE_WORKGROUP);
+            // The whole height where it fits in one band (whatever its height), so that such
+            // passes need no backup.
+            band_rows = if fit >= rect.height() {
+                rect.height()
+            } else {
+                (fit / TRACE_WORKGROUP * TRACE_WORKGROUP).max(TRACE_WORKGROUP)
+            };
             if y < rect.height() && abandon() {
                 abandoned = true;
                 break;

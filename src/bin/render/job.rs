@@ -222,6 +222,10 @@ pub struct Report {
     /// line per frame otherwise.
     #[serde(skip)]
     pub keep_frames: bool,
+    /// The files the run read or writes, as far as it came: the report is not written over
+    /// any of them, whatever error ended the run.
+    #[serde(skip)]
+    pub guarded: Vec<PathBuf>,
     /// Samples the outputs' films dropped, over all frames: non-finite, or of radiance 2^44 or
     /// more ([`arbor::render::film`]). Each is a hole in its pixel's mean; stderr says so too.
     pub dropped_samples: u64,

@@ -65,13 +65,28 @@ fn main() {
             job::exit_code(e)
         }
     };
-    // A report refused as an output that would overwrite another file is not written at all.
-    let report_refused = result
-        .as_ref()
-        .err()
-        .and_then(overwrite_of)
-        .is_some_and(|o| o.output.what == "--report" || o.other.what == "--report");
-    if let Some(path) = args.report.as_ref().filter(|_| !report_refused) {
+    // No report where an output was refused for overwriting a file, nor over any file the run
+    // read or writes (a load that failed halfway has not been checked against its files).
+    let refused = result.as_ref().err().and_then(overwrite_of).is_some();
+    let report_path = args.report.as_ref().filter(|r| {
+        if refused {
+            return false;
+        }
+        if report.guarded.iter().any(|p| arbor::atomic_file::replaces(r, p)) {
+            eprintln!(
+                "render: --report {}: not written: it would overwrite a file this run reads or writes",
+                r.display()
+            );
+            return false;
+        }
+        if !replaces_only_a_report(r) {
+            // A load that failed may not have come to every file it would read.
+            eprintln!("render: --report {}: not written: the file there is not a report", r.display());
+            return false;
+        }
+        true
+    });
+    if let Some(path) = report_path {
         report.exit_code = exit;
         report.error = result.err().map(|e| format!("{e:#}"));
         report.threads = rayon::current_num_threads();
@@ -97,6 +112,22 @@ fn main() {
         }
     }
     std::process::exit(exit);
+}
+
+/// Whether writing the report to `path` replaces nothing but a report: nothing is there, or a
+/// stream (`/dev/stdout`), or a file that starts as a report does. A run that failed early has
+/// not checked the report against every file its scene names; this keeps it off them.
+fn replaces_only_a_report(path: &Path) -> bool {
+    use std::io::Read as _;
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_file() && !path.starts_with("/dev") && !path.starts_with("/proc") => {
+            let mut head = [0; 64];
+            let n = std::fs::File::open(path).and_then(|f| f.take(64).read(&mut head)).unwrap_or(0);
+            let head = String::from_utf8_lossy(&head[..n]);
+            n == 0 || head.trim_start().starts_with('{') && head.contains("\"arbor_version\"")
+        }
+        _ => true,
+    }
 }
 
 /// The [`Overwrite`] that `error` is, if any (a [`PlanError`] wraps it in place).
@@ -150,7 +181,10 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
         check_overwrites(&[Named::new("--report", r)], None, &others)?;
     }
     let load = Instant::now();
-    let scene = Scene::load(scene_path)?;
+    report.guarded.extend([scene_path.to_path_buf(), args.output.clone()]);
+    let (scene, read) = arbor::memory::recording_reads(|| Scene::load(scene_path));
+    report.guarded.extend(read);
+    let scene = scene?;
     report.load_seconds = Some(load.elapsed().as_secs_f64());
     report.texture_bytes = Some(scene.texture_bytes() as u64);
     let plan = Plan::new(request(args, scene_path, &scene), &scene)?;
@@ -163,6 +197,7 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
     report.samples = Some([region.samples.start, region.samples.end]);
     let frames = plan.frames(&scene)?;
     let inputs: Vec<Named> = scene.input_files().into_iter().map(|(what, path)| Named::new(what, path)).collect();
+    report.guarded.extend(inputs.iter().map(|i| i.path.clone()));
     plan.check_overwrites(frames.as_ref(), &inputs, args.report.as_deref())?;
     let outputs = frames.as_ref().map_or(1, |f| f.len());
     if args.report.is_some() {
@@ -234,6 +269,10 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
             Start::Skip => continue,
             Start::Fresh => None,
             Start::Resume(carried) => Some(carried),
+            Start::Restart(why) => {
+                eprintln!("render: warning: --resume: {why}; its state is not used: rendering afresh");
+                None
+            }
         };
         let update_ms = if moves { renderer.set_time(&scene, job.time)? } else { None };
         render_job(args, &mut renderer, &job, carried, update_ms, stop, report)?;
@@ -346,6 +385,8 @@ fn merge(args: &Args, report: &mut Report) -> Result<()> {
     let pieces: Vec<Named> = args.merge.iter().map(|p| Named::new("a piece", p)).collect();
     let mut outputs = vec![Named::new("-o", &args.output)];
     outputs.extend(args.report.as_ref().map(|r| Named::new("--report", r)));
+    report.guarded.extend(args.merge.iter().cloned());
+    report.guarded.push(args.output.clone());
     check_overwrites(&outputs, None, &pieces)?;
     arbor::atomic_file::prepare(&args.output).with_context(|| format!("cannot write {}", args.output.display()))?;
     report.pieces.clone_from(&args.merge);
