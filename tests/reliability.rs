@@ -138,23 +138,21 @@ fn outputs_that_would_overwrite_what_the_run_reads_are_refused() {
     let obj_scene = dir.join("obj.toml");
     let obj_text = std::fs::read_to_string(&scene).unwrap().replace("shape = \"quad\"", "mesh = \"box.obj\"");
     std::fs::write(&obj_scene, obj_text).unwrap();
-    let mtl = bytes(&dir.join("box.mtl"));
-    let (code, _, err) =
-        outcome(render().arg(&obj_scene).arg("-o").arg(dir.join("o.png")).arg("--report").arg(dir.join("box.mtl")));
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("would overwrite a file the scene reads"), "{err}");
-    assert_eq!(bytes(&dir.join("box.mtl")), mtl);
+    // `--report FILE` of `scene`: exit 2, each of `says` on stderr, FILE unchanged.
+    let report_kept = |scene: &Path, file: &Path, says: &[&str]| {
+        let before = bytes(file);
+        let (code, _, err) = outcome(render().arg(scene).arg("-o").arg(dir.join("o.png")).arg("--report").arg(file));
+        assert_eq!(code, 2, "{err}");
+        assert!(says.iter().all(|s| err.contains(s)), "{err}");
+        assert_eq!(bytes(file), before);
+    };
+    report_kept(&obj_scene, &dir.join("box.mtl"), &["would overwrite a file the scene reads"]);
     // A scene that fails to load halfway (a missing texture) still keeps its report off the
     // files it read.
     let broken = dir.join("broken.toml");
     let broken_text = std::fs::read_to_string(&obj_scene).unwrap().replace("\"tex_0002.png\"", "\"missing.png\"");
     std::fs::write(&broken, broken_text).unwrap();
-    let obj = bytes(&dir.join("box.obj"));
-    let (code, _, err) =
-        outcome(render().arg(&broken).arg("-o").arg(dir.join("o.png")).arg("--report").arg(dir.join("box.obj")));
-    assert_eq!(code, 2, "{err}");
-    assert!(err.contains("missing.png") && err.contains("--report") && err.contains("not written"), "{err}");
-    assert_eq!(bytes(&dir.join("box.obj")), obj);
+    report_kept(&broken, &dir.join("box.obj"), &["missing.png", "--report", "not written"]);
     // The state of a whole render (`OUT.partial.exr`) is an output too.
     let state_named = dir.join("s.png");
     std::fs::copy(&sky, dir.join("s.png.partial.exr")).unwrap();
