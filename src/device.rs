@@ -16,8 +16,6 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use rayon::prelude::*;
-
 use crate::bvh::Tracing;
 use crate::bvh::build::{Builder, UnknownBuilder};
 use crate::bvh::dynamic::DynamicConfig;
@@ -606,10 +604,7 @@ impl Renderer {
                 (slice, done) = (0, done + 1);
             }
             if slice == 0 {
-                film.pixels_mut().par_iter_mut().zip(fresh.pixels_mut().par_iter_mut()).for_each(|(to, from)| {
-                    to.merge(from);
-                    *from = Default::default();
-                });
+                film.take_samples_from(&mut fresh);
                 whole = done;
                 rays_at_whole = rays.load(Ordering::Relaxed);
             }

@@ -401,12 +401,18 @@ impl Job {
             Err(e) if is_damage(&e) => return Ok(false),
             Err(e) => return Err(e.into()),
         };
-        // A complete piece that `skip_existing` did not skip is not whole: rendered again.
-        if self.split && self.skip_existing && theirs.is_complete() && theirs.same_piece(&self.piece) {
+        if self.renders_again(&theirs) {
             return Ok(false);
         }
         self.check_same(&theirs)?;
         Ok(true)
+    }
+
+    /// Whether the state `theirs` says is this very piece, complete, yet the job did not skip
+    /// it under `skip_existing`: then it is not whole (damaged, or rewritten meanwhile), and the
+    /// piece is rendered again rather than refused as finished.
+    fn renders_again(&self, theirs: &PieceInfo) -> bool {
+        self.split && self.skip_existing && theirs.is_complete() && theirs.same_piece(&self.piece)
     }
 
     fn check_same(&self, theirs: &PieceInfo) -> Result<(), PlanError> {
@@ -443,8 +449,7 @@ impl Job {
             Err(e) if is_damage(&e) => return Ok(Start::Restart(e)),
             Err(e) => return Err(e.into()),
         };
-        if self.split && self.skip_existing && piece.info.is_complete() && piece.info.same_piece(&self.piece) {
-            // Complete, yet not skipped: not whole after all (a race with another writer).
+        if self.renders_again(&piece.info) {
             return Ok(Start::Fresh);
         }
         self.check_same(&piece.info)?;

@@ -245,6 +245,16 @@ impl Film {
         }
     }
 
+    /// Merges `other` (of the same size) and empties it, pixels in parallel, in one pass over
+    /// both: how the CPU's loop moves a finished pass's samples into the render's film.
+    pub fn take_samples_from(&mut self, other: &mut Film) {
+        assert_eq!((self.width, self.height), (other.width, other.height), "merging films of different sizes");
+        self.pixels.par_iter_mut().zip(other.pixels.par_iter_mut()).for_each(|(to, from)| {
+            to.merge(from);
+            *from = PixelAccum::default();
+        });
+    }
+
     /// Merges `other`, a film of a rectangle of this one whose pixel (0, 0) is this one's
     /// `(x0, y0)`, pixel by pixel.
     ///
