@@ -250,9 +250,11 @@ def catches_term(pid, render):
 
 def render_pieces(cluster, settings, interrupt=None):
     """The Indexed Job: every index once, two at a time, as pods would; pod `interrupt` gets
-    SIGTERM mid-render first, and its replacement must resume it."""
+    SIGTERM first, and its replacement must resume it. Returns whether that pod wrote a state
+    (a signal while the scene loads writes none), `None` without `interrupt`."""
     m = cluster.m
     container = m.render_container()
+    state_written = None
     if interrupt is not None:
         # The render must be mid-render, with its SIGTERM handler, when the signal comes,
         # however fast the binary and the machine: it runs in slices of a few milliseconds
@@ -275,6 +277,9 @@ def render_pieces(cluster, settings, interrupt=None):
               f"pod {interrupt} exited {process.returncode} after SIGTERM, not 75:\n{output}")
         check(action == "Ignore", f"exit 75 should be ignored by podFailurePolicy, is {action}")
         say(f"pod {interrupt}: SIGTERM, exit 75 ({action}: the Job starts a replacement)")
+        # A signal while the scene still loads ends the pod with nothing written: the
+        # replacement then starts afresh instead of resuming.
+        state_written = "while loading the scene" not in output
     running = []
     for index in range(m.completions):
         running.append((index, cluster.start(container, settings, index)))
@@ -282,6 +287,7 @@ def render_pieces(cluster, settings, interrupt=None):
             i, process = running.pop(0)
             output, _ = process.communicate(timeout=300)
             check(process.returncode == 0, f"pod {i} exited {process.returncode}:\n{output}")
+    return state_written
 
 
 def main():
@@ -311,13 +317,15 @@ def main():
             run = dict(settings, ARBOR_SPLIT=split,
                        ARBOR_OUT=f"{settings['ARBOR_OUT']}-{split}")
             say(f"ARBOR_SPLIT={split}: {m.completions} pods")
-            render_pieces(cluster, run, interrupt)
+            state_written = render_pieces(cluster, run, interrupt)
             out = Path(cluster.local(run["ARBOR_OUT"]))
             if interrupt is not None:
                 report = (out / "reports" / f"piece-{interrupt:04d}-of-{m.completions:04d}.json")
-                check('"status": "resumed"' in report.read_text(),
-                      f"pod {interrupt}'s replacement did not resume:\n{report.read_text()}")
-                say(f"pod {interrupt}'s replacement resumed from the state")
+                status = "resumed" if state_written else "rendered"
+                check(f'"status": "{status}"' in report.read_text(),
+                      f"pod {interrupt}'s replacement was not {status}:\n{report.read_text()}")
+                say(f"pod {interrupt}'s replacement {status}" +
+                    (" from the state" if state_written else " afresh (the signal came while loading)"))
             code, output = cluster.run(m.merge_container(), run)
             check(code == 0, f"the merge exited {code}:\n{output}")
             image = (out / run["ARBOR_IMAGE"]).read_bytes()
