@@ -6,7 +6,8 @@
 // this variant compiles.
 
 @group(0) @binding(0) var<storage, read> params: TraceParams;
-@group(0) @binding(1) var<storage, read> nodes: array<BvhNode>;
+// Binding 1, the tree's nodes, is declared by the form's traversal (bvh_binary.wgsl or
+// bvh_wide8.wgsl).
 @group(0) @binding(2) var<storage, read> triangles: array<GpuTriangle>;
 @group(0) @binding(3) var<storage, read> materials: array<GpuMaterial>;
 @group(0) @binding(4) var<storage, read> lights: array<GpuLight>;
@@ -21,6 +22,9 @@
 // in leaf order.
 @group(0) @binding(8) var<storage, read> textures: array<u32>;
 @group(0) @binding(9) var<storage, read> uvs: array<f32>;
+// The primitive id of each triangle position: ties between hits at one distance go to the
+// lowest, as on the CPU, in every tree form.
+@group(0) @binding(10) var<storage, read> prim_ids: array<u32>;
 
 // The largest finite f32: "no hit yet". (Infinite literals are not valid WGSL.)
 const T_FAR: f32 = 3.40282347e38;
@@ -314,12 +318,11 @@ fn pow2_normalizer(m: f32, max_biased: i32) -> f32 {
     return bitcast<f32>(u32(clamp(254 - biased, 1, max_biased)) << 23u);
 }
 
-// The box-culling slack of src/bvh/trace/mod.rs (cull_slack), with each length taken on the vector
+// The box-culling slack of src/bvh/trace/mod.rs (cull_slack) for a tree whose box is lo..hi, with each length taken on the vector
 // divided by its largest component (the CPU takes them in f64): plain lengths overflow beyond
 // about 1e19 and underflow below 1e-19, which made the slack NaN.
-fn cull_slack(r: Ray) -> f32 {
-    let root = nodes[0];
-    let far = max(abs(root.aabb_min - r.origin), abs(root.aabb_max - r.origin));
+fn cull_slack_in(r: Ray, lo: vec3<f32>, hi: vec3<f32>) -> f32 {
+    let far = max(abs(lo - r.origin), abs(hi - r.origin));
     let m_far = max3(far);
     let m_dir = max3(abs(r.dir));
     if m_far == 0.0 {
@@ -349,143 +352,18 @@ fn unit_normal(v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>) -> vec3<f32> {
 
 struct Hit {
     t: f32,
-    // Position in leaf order; INVALID_INDEX for none.
+    // Triangle position (in the form's order); INVALID_INDEX for none.
     index: u32,
     u: f32,
     v: f32,
 }
 
-// Closest hit (Bvh::closest_hit): near child first, the far one pushed with its entry distance
-// and skipped on pop when it begins past the best hit plus the slack. Ties in t go to the lowest
-// leaf position (the CPU's go to the lowest primitive id; only duplicate triangles differ).
-// The stack cannot overflow: trees deeper than TRACE_STACK_SIZE + 1 are refused on upload.
-fn closest_hit(ray: Ray) -> Hit {
-    var best = Hit(T_FAR, INVALID_INDEX, 0.0, 0.0);
-    let r = prepare_ray(ray);
-    let slack = cull_slack(ray);
-    var limit = T_FAR;
-    let root = nodes[0];
-    if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
-        return best;
-    }
-    var stack_node: array<u32, TRACE_STACK_SIZE>;
-    var stack_t: array<f32, TRACE_STACK_SIZE>;
-    var sp = 0u;
-    var node = root;
-    loop {
-        if node.prim_count > 0u {
-            for (var i = node.first; i < node.first + node.prim_count; i++) {
-                let tri = triangles[i];
-                let h = intersect_triangle(tri, r, best.t);
-                if h.x > 0.0 && (h.x < best.t || (h.x == best.t && i < best.index))
-                    && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
-                    best = Hit(h.x, i, h.y, h.z);
-                    limit = best.t * CULL_SCALE + slack;
-                }
-            }
-        } else {
-            let left = nodes[node.first];
-            let right = nodes[node.first + 1u];
-            let tl = slab(left.aabb_min, left.aabb_max, r, limit);
-            let tr = slab(right.aabb_min, right.aabb_max, r, limit);
-            if tl >= 0.0 && tr >= 0.0 {
-                if sp < TRACE_STACK_SIZE {
-                    if tl <= tr {
-                        stack_node[sp] = node.first + 1u;
-                        stack_t[sp] = tr;
-                    } else {
-                        stack_node[sp] = node.first;
-                        stack_t[sp] = tl;
-                    }
-                    sp += 1u;
-                }
-                if tl <= tr {
-                    node = left;
-                } else {
-                    node = right;
-                }
-                continue;
-            }
-            if tl >= 0.0 {
-                node = left;
-                continue;
-            }
-            if tr >= 0.0 {
-                node = right;
-                continue;
-            }
-        }
-        // Pop the next node still in range.
-        var found = false;
-        while sp > 0u {
-            sp -= 1u;
-            if stack_t[sp] <= limit {
-                node = nodes[stack_node[sp]];
-                found = true;
-                break;
-            }
-        }
-        if !found {
-            break;
-        }
-    }
-    return best;
-}
-
-// Whether anything is hit with 0 < t <= t_max (Bvh::any_hit): shadow rays.
-fn occluded(ray: Ray, t_max: f32) -> bool {
-    let r = prepare_ray(ray);
-    let limit = t_max * CULL_SCALE + cull_slack(ray);
-    let root = nodes[0];
-    if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
-        return false;
-    }
-    var stack_node: array<u32, TRACE_STACK_SIZE>;
-    var sp = 0u;
-    var node = root;
-    loop {
-        if node.prim_count > 0u {
-            for (var i = node.first; i < node.first + node.prim_count; i++) {
-                let tri = triangles[i];
-                let h = intersect_triangle(tri, r, t_max);
-                if h.x > 0.0 && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
-                    return true;
-                }
-            }
-        } else {
-            let left = nodes[node.first];
-            let right = nodes[node.first + 1u];
-            let tl = slab(left.aabb_min, left.aabb_max, r, limit);
-            let tr = slab(right.aabb_min, right.aabb_max, r, limit);
-            if tl >= 0.0 && tr >= 0.0 {
-                // The limit never shrinks, so the entry distance need not be kept.
-                if sp < TRACE_STACK_SIZE {
-                    stack_node[sp] = select(node.first, node.first + 1u, tl <= tr);
-                    sp += 1u;
-                }
-                if tl <= tr {
-                    node = left;
-                } else {
-                    node = right;
-                }
-                continue;
-            }
-            if tl >= 0.0 {
-                node = left;
-                continue;
-            }
-            if tr >= 0.0 {
-                node = right;
-                continue;
-            }
-        }
-        if sp == 0u {
-            break;
-        }
-        sp -= 1u;
-        node = nodes[stack_node[sp]];
-    }
-    return false;
+// Whether the triangle test's result `h` at position `i` is a closer hit than `best` (whose t
+// is the query's t_max while it has none): nearer, or as near with a lower primitive id, so
+// that every tree form finds the same hit as the CPU.
+fn beats(h: vec3<f32>, i: u32, best: Hit) -> bool {
+    return h.x > 0.0
+        && (h.x < best.t || (h.x == best.t && (best.index == INVALID_INDEX || prim_ids[i] < prim_ids[best.index])));
 }
 
 // ---- textures: src/texture/mod.rs ----
@@ -780,6 +658,7 @@ fn direct_env(
     wo: vec3<f32>,
     beta: vec3<f32>,
     u: vec2<f32>,
+    surface: u32,
 ) -> vec4<f32> {
     let s = env_sample(u);
     if !(s.w > 0.0) {
@@ -795,7 +674,7 @@ fn direct_env(
     if max3(f) <= 0.0 || max3(le) <= 0.0 {
         return vec4<f32>(0.0);
     }
-    if occluded(spawn_ray(sp, ng, wi_world), T_FAR) {
+    if occluded(spawn_ray(sp, ng, wi_world), T_FAR, surface) {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);
     }
     let p_light = params.env_select * s.w;
@@ -858,13 +737,14 @@ fn direct_light(
     wo: vec3<f32>,
     beta: vec3<f32>,
     rng: ptr<function, Rng>,
+    surface: u32,
 ) -> vec4<f32> {
     var u_select = rng_f32(rng);
     let u = rng_vec2(rng);
     var area_select = 1.0;
     if HAS_ENV_MAP && params.env_width > 0u {
         if u_select < params.env_select {
-            return direct_env(mat, frame, sp, ng, check, wo_ng, wo, beta, u);
+            return direct_env(mat, frame, sp, ng, check, wo_ng, wo, beta, u, surface);
         }
         u_select = min((u_select - params.env_select) / (1.0 - params.env_select), 1.0 - 5.9604645e-8);
         area_select = 1.0 - params.env_select;
@@ -906,7 +786,7 @@ fn direct_light(
     let shadow = Ray(from_surface, lp.p - from_surface);
     let short_of_plane = dot(abs(light.normal), lp.error) / (abs(cos_light) * robust_length(shadow.dir));
     let t_max = (1.0 - short_of_plane) * SHADOW_T_MAX;
-    if !(is_finite_f(clear) && clear < dist && t_max > 0.0) || occluded(shadow, t_max) {
+    if !(is_finite_f(clear) && clear < dist && t_max > 0.0) || occluded(shadow, t_max, surface) {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);
     }
     let p_light = area_select * solid_angle_pdf(light.pdf_area, to, abs(cos_light));
@@ -927,6 +807,8 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
     var prev_delta = true;
     var rays = 0u;
     var ray = camera;
+    // The triangle the ray leaves, which it skips (as on the CPU); shadow rays skip theirs.
+    var surface = INVALID_INDEX;
     // The probability that next-event estimation picks an area light, not the map.
     var area_select = 1.0;
     var env_lit = false;
@@ -936,7 +818,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
     }
     for (var depth = 1u; depth <= params.max_depth; depth++) {
         rays += 1u;
-        let hit = closest_hit(ray);
+        let hit = closest_hit(ray, T_FAR, surface);
         if hit.index == INVALID_INDEX {
             if HAS_ENVIRONMENT {
                 l += beta * escaped(ray.dir, prev_pdf, prev_delta);
@@ -996,7 +878,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         let frame = frame_from_normal(n);
         let wo = to_local(frame, wo_world);
         if ((HAS_LIGHTS && params.light_count > 0u) || env_lit) && !mat_is_delta(mat) {
-            let direct = direct_light(mat, frame, sp, ng, check, wo_ng, wo, beta, rng);
+            let direct = direct_light(mat, frame, sp, ng, check, wo_ng, wo, beta, rng, hit.index);
             l += direct.xyz;
             rays += u32(direct.w);
         }
@@ -1014,6 +896,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         prev_pdf = s.pdf;
         prev_delta = s.is_delta;
         ray = spawn_ray(sp, ng, wi_world);
+        surface = hit.index;
         if depth >= RR_DEPTH {
             let q = min(max3(beta), 0.95);
             if rng_f32(rng) >= q {

@@ -16,10 +16,10 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use crate::bvh::Tracing;
 use crate::bvh::build::{Builder, UnknownBuilder};
 use crate::bvh::dynamic::DynamicConfig;
 use crate::bvh::dynamic::instances::TopLevelUpdate;
+use crate::bvh::{TraceLayout, Tracing};
 #[cfg(feature = "gpu")]
 use crate::gpu::{GpuContext, GpuError, trace};
 use crate::render::film::Film;
@@ -250,6 +250,9 @@ pub struct Renderer {
     frame_prbvh: Option<FramePrbvh>,
     #[cfg(feature = "gpu")]
     gpu: Option<GpuState>,
+    /// The form the GPU traces.
+    #[cfg(feature = "gpu")]
+    gpu_form: trace::GpuForm,
 }
 
 #[cfg(feature = "gpu")]
@@ -257,6 +260,21 @@ struct GpuState {
     scene: trace::GpuScene,
     /// Samples `auto` timed, which the next render carries on.
     timed: Option<trace::PartialFilm>,
+}
+
+/// The tree forms a render traces: the CPU's (`render --trace` and `ARBOR_SIMD`) and the GPU's
+/// (`render --trace`, else `wide8`: binary or wide8, [`trace::GpuForm`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Forms {
+    pub cpu: Tracing,
+    pub gpu: TraceLayout,
+}
+
+impl From<Tracing> for Forms {
+    /// The CPU's form as given, the GPU's default.
+    fn from(cpu: Tracing) -> Forms {
+        Forms { cpu, gpu: TraceLayout::Wide8 }
+    }
 }
 
 impl Renderer {
@@ -271,11 +289,13 @@ impl Renderer {
         device: Device,
         scene: &Scene,
         builder: &BuilderChoice,
-        tracing: Tracing,
+        forms: impl Into<Forms>,
         settings: &RenderSettings,
         frames: usize,
         time: f32,
     ) -> Result<Renderer, DeviceError> {
+        let forms: Forms = forms.into();
+        let tracing = forms.cpu;
         let lbvh: Builder = "lbvh".parse().expect("a builder name");
         let flat_builder = match builder {
             BuilderChoice::Fixed(b) => *b,
@@ -298,7 +318,10 @@ impl Renderer {
                 }
             },
             #[cfg(feature = "gpu")]
-            Device::Gpu(ctx) => return Self::new_gpu(ctx, scene, builder, settings, frames, time, flat_builder),
+            Device::Gpu(ctx) => {
+                let form = trace::GpuForm::of(forms.gpu).map_err(DeviceError::Upload)?;
+                return Self::new_gpu(ctx, scene, builder, settings, (frames, time), (flat_builder, form));
+            }
         };
         render_scene.sample_clamp = settings.clamp;
         Ok(Renderer {
@@ -314,6 +337,8 @@ impl Renderer {
             frame_prbvh: matches!(builder, BuilderChoice::Auto).then(FramePrbvh::default),
             #[cfg(feature = "gpu")]
             gpu: None,
+            #[cfg(feature = "gpu")]
+            gpu_form: trace::GpuForm::default(),
         })
     }
 
@@ -323,9 +348,8 @@ impl Renderer {
         scene: &Scene,
         builder: &BuilderChoice,
         settings: &RenderSettings,
-        frames: usize,
-        time: f32,
-        flat_builder: Builder,
+        (frames, time): (usize, f32),
+        (flat_builder, form): (Builder, trace::GpuForm),
     ) -> Result<Renderer, DeviceError> {
         let mut timed = None;
         let (render_scene, build) = if wants_instancing(scene) {
@@ -347,7 +371,7 @@ impl Renderer {
                 (Some(built), _) => built,
                 (None, BuilderChoice::Fixed(b)) => RenderScene::build(scene, b, Tracing::gpu()),
                 (None, BuilderChoice::Auto) => {
-                    let (rs, report, partial) = trace::build_auto(ctx, scene, settings, frames);
+                    let (rs, report, partial) = trace::build_auto(ctx, scene, settings, frames, form);
                     timed = partial;
                     (rs, report)
                 }
@@ -365,6 +389,7 @@ impl Renderer {
             frames_after: frames,
             frame_prbvh: None,
             gpu: None,
+            gpu_form: form,
         };
         renderer.upload(settings.clamp, timed)?;
         Ok(renderer)
@@ -375,15 +400,16 @@ impl Renderer {
     fn upload(&mut self, clamp: Option<f32>, timed: Option<trace::PartialFilm>) -> Result<(), DeviceError> {
         let Device::Gpu(ctx) = self.device else { return Ok(()) };
         self.render_scene.sample_clamp = clamp;
-        let scene = trace::GpuScene::upload(ctx, &self.render_scene).map_err(DeviceError::Upload)?;
+        let scene = trace::GpuScene::upload(ctx, &self.render_scene, self.gpu_form).map_err(DeviceError::Upload)?;
         let t = Instant::now();
         trace::compile(ctx, &scene).map_err(DeviceError::Compile)?;
         self.compile_seconds += t.elapsed().as_secs_f64();
         if self.kernel_note.is_none() {
             self.kernel_note = Some(format!(
-                "GPU kernel {} ready in {:.2} s, BVH depth {}",
+                "GPU kernel {} ready in {:.2} s, {} BVH of depth {}",
                 scene.features.key(),
                 t.elapsed().as_secs_f64(),
+                scene.form.name(),
                 scene.depth
             ));
         }

@@ -39,7 +39,7 @@ use common::{two_sided_p, z_for_two_sided_p};
 use std::path::{Path, PathBuf};
 
 use arbor::bvh::build::Builder;
-use arbor::gpu::trace::{self as gpu_trace, GpuScene};
+use arbor::gpu::trace::{self as gpu_trace, GpuForm, GpuScene};
 use arbor::image_io::{Image, read_exr, write_image};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
@@ -136,7 +136,8 @@ fn render_gpu(scene: &Scene, seed: u64) -> Estimate {
     } else {
         RenderScene::build(scene, &lbvh, common::tracing())
     };
-    let gpu = GpuScene::upload(ctx, &rs).unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
+    let gpu =
+        GpuScene::upload(ctx, &rs, GpuForm::default()).unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
     let out = gpu_trace::render(ctx, &gpu, seed, scene.render.max_depth, SPP)
         .unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
     assert_eq!(out.film.non_finite_count(), 0, "{}: non-finite samples on the GPU", scene.path.display());

@@ -2,7 +2,7 @@
 //! every shader parses and validates with naga (the version wgpu uses). No GPU needed.
 
 use arbor::gpu::layout::{Member, SHARED_STRUCTS, StructLayout, prelude, with_prelude};
-use arbor::gpu::trace::{Features, SHADER_FILES, shader_source};
+use arbor::gpu::trace::{Features, GpuForm, SHADER_FILES, shader_source};
 
 /// Size and `(member, offset)` list of the WGSL struct `name` in `module`.
 fn wgsl_struct(module: &naga::Module, name: &str) -> Option<(u32, Vec<(String, u32)>)> {
@@ -114,10 +114,12 @@ fn every_shader_validates() {
         validate(&name, &with_prelude(&std::fs::read_to_string(&path).unwrap()));
     }
     assert!(count > SHADER_FILES.len(), "no shaders in {}", dir.display());
-    // Every variant of the path tracer (src/gpu/trace.rs): the files concatenated after the
-    // prelude and the variant's constants.
+    // Every variant of the path tracer (src/gpu/trace.rs) in both tree forms: the files
+    // concatenated after the prelude and the variant's constants.
     for features in Features::every() {
-        validate(&features.key(), &shader_source(features));
+        for form in [GpuForm::Binary, GpuForm::Wide8] {
+            validate(&format!("{}[{}]", features.key(), form.name()), &shader_source(features, form));
+        }
     }
     validate("lbvh", &arbor::gpu::lbvh::source());
     validate("prbvh", &arbor::gpu::prbvh::source(false));

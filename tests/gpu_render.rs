@@ -14,7 +14,7 @@ use std::process::Command;
 use arbor::bvh::build::Builder;
 use arbor::geometry::Triangle;
 use arbor::gpu::GpuContext;
-use arbor::gpu::trace::{self, Features, GpuScene};
+use arbor::gpu::trace::{self, Features, GpuForm, GpuScene};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
 use arbor::render::pass::{Pass, Progress};
@@ -34,7 +34,7 @@ fn lbvh() -> Builder {
 
 /// Renders `scene` on the GPU; asserts that no sample was non-finite.
 fn render_gpu(ctx: &GpuContext, scene: &RenderScene, seed: u64, spp: u32, max_depth: u32) -> Film {
-    let gpu = GpuScene::upload(ctx, scene).unwrap_or_else(|e| panic!("{e}"));
+    let gpu = GpuScene::upload(ctx, scene, GpuForm::default()).unwrap_or_else(|e| panic!("{e}"));
     let out = trace::render(ctx, &gpu, seed, max_depth, spp).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(out.samples, spp);
     assert_eq!(out.film.non_finite_count(), 0, "non-finite samples on the GPU");
@@ -212,7 +212,7 @@ fn specialized_and_general_variants_agree() {
             cutouts: false
         }
     );
-    let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
+    let mut gpu = GpuScene::upload(ctx, &rs, GpuForm::default()).unwrap();
     let specialized = trace::render(ctx, &gpu, 3, 8, 8).unwrap();
     gpu.features = Features::ALL;
     let general = trace::render(ctx, &gpu, 3, 8, 8).unwrap();
@@ -232,10 +232,10 @@ fn auto_hands_its_timed_samples_to_the_render() {
     scene.camera.height = 16;
     let (seed, max_depth, spp) = (5, 6, 16 * trace::MEASURE_SPP);
     let job = arbor::scene::RenderSettings { spp, max_depth, seed, time: None, clamp: Some(4.0) };
-    let (rs, _, timed) = trace::build_auto(ctx, &scene, &job, 1);
+    let (rs, _, timed) = trace::build_auto(ctx, &scene, &job, 1, GpuForm::default());
     let timed = timed.expect("a render of 16 x MEASURE_SPP samples is timed");
     assert_eq!(timed.samples(), trace::MEASURE_SPP);
-    let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
+    let mut gpu = GpuScene::upload(ctx, &rs, GpuForm::default()).unwrap();
     gpu.set_clamp(Some(4.0));
     let reported = std::sync::Mutex::new(Vec::new());
     let whole = Region { rect: arbor::render::region::Rect::full(24, 16), samples: 0..spp };
@@ -254,7 +254,7 @@ fn auto_hands_its_timed_samples_to_the_render() {
     // Timed under another seed, clamp or path depth: not this render's samples.
     for (other_seed, clamp, other_depth) in [(6, Some(4.0), max_depth), (seed, None, max_depth), (seed, Some(4.0), 5)] {
         let other_job = arbor::scene::RenderSettings { seed: other_seed, max_depth: other_depth, clamp, ..job };
-        let (_, _, other) = trace::build_auto(ctx, &scene, &other_job, 1);
+        let (_, _, other) = trace::build_auto(ctx, &scene, &other_job, 1, GpuForm::default());
         let out = trace::render_from(ctx, &gpu, Pass::new(&job, whole.clone()).carrying(other)).unwrap();
         assert_eq!(out.carried.0, 0, "seed {other_seed}, clamp {clamp:?}, depth {other_depth}");
         assert_eq!(out.film.mean().pixels, fresh.film.mean().pixels);
@@ -295,7 +295,8 @@ fn a_tree_deeper_than_the_stack_is_refused() {
         uvs: Vec::new(),
         cutouts: None,
     });
-    let error = GpuScene::upload(ctx, &rs).err().expect("a 100-deep tree must be refused").to_string();
+    let error =
+        GpuScene::upload(ctx, &rs, GpuForm::default()).err().expect("a 100-deep tree must be refused").to_string();
     assert!(error.contains("100 nodes deep") && error.contains("traversal stack"), "{error}");
 }
 
@@ -398,7 +399,7 @@ fn specialization_speedup() {
     for (name, spp) in [("furnace.toml", 64), ("cornell-box.toml", 16), ("showcase.toml", 16)] {
         let scene = Scene::load(scene_path(name)).unwrap();
         let (rs, _) = RenderScene::build(&scene, &lbvh(), common::tracing());
-        let mut gpu = GpuScene::upload(ctx, &rs).unwrap();
+        let mut gpu = GpuScene::upload(ctx, &rs, GpuForm::default()).unwrap();
         let specialized = Features::of(&rs);
         let (mut wall, mut cpu, mut rays) = ([f64::INFINITY; 2], [f64::INFINITY; 2], [0u64; 2]);
         for features in [specialized, Features::ALL] {

@@ -44,3 +44,4 @@ mod gpu_lbvh;
 mod gpu_prbvh;
 #[cfg(feature = "gpu")]
 mod gpu_render;
+mod gpu_wide;

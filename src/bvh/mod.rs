@@ -6,6 +6,8 @@
 //!   the builders by name;
 //! - [`trace`]: traversal of the binary tree, the wide trees and their SIMD kernels, and
 //!   [`MeshBvh`], a mesh's tree with the form it is traced in;
+//! - [`wide_sah`]: the SAH-optimal collapse of a binary tree into a wide one (Ylitie et al.
+//!   2017), which the GPU's compressed wide nodes are made from;
 //! - [`dynamic`]: the BVH kept alive while its primitives move, and the two-level BVH of
 //!   instances.
 
@@ -17,6 +19,7 @@ mod parallel;
 pub mod sah;
 pub mod trace;
 mod validate;
+pub mod wide_sah;
 
 pub use node::{Bvh, BvhNode, INVALID_INDEX, NodePair, Nodes, PAD_INDEX};
 pub use sah::{CollapseConfig, SahCosts, collapse_leaves, sah_cost, sah_cost_with};

@@ -151,8 +151,31 @@ impl GpuContext {
     }
 
     /// The compute pipeline for `entry` of the shader `source` (cached under `key`, which names
-    /// the shader and its variant): compiled once per process.
+    /// the shader and its variant), its layout derived from what the entry point reads:
+    /// compiled once per process.
     pub fn pipeline(&self, key: &str, source: impl FnOnce() -> String, entry: &str) -> wgpu::ComputePipeline {
+        self.make_pipeline(key, source, entry, None::<fn() -> wgpu::PipelineLayout>)
+    }
+
+    /// [`GpuContext::pipeline`] with the layout `layout` makes (called only when compiling), for
+    /// kernels of one shader that share a bind group while reading different bindings.
+    pub fn pipeline_with_layout(
+        &self,
+        key: &str,
+        source: impl FnOnce() -> String,
+        entry: &str,
+        layout: impl FnOnce() -> wgpu::PipelineLayout,
+    ) -> wgpu::ComputePipeline {
+        self.make_pipeline(key, source, entry, Some(layout))
+    }
+
+    fn make_pipeline(
+        &self,
+        key: &str,
+        source: impl FnOnce() -> String,
+        entry: &str,
+        layout: Option<impl FnOnce() -> wgpu::PipelineLayout>,
+    ) -> wgpu::ComputePipeline {
         let full_key = format!("{key}::{entry}");
         let mut cache = self.pipelines.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(p) = cache.get(&full_key) {
@@ -163,9 +186,10 @@ impl GpuContext {
             label: Some(key),
             source: wgpu::ShaderSource::Wgsl(source().into()),
         });
+        let layout = layout.map(|f| f());
         let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(&full_key),
-            layout: None,
+            layout: layout.as_ref(),
             module: &module,
             entry_point: Some(entry),
             compilation_options: Default::default(),

@@ -350,6 +350,11 @@ pub fn with_prelude(kernel: &str) -> String {
 /// most `d - 1`; deeper trees are refused before upload (`trace::GpuScene::upload`).
 pub const TRACE_STACK_SIZE: u32 = 64;
 
+/// Entries of the compressed wide tree's traversal stack (`shaders/bvh_wide8.wgsl`): one group
+/// of siblings per level, so a wide tree of depth `d` needs at most `d - 1`; deeper trees are
+/// refused before upload.
+pub const WIDE_STACK_SIZE: u32 = 32;
+
 /// The path tracer's workgroups are `TRACE_WORKGROUP x TRACE_WORKGROUP` pixels.
 pub const TRACE_WORKGROUP: u32 = 8;
 
@@ -381,6 +386,7 @@ fn wgsl_f32(name: &str, value: f32) -> String {
 fn trace_constants() -> String {
     let mut s = format!(
         "const TRACE_STACK_SIZE: u32 = {TRACE_STACK_SIZE}u;\n\
+         const WIDE_STACK_SIZE: u32 = {WIDE_STACK_SIZE}u;\n\
          const TRACE_WORKGROUP: u32 = {TRACE_WORKGROUP}u;\n\
          const RR_DEPTH: u32 = {}u;\n\
          const MAT_BLACK: u32 = {MAT_BLACK}u;\n\

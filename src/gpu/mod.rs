@@ -16,6 +16,7 @@ pub mod lbvh;
 pub mod prbvh;
 pub mod texture;
 pub mod trace;
+pub mod wide;
 
 pub use context::{AdapterPolicy, GpuContext, GpuError};
 

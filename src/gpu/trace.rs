@@ -75,12 +75,12 @@ use super::context::{GpuContext, GpuError};
 use super::layout::{
     BvhNode, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COATED, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
     MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP, TraceParams,
-    with_prelude,
+    WIDE_STACK_SIZE, with_prelude,
 };
 use super::texture::{gpu_texture_channel, gpu_texture_data, gpu_texture_ref};
-use crate::bvh::Bvh;
 use crate::bvh::build::Builder;
 use crate::bvh::build::prbvh::PrbvhConfig;
+use crate::bvh::{Bvh, INVALID_INDEX};
 use crate::geometry::{Aabb, Triangle};
 use crate::render::bsdf::{Bsdf, ConductorFresnel};
 use crate::render::film::{Film, PixelAccum};
@@ -92,8 +92,46 @@ use crate::scene::{RenderSettings, Scene};
 use crate::texture::environment::EnvironmentMap;
 
 /// The shader files concatenated (after the variant's constants and the prelude) into the
-/// path tracer, in order. `tests/gpu_layout.rs` validates them together, every variant.
-pub const SHADER_FILES: [&str; 2] = ["bsdf.wgsl", "trace.wgsl"];
+/// path tracer, in order: then the form's traversal ([`GpuForm::shader_file`]) and the ray
+/// queries. `tests/gpu_layout.rs` validates them together, every variant in both forms.
+pub const SHADER_FILES: [&str; 5] = ["bsdf.wgsl", "trace.wgsl", "bvh_binary.wgsl", "bvh_wide8.wgsl", "rays.wgsl"];
+
+/// The tree form the GPU traces (`render --trace`): the binary tree, or the compressed 8-wide
+/// tree ([`super::wide`]), the default. The CPU's `wide4` has no GPU form.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum GpuForm {
+    Binary,
+    #[default]
+    Wide8,
+}
+
+impl GpuForm {
+    /// The GPU form of a CPU layout name: `binary` and `wide8`; `wide4` is refused.
+    pub fn of(layout: crate::bvh::TraceLayout) -> Result<GpuForm, GpuError> {
+        match layout {
+            crate::bvh::TraceLayout::Binary => Ok(GpuForm::Binary),
+            crate::bvh::TraceLayout::Wide8 => Ok(GpuForm::Wide8),
+            crate::bvh::TraceLayout::Wide4 => {
+                Err(GpuError::Other("--trace wide4 is a CPU form: the GPU traces binary or wide8 (its default)".into()))
+            }
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            GpuForm::Binary => "binary",
+            GpuForm::Wide8 => "wide8",
+        }
+    }
+
+    /// The WGSL file of its traversal.
+    fn shader_file(self) -> &'static str {
+        match self {
+            GpuForm::Binary => include_str!("../../shaders/bvh_binary.wgsl"),
+            GpuForm::Wide8 => include_str!("../../shaders/bvh_wide8.wgsl"),
+        }
+    }
+}
 
 /// Samples per pixel per pass.
 pub const PASS_SPP: u32 = 4;
@@ -198,9 +236,9 @@ impl Features {
     }
 }
 
-/// The path tracer's WGSL for the variant `features`: prelude, `HAS_*` constants, then
-/// [`SHADER_FILES`].
-pub fn shader_source(features: Features) -> String {
+/// The path tracer's WGSL for the variant `features` tracing `form`: prelude, `HAS_*`
+/// constants, then [`SHADER_FILES`] (of the two traversals, the form's).
+pub fn shader_source(features: Features, form: GpuForm) -> String {
     let flags = format!(
         "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_COATED: bool = {};\n\
          const HAS_ENVIRONMENT: bool = {};\n\
@@ -218,9 +256,11 @@ pub fn shader_source(features: Features) -> String {
         features.textures && features.cutouts
     );
     with_prelude(&format!(
-        "{flags}\n{}\n{}",
+        "{flags}\n{}\n{}\n{}\n{}",
         include_str!("../../shaders/bsdf.wgsl"),
-        include_str!("../../shaders/trace.wgsl")
+        include_str!("../../shaders/trace.wgsl"),
+        form.shader_file(),
+        include_str!("../../shaders/rays.wgsl")
     ))
 }
 
@@ -231,8 +271,14 @@ fn specialization_disabled() -> bool {
 
 /// A scene on the device, ready to render.
 pub struct GpuScene {
+    /// The tree in its form: binary nodes, or compressed wide nodes.
     nodes: wgpu::Buffer,
+    /// Triangles in the form's order (the binary tree's leaf order, or the wide tree's).
     triangles: wgpu::Buffer,
+    /// The primitive id of each triangle position.
+    prim_ids: wgpu::Buffer,
+    /// Bound where a kernel's layout has a binding it does not use (read-only, read-write).
+    unused: (wgpu::Buffer, wgpu::Buffer),
     materials: wgpu::Buffer,
     lights: wgpu::Buffer,
     /// Each triangle's three vertex normals (nine floats, leaf order; zero: none), or one
@@ -253,6 +299,16 @@ pub struct GpuScene {
     pub height: u32,
     /// Nodes on the tree's longest root-to-leaf path.
     pub depth: usize,
+    /// The form traced.
+    pub form: GpuForm,
+    /// Bytes of the tree's nodes and triangle order.
+    pub tree_bytes: usize,
+    /// The tree's SAH cost in its form: [`crate::bvh::sah_cost`] for the binary tree, the wide
+    /// tree's own ([`super::wide::CompressedBvh::cost`]).
+    pub tree_sah: f64,
+    /// A scene for ray queries ([`GpuScene::for_rays`]): each primitive's triangle position;
+    /// empty for a render's.
+    position_of: Vec<u32>,
 }
 
 /// Nodes on the longest root-to-leaf path of `bvh` (0 for an empty tree).
@@ -356,55 +412,41 @@ impl GpuScene {
     /// Uploads a flat scene (see the module docs; an instanced one is refused: [`flatten`] it).
     /// Fails when a buffer is over the adapter's storage-binding limit, or the tree is deeper
     /// than the traversal stack allows.
-    pub fn upload(ctx: &GpuContext, scene: &RenderScene) -> Result<GpuScene, GpuError> {
+    pub fn upload(ctx: &GpuContext, scene: &RenderScene, form: GpuForm) -> Result<GpuScene, GpuError> {
         let Geometry::Flat(flat) = &scene.geometry else {
             return Err(GpuError::Other(
                 "the GPU path renders flat scenes; flatten an instanced one first (gpu::trace::flatten)".into(),
             ));
         };
-        let bvh = &flat.mesh.bvh;
-        let depth = depth(bvh);
-        if depth > TRACE_STACK_SIZE as usize + 1 {
-            return Err(GpuError::Other(format!(
-                "the BVH is {depth} nodes deep, deeper than the GPU traversal stack allows ({} entries: depth {}); \
-                 use another builder or --device cpu",
-                TRACE_STACK_SIZE,
-                TRACE_STACK_SIZE + 1
-            )));
-        }
-        let nodes: Vec<BvhNode> = if bvh.nodes.is_empty() {
-            // One leaf with an empty box: every ray misses it.
-            vec![BvhNode::leaf(Aabb::EMPTY, 0, 1)]
-        } else {
-            bvh.nodes.to_vec()
-        };
-        let triangles: Vec<GpuTriangle> = flat
-            .mesh
-            .triangles
+        let tree = Tree::new(&flat.mesh.bvh, &flat.triangles, form)?;
+        let order = &tree.prim_ids;
+        let triangles: Vec<GpuTriangle> = order
             .par_iter()
-            .zip(&bvh.prim_ids)
-            .map(|(t, &prim)| GpuTriangle {
-                v0: t.v0,
-                material: flat.material_of[prim as usize],
-                v1: t.v1,
-                light_pdf: scene.lights.pdf_area(prim),
-                v2: t.v2,
-                cutout: u32::from(scene.materials[flat.material_of[prim as usize] as usize].alpha.is_some()),
+            .map(|&prim| {
+                let t = &flat.triangles[prim as usize];
+                GpuTriangle {
+                    v0: t.v0,
+                    material: flat.material_of[prim as usize],
+                    v1: t.v1,
+                    light_pdf: scene.lights.pdf_area(prim),
+                    v2: t.v2,
+                    cutout: u32::from(scene.materials[flat.material_of[prim as usize] as usize].alpha.is_some()),
+                }
             })
             .collect();
         let normals: Vec<f32> = if flat.normals.is_empty() {
             Vec::new()
         } else {
-            bvh.prim_ids.iter().flat_map(|&prim| flat.normals[prim as usize].map(|n| n.to_array())).flatten().collect()
+            order.iter().flat_map(|&prim| flat.normals[prim as usize].map(|n| n.to_array())).flatten().collect()
         };
         let materials: Vec<GpuMaterial> = scene.materials.iter().map(gpu_material).collect();
         let (textures, uvs): (Vec<u32>, Vec<f32>) = if scene.textures.is_empty() {
             (Vec::new(), Vec::new())
         } else if flat.uvs.is_empty() {
             // No mesh has coordinates: every lookup is at (0, 0), as on the CPU.
-            (gpu_texture_data(&scene.textures), vec![0.0; 6 * bvh.prim_ids.len()])
+            (gpu_texture_data(&scene.textures), vec![0.0; 6 * order.len()])
         } else {
-            let uvs = bvh.prim_ids.iter().flat_map(|&prim| flat.uvs[prim as usize].map(|t| t.to_array())).flatten();
+            let uvs = order.iter().flat_map(|&prim| flat.uvs[prim as usize].map(|t| t.to_array())).flatten();
             (gpu_texture_data(&scene.textures), uvs.collect())
         };
         let lights: Vec<GpuLight> = scene
@@ -454,8 +496,10 @@ impl GpuScene {
             env_map = env_map_data(map);
         }
         Ok(GpuScene {
-            nodes: ctx.storage_buffer("BVH nodes", &nodes)?,
+            nodes: tree.buffer(ctx)?,
             triangles: ctx.storage_buffer("triangles", &at_least_one(triangles))?,
+            prim_ids: ctx.storage_buffer("triangle ids", &at_least_one(tree.prim_ids.clone()))?,
+            unused: unused_buffers(ctx)?,
             materials: ctx.storage_buffer("materials", &at_least_one(materials))?,
             lights: ctx.storage_buffer("lights", &at_least_one(lights))?,
             normals: ctx.storage_buffer("normals", &at_least_one(normals))?,
@@ -466,10 +510,124 @@ impl GpuScene {
             features: if specialization_disabled() { Features::ALL } else { Features::of(scene) },
             width: scene.width,
             height: scene.height,
-            depth,
+            depth: tree.depth,
+            form,
+            tree_bytes: tree.bytes(),
+            tree_sah: tree.sah,
+            position_of: Vec::new(),
         })
     }
 
+    /// Bare triangles (by primitive id) under `bvh`, in `form`, for ray queries ([`trace_rays`]):
+    /// no materials, lights or camera.
+    pub fn for_rays(ctx: &GpuContext, bvh: &Bvh, triangles: &[Triangle], form: GpuForm) -> Result<GpuScene, GpuError> {
+        let tree = Tree::new(bvh, triangles, form)?;
+        let gpu_triangles: Vec<GpuTriangle> = tree
+            .prim_ids
+            .iter()
+            .map(|&prim| {
+                let t = &triangles[prim as usize];
+                GpuTriangle { v0: t.v0, v1: t.v1, v2: t.v2, ..Default::default() }
+            })
+            .collect();
+        let one = |what| ctx.storage_buffer(what, &[0u32; 4]);
+        let mut position_of = vec![INVALID_INDEX; triangles.len()];
+        for (pos, &prim) in tree.prim_ids.iter().enumerate() {
+            position_of[prim as usize] = pos as u32;
+        }
+        Ok(GpuScene {
+            nodes: tree.buffer(ctx)?,
+            triangles: ctx.storage_buffer("triangles", &at_least_one(gpu_triangles))?,
+            prim_ids: ctx.storage_buffer("triangle ids", &at_least_one(tree.prim_ids.clone()))?,
+            unused: unused_buffers(ctx)?,
+            materials: ctx.storage_buffer("materials", &[GpuMaterial::default()])?,
+            lights: ctx.storage_buffer("lights", &[GpuLight::default()])?,
+            normals: one("normals")?,
+            env_map: one("environment map")?,
+            textures: one("textures")?,
+            uvs: one("texture coordinates")?,
+            params: TraceParams::default(),
+            features: Features {
+                dielectric: false,
+                conductor: false,
+                coated: false,
+                environment: false,
+                lights: false,
+                thin_lens: false,
+                shading_normals: false,
+                env_map: false,
+                textures: false,
+                cutouts: false,
+            },
+            width: 0,
+            height: 0,
+            depth: tree.depth,
+            form,
+            tree_bytes: tree.bytes(),
+            tree_sah: tree.sah,
+            position_of,
+        })
+    }
+}
+
+/// The buffers bound to a kernel's unused bindings: one read-only, one read-write.
+fn unused_buffers(ctx: &GpuContext) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
+    Ok((ctx.storage_buffer("unused", &[0u32; 8])?, ctx.storage_buffer("unused", &[0u32; 8])?))
+}
+
+/// A tree in the form the GPU traces, before upload.
+struct Tree {
+    /// Binary nodes, or compressed wide nodes, as words.
+    words: Vec<u32>,
+    /// The primitive id at each triangle position.
+    prim_ids: Vec<u32>,
+    depth: usize,
+    sah: f64,
+}
+
+impl Tree {
+    /// `bvh` (leaf-collapsed or not) over `triangles` (by primitive id) in `form`; a tree deeper
+    /// than the form's traversal stack allows is refused.
+    fn new(bvh: &Bvh, triangles: &[Triangle], form: GpuForm) -> Result<Tree, GpuError> {
+        let (words, prim_ids, depth, stack, sah) = match form {
+            GpuForm::Binary => {
+                let nodes: Vec<BvhNode> = if bvh.nodes.is_empty() {
+                    // One leaf with an empty box: every ray misses it.
+                    vec![BvhNode::leaf(Aabb::EMPTY, 0, 1)]
+                } else {
+                    bvh.nodes.to_vec()
+                };
+                let words = bytemuck::cast_slice(&nodes).to_vec();
+                (words, bvh.prim_ids.clone(), depth(bvh), TRACE_STACK_SIZE, crate::bvh::sah_cost(bvh))
+            }
+            GpuForm::Wide8 => {
+                let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
+                let wide = super::wide::CompressedBvh::new(bvh, &prim_aabbs);
+                let words = wide.nodes.iter().flatten().copied().collect();
+                (words, wide.prim_ids, wide.depth, WIDE_STACK_SIZE, wide.cost)
+            }
+        };
+        if depth > stack as usize + 1 {
+            return Err(GpuError::Other(format!(
+                "the {} BVH is {depth} nodes deep, deeper than the GPU traversal stack allows ({stack} entries: \
+                 depth {}); use another builder or --device cpu",
+                form.name(),
+                stack + 1
+            )));
+        }
+        Ok(Tree { words, prim_ids, depth, sah })
+    }
+
+    fn buffer(&self, ctx: &GpuContext) -> Result<wgpu::Buffer, GpuError> {
+        ctx.storage_buffer("BVH nodes", &self.words)
+    }
+
+    fn bytes(&self) -> usize {
+        size_of_val(self.words.as_slice()) + size_of_val(self.prim_ids.as_slice())
+    }
+}
+
+impl GpuScene {
     /// Sets the firefly clamp ([`RenderScene::sample_clamp`]; `None`: off).
     pub fn set_clamp(&mut self, clamp: Option<f32>) {
         self.params.clamp = clamp.unwrap_or(0.0);
@@ -489,37 +647,103 @@ pub fn flatten(scene: &Scene, time: f32, builder: &Builder) -> (RenderScene, Bui
     RenderScene::assemble(scene, (triangles, material_of, time), &built.bvh, start, label, crate::bvh::Tracing::gpu())
 }
 
-/// The pipeline of `scene`'s variant, compiled on first use and cached in `ctx`.
-fn pipeline(ctx: &GpuContext, scene: &GpuScene) -> wgpu::ComputePipeline {
-    let features = scene.features;
-    ctx.pipeline(&features.key(), || shader_source(features), "trace")
+/// The pipeline of `scene`'s variant and form, entry point `entry` (`trace` or `trace_rays`),
+/// compiled on first use and cached in `ctx`.
+fn pipeline(ctx: &GpuContext, scene: &GpuScene, entry: &str) -> wgpu::ComputePipeline {
+    let (features, form) = (scene.features, scene.form);
+    ctx.pipeline_with_layout(
+        &format!("{}[{}]", features.key(), form.name()),
+        || shader_source(features, form),
+        entry,
+        || layout(ctx),
+    )
 }
 
-/// The bind group of a render of `scene` with these parameters and film.
-/// The kernel's bindings, the film as `(buffer, offset, size)` in bytes: a band of rows of it.
+/// Bindings of the path tracer and the ray queries, one layout for both kernels: `(binding,
+/// read-only)`.
+const BINDINGS: [(u32, bool); 13] = [
+    (0, true),   // params
+    (1, true),   // nodes
+    (2, true),   // triangles
+    (3, true),   // materials
+    (4, true),   // lights
+    (5, false),  // film
+    (6, true),   // normals
+    (7, true),   // environment map
+    (8, true),   // textures
+    (9, true),   // texture coordinates
+    (10, true),  // triangle ids
+    (11, true),  // query rays
+    (12, false), // query hits
+];
+
+/// The layout of [`BINDINGS`]: explicit, so that a kernel that reads fewer of them (the ray
+/// queries read no film) binds the same group.
+fn layout(ctx: &GpuContext) -> wgpu::PipelineLayout {
+    let entries: Vec<wgpu::BindGroupLayoutEntry> = BINDINGS
+        .iter()
+        .map(|&(binding, read_only)| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        })
+        .collect();
+    let group = ctx
+        .device
+        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("trace"), entries: &entries });
+    ctx.device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("trace"),
+        bind_group_layouts: &[Some(&group)],
+        immediate_size: 0,
+    })
+}
+
+/// The bind group of a render of `scene` with these parameters and film (as `(buffer, offset,
+/// size)` in bytes: a band of rows of it), or of a ray query with its rays and hits in place
+/// of the film.
 fn bind_group(
     ctx: &GpuContext,
     pipeline: &wgpu::ComputePipeline,
     scene: &GpuScene,
     params: &wgpu::Buffer,
-    film: (&wgpu::Buffer, u64, u64),
+    film: Option<(&wgpu::Buffer, u64, u64)>,
+    query: Option<(&wgpu::Buffer, &wgpu::Buffer)>,
 ) -> wgpu::BindGroup {
     fn whole(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
         wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }
     }
-    let (buffer, offset, size) = film;
-    let film = wgpu::BufferBinding { buffer, offset, size: std::num::NonZeroU64::new(size) };
+    let (unused_read, unused_write) = (&scene.unused.0, &scene.unused.1);
+    let film = match film {
+        Some((buffer, offset, size)) => wgpu::BindGroupEntry {
+            binding: 5,
+            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer,
+                offset,
+                size: std::num::NonZeroU64::new(size),
+            }),
+        },
+        None => whole(5, unused_write),
+    };
+    let (rays, hits) = query.unwrap_or((unused_read, unused_write));
     let entries = [
         whole(0, params),
         whole(1, &scene.nodes),
         whole(2, &scene.triangles),
         whole(3, &scene.materials),
         whole(4, &scene.lights),
-        wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::Buffer(film) },
+        film,
         whole(6, &scene.normals),
         whole(7, &scene.env_map),
         whole(8, &scene.textures),
         whole(9, &scene.uvs),
+        whole(10, &scene.prim_ids),
+        whole(11, rays),
+        whole(12, hits),
     ];
     ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: None,
@@ -532,11 +756,11 @@ fn bind_group(
 /// drivers may compile at the first dispatch (lavapipe does, for about a second), so a render
 /// timed after this call times rendering alone.
 pub fn compile(ctx: &GpuContext, scene: &GpuScene) -> Result<(), GpuError> {
-    let pipeline = pipeline(ctx, scene);
+    let pipeline = pipeline(ctx, scene, "trace");
     let params = TraceParams { width: 0, height: 0, ..scene.params };
     let params = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
     let film = ctx.storage_buffer_zeroed("film", size_of::<GpuPixel>() as u64)?;
-    let bind_group = bind_group(ctx, &pipeline, scene, &params, (&film, 0, size_of::<GpuPixel>() as u64));
+    let bind_group = bind_group(ctx, &pipeline, scene, &params, Some((&film, 0, size_of::<GpuPixel>() as u64)), None);
     let mut encoder = ctx.device.create_command_encoder(&Default::default());
     {
         let mut pass = encoder.begin_compute_pass(&Default::default());
@@ -546,6 +770,83 @@ pub fn compile(ctx: &GpuContext, scene: &GpuScene) -> Result<(), GpuError> {
     }
     ctx.queue.submit([encoder.finish()]);
     ctx.wait()
+}
+
+/// A ray for [`trace_rays`]: hits with `0 < t <= t_max` count, and primitive `skip`
+/// (`INVALID_INDEX`: none) is left out, as the CPU's [`crate::bvh::Skip`] leaves it.
+#[derive(Clone, Copy, Debug)]
+pub struct QueryRay {
+    pub ray: crate::geometry::Ray,
+    pub t_max: f32,
+    pub skip: u32,
+}
+
+/// A closest hit found by [`trace_rays`]: the primitive id (`INVALID_INDEX`: none), `t`, and the
+/// barycentric `u`, `v`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct QueryHit {
+    pub prim: u32,
+    pub t: f32,
+    pub u: f32,
+    pub v: f32,
+}
+
+/// Traces `rays` through `scene` ([`GpuScene::for_rays`] or a render's) in one dispatch, for
+/// closest hits, or for any hit when `any` (then only `prim` says something: 0 for a hit,
+/// `INVALID_INDEX` for none). Returns the hits and the device's seconds for the dispatch alone
+/// (upload and read-back excluded, kernel compiled beforehand).
+pub fn trace_rays(
+    ctx: &GpuContext,
+    scene: &GpuScene,
+    rays: &[QueryRay],
+    any: bool,
+) -> Result<(Vec<QueryHit>, f64), GpuError> {
+    let count = u32::try_from(rays.len()).map_err(|_| GpuError::Other("over 2^32 rays in one query".into()))?;
+    if rays.iter().any(|q| q.skip != INVALID_INDEX && scene.position_of.get(q.skip as usize).is_none()) {
+        return Err(GpuError::Other("a query ray skips a primitive the scene does not have".into()));
+    }
+    let pipeline = pipeline(ctx, scene, "trace_rays");
+    let data: Vec<[f32; 4]> = rays
+        .iter()
+        .flat_map(|q| {
+            let (o, d) = (q.ray.origin, q.ray.dir);
+            let skip = if q.skip == INVALID_INDEX { INVALID_INDEX } else { scene.position_of[q.skip as usize] };
+            [[o.x, o.y, o.z, q.t_max], [d.x, d.y, d.z, f32::from_bits(skip)]]
+        })
+        .collect();
+    let rays_buffer = ctx.storage_buffer("query rays", &at_least_one(data))?;
+    let hits_buffer = ctx.storage_buffer_zeroed("query hits", u64::from(count.max(1)) * 16)?;
+    let params = TraceParams { width: count, height: u32::from(any), ..Default::default() };
+    let params = ctx.storage_buffer("query parameters", std::slice::from_ref(&params))?;
+    let bind_group = bind_group(ctx, &pipeline, scene, &params, None, Some((&rays_buffer, &hits_buffer)));
+    let run = |groups: (u32, u32)| -> Result<f64, GpuError> {
+        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &bind_group, &[]);
+            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        }
+        let start = Instant::now();
+        ctx.queue.submit([encoder.finish()]);
+        ctx.wait()?;
+        Ok(start.elapsed().as_secs_f64())
+    };
+    // Drivers may compile at the first dispatch: one empty dispatch first.
+    run((0, 0))?;
+    let seconds = run(ctx.dispatch_size(count))?;
+    let words: Vec<[u32; 4]> = ctx.read_buffer("query hits", &hits_buffer, rays.len())?;
+    let hits = words
+        .iter()
+        .map(|w| {
+            if any {
+                QueryHit { prim: if w[0] != 0 { 0 } else { INVALID_INDEX }, t: 0.0, u: 0.0, v: 0.0 }
+            } else {
+                QueryHit { prim: w[1], t: f32::from_bits(w[0]), u: f32::from_bits(w[2]), v: f32::from_bits(w[3]) }
+            }
+        })
+        .collect();
+    Ok((hits, seconds))
 }
 
 /// What [`render`] returns.
@@ -674,7 +975,7 @@ fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Re
     // A storage buffer, not a uniform one: lavapipe (Mesa 22) inlines uniform values into the
     // shader at every dispatch, which cost time and leaked memory on every pass of this kernel.
     let params_buffer = ctx.storage_buffer("trace parameters", std::slice::from_ref(&params))?;
-    let pipeline = pipeline(ctx, scene);
+    let pipeline = pipeline(ctx, scene, "trace");
     let started = std::time::Instant::now();
     let (height, total) = (u64::from(rect.height()), u64::from(samples.len() as u32) * u64::from(rect.height()));
     let carried_seconds = seconds;
@@ -715,7 +1016,7 @@ fn passes(ctx: &GpuContext, scene: &GpuScene, pass: Pass<'_, PartialFilm>) -> Re
             ctx.queue.write_buffer(&params_buffer, 0, bytemuck::bytes_of(&params));
             // The film's rows of the band: the kernel indexes the film from the band's first row.
             let band_film = (&film_buffer, u64::from(y) * row_bytes, u64::from(rows) * row_bytes);
-            let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, band_film);
+            let bind_group = bind_group(ctx, &pipeline, scene, &params_buffer, Some(band_film), None);
             let band_start = std::time::Instant::now();
             let mut encoder = ctx.device.create_command_encoder(&Default::default());
             {
@@ -778,8 +1079,9 @@ pub fn measure_speed(
     seed: u64,
     max_depth: u32,
     clamp: Option<f32>,
+    form: GpuForm,
 ) -> Option<(f64, std::time::Duration, PartialFilm)> {
-    let mut gpu_scene = GpuScene::upload(ctx, scene).ok()?;
+    let mut gpu_scene = GpuScene::upload(ctx, scene, form).ok()?;
     gpu_scene.set_clamp(clamp);
     let t = std::time::Instant::now();
     compile(ctx, &gpu_scene).ok()?;
@@ -803,18 +1105,20 @@ pub fn measure_speed(
 /// fraction of the render (docs/benchmarks.md, "On the GPU"). The sixteenth is of the samples,
 /// not of a time limit: the GPU's speed is not known before it is timed. The timed samples are
 /// returned with the tree, for the render's first frame to carry on ([`render_from`];
-/// `settings.clamp` is the render's firefly clamp).
+/// `settings.clamp` is the render's firefly clamp; `form` the tree form it traces).
 pub fn build_auto(
     ctx: &GpuContext,
     scene: &crate::scene::Scene,
     settings: &RenderSettings,
     frames: usize,
+    form: GpuForm,
 ) -> (RenderScene, crate::render::BuildReport, Option<PartialFilm>) {
     use crate::render::AutoDevice;
     use crate::render::auto::{total_budget, total_samples};
     let mut kept = None;
     let mut measure = |rs: &RenderScene| {
-        let (seconds, compiled, film) = measure_speed(ctx, rs, settings.seed, settings.max_depth, settings.clamp)?;
+        let (seconds, compiled, film) =
+            measure_speed(ctx, rs, settings.seed, settings.max_depth, settings.clamp, form)?;
         kept = Some(film);
         Some((seconds, compiled))
     };

@@ -60,9 +60,11 @@ pub struct Args {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// The tree the CPU traces: binary, wide4 or wide8 (default: wide8 where the CPU has AVX2,
-    /// wide4 where it has SSE4.1 or NEON, else binary). Every form gives the same image;
-    /// `ARBOR_SIMD=scalar|sse4|avx2|neon` forces the instruction set.
+    /// The tree form traced. On the CPU: binary, wide4 or wide8 (default: wide8 where the CPU
+    /// has AVX2, wide4 where it has SSE4.1 or NEON, else binary);
+    /// `ARBOR_SIMD=scalar|sse4|avx2|neon` forces the instruction set. On the GPU: binary or
+    /// wide8, a compressed 8-wide tree (the default; wide4 is refused). Under --device auto
+    /// each device takes its own default. Every form gives the same image.
     #[arg(long, value_name = "FORM", value_parser = parse_trace)]
     pub trace: Option<TraceLayout>,
     /// Clamp fireflies: scale down any sample whose largest channel exceeds this radiance.

@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use arbor::bvh::{TraceLayout, Tracing};
-use arbor::device::{BuilderChoice, DeviceChoice, Renderer};
+use arbor::device::{BuilderChoice, DeviceChoice, Forms, Renderer};
 use arbor::distributed::film_file;
 use arbor::distributed::overwrite::{Named, Overwrite, check_overwrites};
 use arbor::distributed::{Job, JobError, Plan, PlanError, Request, Start};
@@ -247,7 +247,12 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
     }
     let builder = named.unwrap_or_else(|| BuilderChoice::default_for(device, &scene));
     let count = pending.count();
-    let mut renderer = Renderer::new(device, &scene, &builder, tracing, settings, count, first_time)?;
+    // Each device takes its own default form; a form it lacks is refused, under auto too.
+    if device.name() == "gpu" && args.trace == Some(TraceLayout::Wide4) {
+        return Err(bad("--trace wide4 is a CPU form: the GPU traces binary or wide8 (its default)"));
+    }
+    let forms = Forms { cpu: tracing, gpu: args.trace.unwrap_or(TraceLayout::Wide8) };
+    let mut renderer = Renderer::new(device, &scene, &builder, forms, settings, count, first_time)?;
     let build = renderer.build_report();
     report.bvh = Some(BvhReport {
         builder: build.builder.clone(),

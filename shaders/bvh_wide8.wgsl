@@ -1,0 +1,138 @@
+// The compressed 8-wide tree's traversal (src/gpu/wide.rs has the node layout; Ylitie, Karras
+// & Laine 2017, section 4), concatenated after trace.wgsl for `--trace wide8`. One loop,
+// `traverse`, serves closest and any hit; bvh_binary.wgsl defines the same three functions over
+// the binary tree.
+//
+// The loop keeps two groups: the inner children of a node still to visit (their node's
+// child_base, the hit bits at 24..31 in visiting order, the node's imask in 0..7) and the
+// triangles of a node's hit leaves (its tri_base, a bit per triangle in 0..23). A node's hit
+// children are visited nearest corner first by the ray's octant (their bit is 24 + (slot ^
+// near), lowest first), the rest of the group pushed; a group costs one stack entry, so a tree
+// of depth d needs at most d - 1 (deeper trees are refused on upload).
+
+@group(0) @binding(1) var<storage, read> wide_nodes: array<vec4<u32>>;
+
+// Node `n`'s word `w` (0..19).
+fn wide_word(n: u32, w: u32) -> u32 {
+    return wide_nodes[n * 5u + w / 4u][w % 4u];
+}
+
+// The root's quantisation grid spans p .. p + 255 * scale: a box holding the scene.
+fn cull_slack(r: Ray) -> f32 {
+    let a = wide_nodes[0];
+    let e = a.w;
+    let p = bitcast<vec3<f32>>(a.xyz);
+    let scale = vec3<f32>(
+        bitcast<f32>((e & 0xffu) << 23u),
+        bitcast<f32>(((e >> 8u) & 0xffu) << 23u),
+        bitcast<f32>(((e >> 16u) & 0xffu) << 23u),
+    );
+    return cull_slack_in(r, p, p + 255.0 * scale);
+}
+
+// Byte `k` of a pair of words holding eight bytes.
+fn byte_of(lo: u32, hi: u32, k: u32) -> u32 {
+    return (select(lo, hi, k >= 4u) >> (8u * (k & 3u))) & 0xffu;
+}
+
+// Closest hit (any = false) or any hit (any = true; its index is then any hit's) with
+// 0 < t <= t_max, leaving out triangle position `skip`.
+fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
+    var best = Hit(t_max, INVALID_INDEX, 0.0, 0.0);
+    let r = prepare_ray(ray);
+    let slack = cull_slack(ray);
+    var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
+    let octant = select(0u, 1u, ray.dir.x < 0.0) | select(0u, 2u, ray.dir.y < 0.0) | select(0u, 4u, ray.dir.z < 0.0);
+    let near = octant ^ 7u;
+    var stack: array<vec2<u32>, WIDE_STACK_SIZE>;
+    var sp = 0u;
+    // The root as the one inner child of a group based at 0, in slot 0.
+    var nodes_group = vec2<u32>(0u, (1u << (24u + near)) | 1u);
+    loop {
+        var tris_group = vec2<u32>(0u, 0u);
+        if (nodes_group.y & 0xff000000u) != 0u {
+            let bit = firstTrailingBit(nodes_group.y >> 24u);
+            nodes_group.y &= ~(1u << (24u + bit));
+            if (nodes_group.y & 0xff000000u) != 0u && sp < WIDE_STACK_SIZE {
+                stack[sp] = nodes_group;
+                sp += 1u;
+            }
+            let slot = bit ^ near;
+            let node = nodes_group.x + countOneBits(nodes_group.y & ((1u << slot) - 1u) & 0xffu);
+            let w0 = wide_nodes[node * 5u];
+            let w1 = wide_nodes[node * 5u + 1u];
+            let w2 = wide_nodes[node * 5u + 2u];
+            let w3 = wide_nodes[node * 5u + 3u];
+            let w4 = wide_nodes[node * 5u + 4u];
+            let p = bitcast<vec3<f32>>(w0.xyz);
+            let e = w0.w;
+            let scale = vec3<f32>(
+                bitcast<f32>((e & 0xffu) << 23u),
+                bitcast<f32>(((e >> 8u) & 0xffu) << 23u),
+                bitcast<f32>(((e >> 16u) & 0xffu) << 23u),
+            );
+            // Words 8..19: qlo x, y, z then qhi x, y, z, two words (eight bytes) each.
+            let q = array<vec2<u32>, 6>(w2.xy, w2.zw, w3.xy, w3.zw, w4.xy, w4.zw);
+            var hits = 0u;
+            for (var k = 0u; k < 8u; k++) {
+                let lane = byte_of(w1.z, w1.w, k);
+                if lane == 0u {
+                    continue;
+                }
+                let lo = p + scale * vec3<f32>(
+                    f32(byte_of(q[0].x, q[0].y, k)),
+                    f32(byte_of(q[1].x, q[1].y, k)),
+                    f32(byte_of(q[2].x, q[2].y, k)),
+                );
+                let hi = p + scale * vec3<f32>(
+                    f32(byte_of(q[3].x, q[3].y, k)),
+                    f32(byte_of(q[4].x, q[4].y, k)),
+                    f32(byte_of(q[5].x, q[5].y, k)),
+                );
+                if slab(lo, hi, r, limit) >= 0.0 {
+                    let offset = lane & 31u;
+                    if offset >= 24u {
+                        hits |= 1u << (24u + ((offset - 24u) ^ near));
+                    } else {
+                        hits |= (lane >> 5u) << offset;
+                    }
+                }
+            }
+            nodes_group = vec2<u32>(w1.x, (hits & 0xff000000u) | (e >> 24u));
+            tris_group = vec2<u32>(w1.y, hits & 0x00ffffffu);
+        }
+        while tris_group.y != 0u {
+            let k = firstTrailingBit(tris_group.y);
+            tris_group.y &= tris_group.y - 1u;
+            let i = tris_group.x + k;
+            if i == skip {
+                continue;
+            }
+            let tri = triangles[i];
+            let h = intersect_triangle(tri, r, best.t);
+            if beats(h, i, best) && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
+                best = Hit(h.x, i, h.y, h.z);
+                if any {
+                    return best;
+                }
+                limit = best.t * CULL_SCALE + slack;
+            }
+        }
+        if (nodes_group.y & 0xff000000u) == 0u {
+            if sp == 0u {
+                break;
+            }
+            sp -= 1u;
+            nodes_group = stack[sp];
+        }
+    }
+    return best;
+}
+
+fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
+    return traverse(ray, t_max, skip, false);
+}
+
+fn occluded(ray: Ray, t_max: f32, skip: u32) -> bool {
+    return traverse(ray, t_max, skip, true).index != INVALID_INDEX;
+}

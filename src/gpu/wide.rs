@@ -1,0 +1,302 @@
+//! The GPU's compressed 8-wide BVH, after Ylitie, Karras & Laine 2017 ("Efficient Incoherent
+//! Ray Traversal on GPUs Through Compressed Wide BVHs", sections 3 and 4), traced by
+//! `shaders/bvh_wide8.wgsl`.
+//!
+//! **Shape.** The binary tree (any builder's; on the GPU path the one its LBVH and PRBVH made)
+//! is collapsed by the SAH-optimal dynamic programme of [`crate::bvh::wide_sah`], with leaf
+//! lanes of at most [`WIDE_MAX_LEAF`] triangles, so a node's leaves hold at most 24.
+//!
+//! **Node: 80 bytes, five `vec4<u32>`.**
+//!
+//! ```text
+//!   word 0..2   p: the node box's lower corner (f32)
+//!   word 3      ex | ey << 8 | ez << 16 | imask << 24
+//!               e*: biased exponents of the per-axis scales 2^(e - 127);
+//!               imask: bit s set where slot s is an inner node
+//!   word 4      child_base: index of the first inner child (inner children are contiguous,
+//!               in slot order: slot s is child_base + popcount(imask below s))
+//!   word 5      tri_base: position of the first triangle of the node's leaves (contiguous,
+//!               in slot order)
+//!   word 6..7   meta[8], a byte per slot:
+//!               0 empty; inner 0b001_00000 | (24 + s); leaf (unary count) << 5 | offset
+//!   word 8..19  qlo_x[8] qlo_y[8] qlo_z[8] qhi_x[8] qhi_y[8] qhi_z[8], a byte each
+//! ```
+//!
+//! A lane's box is `p + q * 2^e` per axis and plane, which is exact in f32 (q has 8 bits and
+//! the scale is a power of two) up to the one rounding of the sum; each `q` is chosen, and
+//! checked in f32, so that the decoded box contains the lane's exact box. Culling by decoded
+//! boxes can only visit more, never less, so the wide form finds the binary form's hits.
+//!
+//! **Slots by octant.** Slot `s` holds the lane whose centre lies farthest from the node's
+//! centre along the direction whose signs are `s`'s bits (bit set: negative), assigned
+//! greedily (largest first). A ray whose direction has signs `o` visits hit lanes in order of
+//! `s ^ o ^ 7`, nearest corner first, with no sort: the hit mask's inner bits are placed at
+//! `24 + (s ^ o ^ 7)` and popped lowest first.
+
+use std::collections::VecDeque;
+
+use crate::bvh::Bvh;
+use crate::bvh::wide_sah::{self, Lane, WideCosts};
+use crate::geometry::Aabb;
+
+/// Words of one compressed node.
+pub const WIDE_NODE_WORDS: usize = 20;
+
+/// The most triangles of a leaf lane: its count is unary in three bits of its `meta` byte.
+pub const WIDE_MAX_LEAF: u32 = 3;
+
+/// A compressed 8-wide BVH ready for upload.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CompressedBvh {
+    /// Node 0 is the root.
+    pub nodes: Vec<[u32; WIDE_NODE_WORDS]>,
+    /// The primitive at each triangle position.
+    pub prim_ids: Vec<u32>,
+    /// Nodes on the longest root-to-leaf path.
+    pub depth: usize,
+    /// The wide tree's SAH cost ([`crate::bvh::wide_sah::WideSah::cost`]).
+    pub cost: f64,
+}
+
+/// What [`CompressedBvh::validate`] finds wrong.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum CompressedError {
+    #[error("node {node}, slot {slot}: decoded box {decoded:?} does not contain {exact:?}")]
+    Box { node: usize, slot: usize, decoded: Aabb, exact: Aabb },
+    #[error("node {node}, slot {slot}: child {child} out of range")]
+    Child { node: usize, slot: usize, child: usize },
+    #[error("node {0} is referenced {1} times, expected once (the root never)")]
+    References(usize, u32),
+    #[error("triangle position {0} is in {1} leaves, expected exactly one")]
+    Position(usize, u32),
+    #[error("node {node}, slot {slot}: bad meta byte {meta:#04x}")]
+    Meta { node: usize, slot: usize, meta: u8 },
+}
+
+/// The power of two `2^(b - 127)` of a biased exponent `b` in 1..=254.
+fn scale_of(biased: u32) -> f32 {
+    f32::from_bits(biased << 23)
+}
+
+/// The biased exponent for one axis of a node spanning `lo..=hi`: the smallest scale with
+/// `lo + 255 * scale >= hi` in f32.
+fn axis_exponent(lo: f32, hi: f32) -> u32 {
+    let extent = f64::from(hi) - f64::from(lo);
+    let mut e = if extent > 0.0 { (extent / 255.0).log2().ceil() as i32 } else { -126 };
+    e = e.clamp(-126, 127);
+    while e < 127 && lo + 255.0 * scale_of((e + 127) as u32) < hi {
+        e += 1;
+    }
+    (e + 127) as u32
+}
+
+/// The lower plane's byte: the largest `q` with `lo + q * s <= x`.
+fn quantize_lo(lo: f32, s: f32, x: f32) -> u32 {
+    let mut q = ((x - lo) / s).floor().clamp(0.0, 255.0) as u32;
+    while q > 0 && lo + q as f32 * s > x {
+        q -= 1;
+    }
+    q
+}
+
+/// The upper plane's byte: the smallest `q` with `lo + q * s >= x`.
+fn quantize_hi(lo: f32, s: f32, x: f32) -> u32 {
+    let mut q = ((x - lo) / s).ceil().clamp(0.0, 255.0) as u32;
+    while q < 255 && lo + (q as f32) * s < x {
+        q += 1;
+    }
+    q
+}
+
+/// Slot of each lane: the lane farthest along each octant's direction, largest first.
+fn assign_slots(boxes: &[Aabb], node: Aabb) -> [Option<usize>; 8] {
+    let centre = node.center();
+    let mut cost = Vec::with_capacity(boxes.len() * 8);
+    for (lane, b) in boxes.iter().enumerate() {
+        let d = b.center() - centre;
+        for s in 0..8usize {
+            let sign = |bit: usize| if s & bit != 0 { -1.0 } else { 1.0 };
+            cost.push((d.x * sign(1) + d.y * sign(2) + d.z * sign(4), lane, s));
+        }
+    }
+    // Largest first; ties by lane then slot, so the layout is deterministic.
+    cost.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut slots = [None; 8];
+    let mut placed = vec![false; boxes.len()];
+    for (_, lane, s) in cost {
+        if !placed[lane] && slots[s].is_none() {
+            slots[s] = Some(lane);
+            placed[lane] = true;
+        }
+    }
+    slots
+}
+
+impl CompressedBvh {
+    /// Collapses `bvh` (see the module docs) and encodes it; `prim_aabbs` are the primitives'
+    /// boxes by id. An empty tree gives one node with no lanes, which every ray misses.
+    pub fn new(bvh: &Bvh, prim_aabbs: &[Aabb]) -> CompressedBvh {
+        let wide = wide_sah::collapse(bvh, prim_aabbs, 8, WIDE_MAX_LEAF, WideCosts::default());
+        if wide.nodes.is_empty() {
+            return CompressedBvh { nodes: vec![[0; WIDE_NODE_WORDS]], depth: 1, ..Default::default() };
+        }
+        let mut out = CompressedBvh {
+            nodes: vec![[0; WIDE_NODE_WORDS]],
+            prim_ids: Vec::with_capacity(wide.prim_ids.len()),
+            depth: 0,
+            cost: wide.cost,
+        };
+        // (wide node, its encoded index, its depth)
+        let mut queue = VecDeque::from([(0usize, 0usize, 1usize)]);
+        while let Some((w, at, depth)) = queue.pop_front() {
+            out.depth = out.depth.max(depth);
+            let lanes = &wide.nodes[w];
+            let boxes: Vec<Aabb> = lanes.iter().map(|(b, _)| *b).collect();
+            let node_box = boxes.iter().fold(Aabb::EMPTY, |acc, b| acc.union(*b));
+            let slots = assign_slots(&boxes, node_box);
+            let (lo, hi) = (node_box.min.to_array(), node_box.max.to_array());
+            let exps: [u32; 3] = std::array::from_fn(|a| axis_exponent(lo[a], hi[a]));
+            let scales = exps.map(scale_of);
+            let mut words = [0u32; WIDE_NODE_WORDS];
+            words[0..3].copy_from_slice(&node_box.min.to_array().map(f32::to_bits));
+            let child_base = out.nodes.len();
+            let tri_base = out.prim_ids.len();
+            let mut imask = 0u32;
+            let mut meta = [0u8; 8];
+            let mut q = [[0u8; 8]; 6];
+            for (s, lane) in slots.iter().enumerate() {
+                let Some(lane) = *lane else {
+                    // Empty: an inverted box, and no bits.
+                    (0..3).for_each(|a| q[a][s] = 255);
+                    continue;
+                };
+                let (b, kind) = lanes[lane];
+                let (bl, bh) = (b.min.to_array(), b.max.to_array());
+                for a in 0..3 {
+                    q[a][s] = quantize_lo(lo[a], scales[a], bl[a]) as u8;
+                    q[3 + a][s] = quantize_hi(lo[a], scales[a], bh[a]) as u8;
+                }
+                match kind {
+                    Lane::Node(child) => {
+                        imask |= 1 << s;
+                        meta[s] = 0b0010_0000 | (24 + s as u8);
+                        let index = out.nodes.len();
+                        out.nodes.push([0; WIDE_NODE_WORDS]);
+                        queue.push_back((child as usize, index, depth + 1));
+                    }
+                    Lane::Leaf { first, count } => {
+                        let offset = out.prim_ids.len() - tri_base;
+                        debug_assert!((1..=WIDE_MAX_LEAF).contains(&count) && offset + count as usize <= 24);
+                        meta[s] = (((1u8 << count) - 1) << 5) | offset as u8;
+                        out.prim_ids.extend_from_slice(&wide.prim_ids[first as usize..(first + count) as usize]);
+                    }
+                }
+            }
+            words[3] = exps[0] | exps[1] << 8 | exps[2] << 16 | imask << 24;
+            words[4] = child_base as u32;
+            words[5] = tri_base as u32;
+            words[6] = u32::from_le_bytes(meta[0..4].try_into().expect("4 bytes"));
+            words[7] = u32::from_le_bytes(meta[4..8].try_into().expect("4 bytes"));
+            for (plane, bytes) in q.iter().enumerate() {
+                words[8 + 2 * plane] = u32::from_le_bytes(bytes[0..4].try_into().expect("4 bytes"));
+                words[9 + 2 * plane] = u32::from_le_bytes(bytes[4..8].try_into().expect("4 bytes"));
+            }
+            out.nodes[at] = words;
+        }
+        out
+    }
+
+    /// Bytes of the nodes and the triangle order.
+    pub fn memory_bytes(&self) -> usize {
+        size_of_val(self.nodes.as_slice()) + size_of_val(self.prim_ids.as_slice())
+    }
+
+    /// The decoded box of `slot` of node `node`, as the shader computes it.
+    pub fn lane_box(&self, node: usize, slot: usize) -> Aabb {
+        let w = &self.nodes[node];
+        let p = [0, 1, 2].map(|a| f32::from_bits(w[a]));
+        let byte = |plane: usize| (w[8 + 2 * plane + slot / 4] >> (8 * (slot % 4))) & 0xff;
+        let corner = |base: usize| {
+            glam::Vec3::from_array(std::array::from_fn(|a| {
+                p[a] + byte(base + a) as f32 * scale_of((w[3] >> (8 * a)) & 0xff)
+            }))
+        };
+        Aabb::new(corner(0), corner(3))
+    }
+
+    /// The meta byte of `slot` of node `node`.
+    fn meta(&self, node: usize, slot: usize) -> u8 {
+        (self.nodes[node][6 + slot / 4] >> (8 * (slot % 4))) as u8
+    }
+
+    /// Box of the triangle whose position is `pos`, from `prim_aabbs` by id.
+    fn contents(
+        &self,
+        node: usize,
+        slot: usize,
+        prim_aabbs: &[Aabb],
+        seen: &mut [u32],
+    ) -> Result<Aabb, CompressedError> {
+        let w = &self.nodes[node];
+        let meta = self.meta(node, slot);
+        let offset = u32::from(meta & 31);
+        let count = (meta >> 5).count_ones();
+        if meta >> 5 != (1 << count) - 1 || offset + count > 24 {
+            return Err(CompressedError::Meta { node, slot, meta });
+        }
+        let mut b = Aabb::EMPTY;
+        for pos in w[5] + offset..w[5] + offset + count {
+            let Some(&prim) = self.prim_ids.get(pos as usize) else {
+                return Err(CompressedError::Meta { node, slot, meta });
+            };
+            seen[pos as usize] += 1;
+            b = b.union(prim_aabbs[prim as usize]);
+        }
+        Ok(b)
+    }
+
+    /// Checks that every inner slot names a node referenced once, every triangle position is
+    /// in exactly one leaf, and every decoded box contains the exact box of its contents
+    /// (`prim_aabbs` by primitive id).
+    pub fn validate(&self, prim_aabbs: &[Aabb]) -> Result<(), CompressedError> {
+        let mut refs = vec![0u32; self.nodes.len()];
+        let mut seen = vec![0u32; self.prim_ids.len()];
+        // Exact boxes bottom-up: children have larger indices than their parents.
+        let mut exact = vec![Aabb::EMPTY; self.nodes.len()];
+        for node in (0..self.nodes.len()).rev() {
+            let w = &self.nodes[node];
+            let imask = w[3] >> 24;
+            for slot in 0..8 {
+                let meta = self.meta(node, slot);
+                if meta == 0 {
+                    continue;
+                }
+                let content = if imask & (1 << slot) != 0 {
+                    if meta != 0b0010_0000 | (24 + slot as u8) {
+                        return Err(CompressedError::Meta { node, slot, meta });
+                    }
+                    let child = w[4] as usize + (imask & ((1 << slot) - 1)).count_ones() as usize;
+                    if child >= self.nodes.len() || child <= node {
+                        return Err(CompressedError::Child { node, slot, child });
+                    }
+                    refs[child] += 1;
+                    exact[child]
+                } else {
+                    self.contents(node, slot, prim_aabbs, &mut seen)?
+                };
+                let decoded = self.lane_box(node, slot);
+                if !decoded.contains_box(&content) {
+                    return Err(CompressedError::Box { node, slot, decoded, exact: content });
+                }
+                exact[node] = exact[node].union(content);
+            }
+        }
+        if let Some((i, &r)) = refs.iter().enumerate().find(|&(i, &r)| r != u32::from(i != 0)) {
+            return Err(CompressedError::References(i, r));
+        }
+        if let Some((pos, &c)) = seen.iter().enumerate().find(|(_, c)| **c != 1) {
+            return Err(CompressedError::Position(pos, c));
+        }
+        Ok(())
+    }
+}
