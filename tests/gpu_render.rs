@@ -261,47 +261,50 @@ fn auto_hands_its_timed_samples_to_the_render() {
     }
 }
 
-/// A tree deeper than the traversal stack is refused before upload, with a clear error.
+/// A tree deeper than the traversal stack is refused before upload, with a clear error, in
+/// either form: a 100-deep binary tree, and a 1000-deep one, whose wide form is still over
+/// 33 nodes deep.
 #[test]
 fn a_tree_deeper_than_the_stack_is_refused() {
     let Some(ctx) = gpu_or_skip("a_tree_deeper_than_the_stack_is_refused") else { return };
     let scene = Scene::load(scene_path("furnace.toml")).unwrap();
     let (mut rs, _) = RenderScene::build(&scene, &lbvh(), common::tracing());
-    // A caterpillar: internal node k has leaf k on the left and the next internal node on the
-    // right, 100 levels deep.
-    let n = 100u32;
-    let tris: Vec<Triangle> =
-        (0..n).map(|i| Triangle::new(Vec3::new(i as f32, 0.0, 0.0), Vec3::new(i as f32, 1.0, 0.0), Vec3::Z)).collect();
-    let aabb = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
-    let mut nodes = vec![arbor::bvh::BvhNode::internal(aabb, 2), bytemuck::Zeroable::zeroed()];
-    let mut parents = vec![arbor::bvh::INVALID_INDEX; 2];
-    for k in 0..n - 1 {
-        let pair = 2 + 2 * k;
-        nodes.push(arbor::bvh::BvhNode::leaf(tris[k as usize].aabb(), k, 1));
-        nodes.push(if k == n - 2 {
-            arbor::bvh::BvhNode::leaf(tris[k as usize + 1].aabb(), k + 1, 1)
-        } else {
-            arbor::bvh::BvhNode::internal(aabb, pair + 2)
+    for (n, form, says) in
+        [(100u32, GpuForm::Binary, "binary BVH is 100 nodes deep"), (1000, GpuForm::Wide8, "wide8 BVH is")]
+    {
+        // A caterpillar: internal node k has leaf k on the left and the next internal node on
+        // the right, n levels deep.
+        let tris: Vec<Triangle> = (0..n)
+            .map(|i| Triangle::new(Vec3::new(i as f32, 0.0, 0.0), Vec3::new(i as f32, 1.0, 0.0), Vec3::Z))
+            .collect();
+        let aabb = tris.iter().fold(arbor::geometry::Aabb::EMPTY, |b, t| b.union(t.aabb()));
+        let mut nodes = vec![arbor::bvh::BvhNode::internal(aabb, 2), bytemuck::Zeroable::zeroed()];
+        let mut parents = vec![arbor::bvh::INVALID_INDEX; 2];
+        for k in 0..n - 1 {
+            let pair = 2 + 2 * k;
+            nodes.push(arbor::bvh::BvhNode::leaf(tris[k as usize].aabb(), k, 1));
+            nodes.push(if k == n - 2 {
+                arbor::bvh::BvhNode::leaf(tris[k as usize + 1].aabb(), k + 1, 1)
+            } else {
+                arbor::bvh::BvhNode::internal(aabb, pair + 2)
+            });
+            parents.extend([if k == 0 { 0 } else { pair - 1 }; 2]);
+        }
+        let bvh = arbor::bvh::Bvh { nodes: nodes.into(), parents, prim_ids: (0..n).collect() };
+        let mesh = arbor::bvh::MeshBvh::new(bvh, &tris, common::tracing());
+        rs.geometry = arbor::render::geometry::Geometry::Flat(arbor::render::geometry::Flat {
+            mesh,
+            triangles: tris,
+            material_of: vec![0; n as usize],
+            normals: Vec::new(),
+            uvs: Vec::new(),
+            cutouts: None,
         });
-        parents.extend([if k == 0 { 0 } else { pair - 1 }; 2]);
+        let error = GpuScene::upload(ctx, &rs, form).err().expect("a deep tree must be refused").to_string();
+        assert!(error.contains(says) && error.contains("traversal stack"), "{error}");
     }
-    let bvh = arbor::bvh::Bvh { nodes: nodes.into(), parents, prim_ids: (0..n).collect() };
-    let mesh = arbor::bvh::MeshBvh::new(bvh, &tris, common::tracing());
-    rs.geometry = arbor::render::geometry::Geometry::Flat(arbor::render::geometry::Flat {
-        mesh,
-        triangles: tris,
-        material_of: vec![0; n as usize],
-        normals: Vec::new(),
-        uvs: Vec::new(),
-        cutouts: None,
-    });
-    let error =
-        GpuScene::upload(ctx, &rs, GpuForm::default()).err().expect("a 100-deep tree must be refused").to_string();
-    assert!(error.contains("100 nodes deep") && error.contains("traversal stack"), "{error}");
 }
 
-/// Whether the shared context (what `--device gpu` takes) is a software adapter; then, as the
-/// best adapter there is, `--device auto` finds no hardware GPU.
 fn ctx_is_software() -> bool {
     GpuContext::shared().is_ok_and(GpuContext::is_software)
 }

@@ -103,6 +103,9 @@ pub struct BenchConfig {
     /// The form Arbor's trees are traced in. Default: the best this CPU has
     /// ([`Tracing::best`]); `bvh-bench` passes what `ARBOR_SIMD` says.
     pub tracing: Tracing,
+    /// Also trace every ray set on this GPU, through both of the GPU's forms of each of Arbor's
+    /// trees (`bvh-bench --gpu`). Default: none.
+    pub gpu: Option<&'static arbor::gpu::GpuContext>,
 }
 
 impl Default for BenchConfig {
@@ -114,6 +117,7 @@ impl Default for BenchConfig {
             prbvh: PrbvhConfig::default(),
             collapse: CollapseConfig::default(),
             tracing: Tracing::best(),
+            gpu: None,
         }
     }
 }
@@ -156,6 +160,25 @@ pub struct BuilderReport {
     pub wide_collapse_ms: Option<f64>,
     /// SAH (cT = 3, cI = 2 per triangle) of the wide tree traced.
     pub wide_sah: Option<f64>,
+    /// With a GPU (`bvh-bench --gpu`; else `None`): the same ray sets traced on it, in Mrays/s
+    /// of the device's time for the dispatch, through its compressed 8-wide tree
+    /// (`arbor::gpu::wide`, made from this builder's leaf-collapsed tree) and through the
+    /// binary tree itself.
+    pub gpu_primary_mrays: Option<f64>,
+    pub gpu_shadow_mrays: Option<f64>,
+    pub gpu_diffuse_mrays: Option<f64>,
+    pub gpu_binary_primary_mrays: Option<f64>,
+    pub gpu_binary_shadow_mrays: Option<f64>,
+    pub gpu_binary_diffuse_mrays: Option<f64>,
+    /// Rays (of all three sets, in either form) whose GPU hit differs from the CPU's: the
+    /// GPU's f32-only triangle test where the CPU's falls back to f64 (a ray through an edge
+    /// or vertex, extreme scales).
+    pub gpu_hit_mismatches: Option<usize>,
+    /// Milliseconds to collapse this builder's tree into the GPU's wide form and encode it
+    /// (on the CPU).
+    pub gpu_wide_collapse_ms: Option<f64>,
+    /// The GPU wide tree's own SAH (`arbor::bvh::wide_sah`: node 1, triangle 0.3).
+    pub gpu_wide_sah: Option<f64>,
     /// PRBVH iterations: `[milliseconds since the build started, leaf-1 SAH]`, starting with
     /// the unoptimised tree; one point for builders without optimisation, none for Embree.
     pub sah_curve: Vec<[f64; 2]>,
@@ -191,6 +214,15 @@ impl BuilderReport {
             binary_diffuse_mrays: None,
             wide_collapse_ms: None,
             wide_sah: None,
+            gpu_primary_mrays: None,
+            gpu_shadow_mrays: None,
+            gpu_diffuse_mrays: None,
+            gpu_binary_primary_mrays: None,
+            gpu_binary_shadow_mrays: None,
+            gpu_binary_diffuse_mrays: None,
+            gpu_hit_mismatches: None,
+            gpu_wide_collapse_ms: None,
+            gpu_wide_sah: None,
             sah_curve: Vec::new(),
             checksums: [0; 3],
             hits: [0; 3],
@@ -264,6 +296,8 @@ pub enum BenchError {
     #[cfg(feature = "embree")]
     #[error(transparent)]
     Embree(#[from] crate::embree::EmbreeError),
+    #[error("on the GPU: {0}")]
+    Gpu(#[from] arbor::gpu::GpuError),
 }
 
 /// A built tree, ready to trace.
@@ -382,8 +416,10 @@ pub fn run_with_progress(
         progress(&format!("tracing, round {} of {}", round + 1, config.runs.max(1)));
         for (b, mesh) in meshes.iter().enumerate() {
             let r = &mut report.builders[b];
-            // The hit codes are kept (round 0) only where Embree's are compared ray by ray.
-            let keep = round == 0 && has_peers && (r.engine != "arbor" || Some(b) == reference);
+            // The hit codes are kept (round 0) only where Embree's are compared ray by ray, or
+            // the GPU's with the CPU's.
+            let keep = round == 0
+                && ((has_peers && (r.engine != "arbor" || Some(b) == reference)) || (config.gpu.is_some() && r.engine == "arbor"));
             for (k, &(set, t_max)) in sets.iter().enumerate() {
                 let (time, codes) = mesh.trace(set, t_max);
                 times[b][k].push(time);
@@ -416,6 +452,14 @@ pub fn run_with_progress(
         [r.binary_primary_mrays, r.binary_shadow_mrays, r.binary_diffuse_mrays] =
             std::array::from_fn(|k| mrays(counts[k], &binary[k]));
     }
+    if let Some(ctx) = config.gpu {
+        progress("tracing on the GPU");
+        for ((r, mesh), cpu) in report.builders.iter_mut().zip(&meshes).zip(&first_codes) {
+            if let (Traced::Arbor(mesh), Some(cpu)) = (mesh, cpu) {
+                trace_on_gpu(ctx, r, mesh, triangles, (&sets, cpu), config.runs.max(1))?;
+            }
+        }
+    }
     if let Some(first) = reference {
         let first = &report.builders[first];
         for r in report.builders.iter().filter(|r| r.engine == "arbor") {
@@ -445,6 +489,60 @@ pub fn run_with_progress(
         report.peer_reference = Some(name);
     }
     Ok(report)
+}
+
+/// Traces the three ray sets (`sets`, with the CPU's hit codes `cpu`) on the GPU through both
+/// of its forms of `mesh`'s tree, `runs` times each, and fills `r`'s GPU fields.
+fn trace_on_gpu(
+    ctx: &arbor::gpu::GpuContext,
+    r: &mut BuilderReport,
+    mesh: &MeshBvh,
+    triangles: &[Triangle],
+    (sets, cpu): (&[(&[Ray], f32); 3], &[Vec<u64>; 3]),
+    runs: usize,
+) -> Result<(), BenchError> {
+    use arbor::bvh::INVALID_INDEX;
+    use arbor::gpu::trace::{GpuForm, GpuScene, QueryRay, trace_rays};
+    let start = std::time::Instant::now();
+    let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
+    let wide = arbor::gpu::wide::CompressedBvh::new(&mesh.bvh, &prim_aabbs);
+    r.gpu_wide_collapse_ms = Some(start.elapsed().as_secs_f64() * 1e3);
+    r.gpu_wide_sah = Some(wide.cost);
+    let mut mismatches = 0;
+    for form in [GpuForm::Wide8, GpuForm::Binary] {
+        let scene = GpuScene::for_rays(ctx, &mesh.bvh, triangles, form)?;
+        let mut speeds = [None; 3];
+        for (k, &(set, t_max)) in sets.iter().enumerate() {
+            let queries: Vec<QueryRay> =
+                set.iter().map(|&ray| QueryRay { ray, t_max: t_max.min(f32::MAX), skip: INVALID_INDEX }).collect();
+            let any = t_max.is_finite();
+            let mut times = Vec::with_capacity(runs);
+            let mut codes = Vec::new();
+            for _ in 0..runs {
+                let (hits, seconds) = trace_rays(ctx, &scene, &queries, any)?;
+                times.push(Duration::from_secs_f64(seconds));
+                codes = hits
+                    .iter()
+                    .map(|h| match (any, h.prim) {
+                        (_, INVALID_INDEX) => 0,
+                        (true, _) => 1,
+                        (false, p) => u64::from(p) + 1,
+                    })
+                    .collect();
+            }
+            mismatches += differing(&cpu[k], &codes);
+            let ms = median_ms(times);
+            speeds[k] = (!set.is_empty() && ms > 0.0).then(|| set.len() as f64 / ms / 1e3);
+        }
+        match form {
+            GpuForm::Wide8 => [r.gpu_primary_mrays, r.gpu_shadow_mrays, r.gpu_diffuse_mrays] = speeds,
+            GpuForm::Binary => {
+                [r.gpu_binary_primary_mrays, r.gpu_binary_shadow_mrays, r.gpu_binary_diffuse_mrays] = speeds;
+            }
+        }
+    }
+    r.gpu_hit_mismatches = Some(mismatches);
+    Ok(())
 }
 
 /// How many rays hit differently in two traces of the same rays.

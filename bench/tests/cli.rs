@@ -236,7 +236,6 @@ fn bad_input_is_a_clear_error() {
         (vec![obj.display().to_string(), "--frames".into(), "10".into()], "--frames applies to"),
         (vec![obj.display().to_string(), "--max-spp".into(), "8".into()], "--max-spp applies to --converge"),
         (vec![obj.display().to_string(), "--memory".into(), "--plot".into(), "m.svg".into()], "--memory has no plot"),
-        (vec![obj.display().to_string(), "--gpu".into(), "--builders".into(), "lbvh".into()], "--builders applies"),
         (vec!["--converge".into(), obj.display().to_string()], "renders a scene (.toml), not a mesh"),
         (
             vec!["--converge".into(), scene.display().to_string(), "--devices".into(), "cpu,cpu".into()],
@@ -602,6 +601,19 @@ fn gpu_builds_are_reported_beside_the_cpu() {
         row("prbvh", "gpu")["sah"].as_f64().unwrap(),
     );
     assert!(gpu < lbvh && (gpu - cpu).abs() <= 0.02 * cpu, "SAH: LBVH {lbvh}, CPU PRBVH {cpu}, GPU PRBVH {gpu}");
+    assert!(row("collapse", "cpu")["sah"].as_f64().unwrap() > 0.0);
+    // Every builder's rays on the GPU, through both forms, hitting what the CPU hits.
+    let builders = report["builders"].as_array().unwrap();
+    assert!(!builders.is_empty());
+    for b in builders {
+        for field in ["primary", "shadow", "diffuse"] {
+            for form in ["gpu", "gpu_binary"] {
+                let v = b[format!("{form}_{field}_mrays")].as_f64();
+                assert!(v.is_some_and(|v| v > 0.0), "{}: {form}_{field}_mrays {v:?}", b["name"]);
+            }
+        }
+        assert_eq!(b["gpu_hit_mismatches"], 0, "{}", b["name"]);
+    }
 }
 
 /// Without the feature `embree`, naming an Embree builder says how to get it, before any work.

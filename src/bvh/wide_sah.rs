@@ -175,8 +175,16 @@ pub fn collapse(bvh: &Bvh, prim_aabbs: &[Aabb], width: usize, max_leaf: u32, cos
     let t = Binary::from_bvh(bvh, prim_aabbs, max_leaf);
     let n = t.aabb.len();
     // Areas over the root's, so that the costs are in units of rays entering the root.
-    let root_area = f64::from(t.aabb[0].half_area()).max(f64::MIN_POSITIVE);
-    let area = |i: usize| (f64::from(t.aabb[i].half_area()) / root_area) as f32;
+    // In f64: f32 areas overflow for scenes beyond about 10^19.
+    let half_area = |b: &Aabb| {
+        let e = b.extent().as_dvec3().max(glam::DVec3::ZERO);
+        e.x * e.y + e.y * e.z + e.z * e.x
+    };
+    let root_area = half_area(&t.aabb[0]).max(f64::MIN_POSITIVE);
+    let area = |i: usize| {
+        let a = (half_area(&t.aabb[i]) / root_area) as f32;
+        if a.is_finite() { a } else { 1.0 }
+    };
     // cost[i][k] = C(i, k + 1); split[i][j] = the best k of D(i, j) (0: none);
     // dist[i][k] = whether C(i, k + 1) is D(i, k + 1); leaf[i] = whether C(i, 1) is a leaf.
     let mut cost = vec![[f32::INFINITY; MAX_WIDTH]; n];
@@ -196,6 +204,8 @@ pub fn collapse(bvh: &Bvh, prim_aabbs: &[Aabb], width: usize, max_leaf: u32, cos
         // D(i, j) for j in 2..=width.
         let mut d = [f32::INFINITY; MAX_WIDTH + 1];
         for j in 2..=width {
+            // Some split, should every cost be infinite.
+            split[i][j] = 1;
             for k in 1..j {
                 let c = cl[k - 1] + cr[j - k - 1];
                 if c < d[j] {

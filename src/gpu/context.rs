@@ -67,6 +67,12 @@ pub struct GpuContext {
     compile_nanos: AtomicU64,
 }
 
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext").field("adapter", &self.describe()).finish_non_exhaustive()
+    }
+}
+
 /// Features used where present.
 fn wanted_features() -> wgpu::Features {
     wgpu::Features::SHADER_INT64 | wgpu::Features::SHADER_INT64_ATOMIC_MIN_MAX | wgpu::Features::SUBGROUP

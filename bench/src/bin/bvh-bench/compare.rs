@@ -15,6 +15,34 @@ use crate::{Args, default_builders};
 /// The builder comparison (the default mode): every builder builds the same triangles and
 /// traces the same rays; a table, and JSON, CSV and a plot where asked.
 pub(crate) fn run(args: &Args, tracing: arbor::bvh::Tracing) -> Result<()> {
+    let (name, report) = measure(args, tracing, None)?;
+    // Embree's tree is opaque: it has no SAH curve to plot.
+    let series: Vec<Series> = report
+        .builders
+        .iter()
+        .filter(|b| !b.sah_curve.is_empty())
+        .map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect()))
+        .collect();
+    let plot = (format!("SAH against time: {name}"), ("build + optimisation time (ms)", "SAH, one primitive per leaf"));
+    write_outputs(args, &report, |f| write_csv(f, &report), plot, &series, false)?;
+    check(&report)
+}
+
+/// Fails where the builders' hits disagree.
+pub(crate) fn check(report: &Report) -> Result<()> {
+    if !report.mismatches.is_empty() {
+        bail!("builders disagree on hits:\n  {}", report.mismatches.join("\n  "));
+    }
+    Ok(())
+}
+
+/// Runs the comparison (with the ray sets also traced on `gpu` where given) and prints its
+/// table; returns the input's name and the report.
+pub(crate) fn measure(
+    args: &Args,
+    tracing: arbor::bvh::Tracing,
+    gpu: Option<&'static arbor::gpu::GpuContext>,
+) -> Result<(String, Report)> {
     let builders = args
         .builders
         .clone()
@@ -32,6 +60,7 @@ pub(crate) fn run(args: &Args, tracing: arbor::bvh::Tracing) -> Result<()> {
         resolution: args.resolution,
         prbvh: PrbvhConfig { mu: args.mu, epsilon: args.epsilon, ..Default::default() },
         tracing,
+        gpu,
         ..Default::default()
     };
     // On a terminal, a spinner says what runs: large meshes take minutes.
@@ -41,19 +70,7 @@ pub(crate) fn run(args: &Args, tracing: arbor::bvh::Tracing) -> Result<()> {
     spinner.finish_and_clear();
     let report = report?;
     print_table(&report);
-    // Embree's tree is opaque: it has no SAH curve to plot.
-    let series: Vec<Series> = report
-        .builders
-        .iter()
-        .filter(|b| !b.sah_curve.is_empty())
-        .map(|b| (b.name.clone(), b.sah_curve.iter().map(|p| (p[0], p[1])).collect()))
-        .collect();
-    let plot = (format!("SAH against time: {name}"), ("build + optimisation time (ms)", "SAH, one primitive per leaf"));
-    write_outputs(args, &report, |f| write_csv(f, &report), plot, &series, false)?;
-    if !report.mismatches.is_empty() {
-        bail!("builders disagree on hits:\n  {}", report.mismatches.join("\n  "));
-    }
-    Ok(())
+    Ok((name, report))
 }
 
 pub(crate) fn print_table(r: &Report) {
@@ -133,6 +150,43 @@ pub(crate) fn print_table(r: &Report) {
             );
         }
         outln!("(binary: the leaf-collapsed binary tree, scalar code; wide ms: its collapse into the traced form)");
+    }
+    if r.builders.iter().any(|b| b.gpu_primary_mrays.is_some()) {
+        outln!(
+            "{:<26} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+            "on the GPU",
+            "primary",
+            "shadow",
+            "diffuse",
+            "bin prim",
+            "bin shad",
+            "bin diff",
+            "w/b diff",
+            "mismatch",
+            "wide ms"
+        );
+        let ratio = |w: Option<f64>, b: Option<f64>| match (w, b) {
+            (Some(w), Some(b)) if b > 0.0 => format!("{:.2}x", w / b),
+            _ => "-".to_string(),
+        };
+        for b in r.builders.iter().filter(|b| b.gpu_primary_mrays.is_some()) {
+            outln!(
+                "{:<26} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+                b.name,
+                speed(b.gpu_primary_mrays),
+                speed(b.gpu_shadow_mrays),
+                speed(b.gpu_diffuse_mrays),
+                speed(b.gpu_binary_primary_mrays),
+                speed(b.gpu_binary_shadow_mrays),
+                speed(b.gpu_binary_diffuse_mrays),
+                ratio(b.gpu_diffuse_mrays, b.gpu_binary_diffuse_mrays),
+                count(b.gpu_hit_mismatches),
+                ms(b.gpu_wide_collapse_ms)
+            );
+        }
+        outln!(
+            "(GPU: device time of one dispatch a set, Mrays/s; wide8 the compressed 8-wide tree, bin its binary tree; mismatch: rays hit otherwise than on the CPU; wide ms: the collapse into the wide form, on the CPU)"
+        );
     }
     if let Some(reference) = &r.peer_reference {
         outln!("(embree-*: Embree's own trees and traversal; `-`: does not apply to them)");

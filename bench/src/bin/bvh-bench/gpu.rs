@@ -1,4 +1,6 @@
-//! `--gpu`: the LBVH and PRBVH on the CPU and the GPU, timed on the same primitives.
+//! `--gpu`: the LBVH and PRBVH on the CPU and the GPU, timed on the same primitives, the
+//! collapse into the GPU's wide form, and the builder comparison's ray sets traced on the GPU
+//! through both of its forms.
 
 use anyhow::{Result, bail};
 
@@ -6,10 +8,12 @@ use crate::Args;
 use crate::cli::outln;
 use crate::options::load_input;
 use crate::report::{GpuComparison, GpuRow, write_atomic, write_json};
+use crate::{compare, default_builders};
 use arbor_bench::median;
 
-/// `--gpu`: GPU LBVH and PRBVH times, beside the CPU's on the same input.
-pub(crate) fn run_gpu(args: &Args) -> Result<()> {
+/// `--gpu`: GPU LBVH and PRBVH times, beside the CPU's on the same input, the wide collapse, and
+/// the builders' ray sets on the GPU.
+pub(crate) fn run_gpu(args: &Args, tracing: arbor::bvh::Tracing) -> Result<()> {
     use arbor::bvh::build::prbvh::{self, PrbvhConfig};
     use arbor::gpu::prbvh::{self as gpu_prbvh, LockScheme};
     use std::time::Instant;
@@ -77,6 +81,17 @@ pub(crate) fn run_gpu(args: &Args) -> Result<()> {
             ..GpuRow::new("prbvh", "gpu", median(times), sah)
         });
     }
+    // The GPU's wide form of the optimised tree: collapsed and encoded on the CPU for now.
+    let (optimised, _) = gpu_prbvh::optimize(ctx, &cpu_tree, &config, LockScheme::best_for(ctx))?;
+    let mut times = Vec::new();
+    let mut wide_cost = 0.0;
+    for _ in 0..args.runs {
+        let t = Instant::now();
+        let wide = arbor::gpu::wide::CompressedBvh::new(&optimised, &prims);
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+        wide_cost = wide.cost;
+    }
+    rows.push(GpuRow::new("collapse", "cpu", median(times), wide_cost));
     outln!(
         "{} triangles; {}; medians of {} runs (GPU times exclude pipeline compilation, upload and readback)",
         prims.len(),
@@ -90,9 +105,21 @@ pub(crate) fn run_gpu(args: &Args) -> Result<()> {
     if !same {
         bail!("the GPU LBVH differs from the CPU LBVH on {name}");
     }
-    let report = GpuComparison { triangles: prims.len(), adapter: ctx.describe(), runs: args.runs, rows };
+    // The builders' trees on the GPU (the default builders unless --builders names others).
+    let builders = args.builders.clone().unwrap_or_else(default_builders);
+    let gpu_args = Args { builders: Some(builders), ..args.clone() };
+    let (_, comparison) = compare::measure(&gpu_args, tracing, Some(ctx))?;
+    let report = GpuComparison { adapter: ctx.describe(), runs: args.runs, rows, comparison };
     if let Some(path) = &args.json {
         write_atomic(path, |f| write_json(f, &report))?;
+    }
+    compare::check(&report.comparison)?;
+    if let Some(b) = report.comparison.builders.iter().find(|b| b.gpu_hit_mismatches.is_some_and(|m| m > 0)) {
+        eprintln!(
+            "bvh-bench: note: {} rays hit otherwise on the GPU than on the CPU ({}; the GPU's f32 triangle test)",
+            b.gpu_hit_mismatches.unwrap_or_default(),
+            b.name
+        );
     }
     Ok(())
 }

@@ -30,7 +30,7 @@ use std::path::PathBuf;
 
 /// Compare BVH builders: build time, SAH cost (cT = 3, cI = 2) and trace speed of primary,
 /// shadow and diffuse rays, all builders tracing the same rays.
-#[derive(Parser, Debug)]
+#[derive(Parser, Debug, Clone)]
 #[command(name = "bvh-bench", version)]
 pub(crate) struct Args {
     /// Mesh (.obj; .ply, .gltf or .glb in any case) or scene (.toml) to build over. Optional with
@@ -106,9 +106,10 @@ pub(crate) struct Args {
     /// the bytes per triangle it keeps to trace (triangles included) and the process's peak.
     #[arg(long, conflicts_with_all = ["converge", "animated", "procedural_animated"])]
     pub(crate) memory: bool,
-    /// GPU builds instead of the CPU builders: the GPU LBVH (checked against the CPU's tree) and
-    /// GPU PRBVH with each lock scheme the adapter has, timed over --runs, beside the CPU
-    /// optimiser on the same input.
+    /// The GPU: its LBVH (checked against the CPU's tree) and PRBVH with each lock scheme the
+    /// adapter has, timed over --runs beside the CPU's, the collapse into its compressed 8-wide
+    /// form, then the builder comparison with every ray set also traced on the GPU through both
+    /// of its forms (gpu_* fields in each builder's row).
     #[arg(long, conflicts_with_all = ["converge", "animated", "procedural_animated", "memory"])]
     pub(crate) gpu: bool,
     /// (internal) The process --memory runs for one builder.
@@ -154,7 +155,7 @@ fn run() -> Result<()> {
         return run_memory(&args);
     }
     if args.gpu {
-        return run_gpu(&args);
+        return run_gpu(&args, tracing);
     }
     if args.animated.is_some() || args.procedural_animated.is_some() {
         return run_animated(&args, tracing);

@@ -106,8 +106,8 @@ pub(crate) fn check_mode_options(args: &Args) -> Result<()> {
         (
             args.builders.is_some(),
             "--builders",
-            !args.gpu && !animation,
-            "the builder comparison, --converge and --memory",
+            !animation,
+            "the builder comparison, --gpu, --converge and --memory",
         ),
     ];
     for (given, option, applies, mode) in mode_only {

@@ -35,13 +35,16 @@ pub(crate) struct MemoryComparison<'a> {
     pub builders: &'a [MemoryReport],
 }
 
-/// `--gpu`'s JSON report: a row per stage and device.
+/// `--gpu`'s JSON report: a row per build stage and device (`rows`; the `collapse` row's SAH
+/// is the wide tree's own), and the builder comparison with its GPU fields (`builders` and the
+/// rest of the comparison's report, inline).
 #[derive(serde::Serialize)]
 pub(crate) struct GpuComparison {
-    pub triangles: usize,
     pub adapter: String,
     pub runs: usize,
     pub rows: Vec<GpuRow>,
+    #[serde(flatten)]
+    pub comparison: arbor_bench::compare::Report,
 }
 
 /// One stage (`lbvh`, `prbvh`) on one device; fields that do not apply are left out.
