@@ -419,7 +419,8 @@ pub fn run_with_progress(
             // The hit codes are kept (round 0) only where Embree's are compared ray by ray, or
             // the GPU's with the CPU's.
             let keep = round == 0
-                && ((has_peers && (r.engine != "arbor" || Some(b) == reference)) || (config.gpu.is_some() && r.engine == "arbor"));
+                && ((has_peers && (r.engine != "arbor" || Some(b) == reference))
+                    || (config.gpu.is_some() && r.engine == "arbor"));
             for (k, &(set, t_max)) in sets.iter().enumerate() {
                 let (time, codes) = mesh.trace(set, t_max);
                 times[b][k].push(time);
@@ -491,6 +492,9 @@ pub fn run_with_progress(
     Ok(report)
 }
 
+/// The three ray sets, each with its `t_max` (finite: any-hit queries).
+type SetsWithLimits<'a> = [(&'a [Ray], f32); 3];
+
 /// Traces the three ray sets (`sets`, with the CPU's hit codes `cpu`) on the GPU through both
 /// of its forms of `mesh`'s tree, `runs` times each, and fills `r`'s GPU fields.
 fn trace_on_gpu(
@@ -498,7 +502,7 @@ fn trace_on_gpu(
     r: &mut BuilderReport,
     mesh: &MeshBvh,
     triangles: &[Triangle],
-    (sets, cpu): (&[(&[Ray], f32); 3], &[Vec<u64>; 3]),
+    (sets, cpu): (&SetsWithLimits<'_>, &[Vec<u64>; 3]),
     runs: usize,
 ) -> Result<(), BenchError> {
     use arbor::bvh::INVALID_INDEX;

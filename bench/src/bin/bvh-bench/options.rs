@@ -103,12 +103,7 @@ pub(crate) fn check_mode_options(args: &Args) -> Result<()> {
         (args.image_size.is_some(), "--image-size", converge, "--converge"),
         (args.frames.is_some(), "--frames", animation, "--animated and --procedural-animated"),
         (args.moving.is_some(), "--moving", args.procedural_animated.is_some(), "--procedural-animated"),
-        (
-            args.builders.is_some(),
-            "--builders",
-            !animation,
-            "the builder comparison, --gpu, --converge and --memory",
-        ),
+        (args.builders.is_some(), "--builders", !animation, "the builder comparison, --gpu, --converge and --memory"),
     ];
     for (given, option, applies, mode) in mode_only {
         if given && !applies {
