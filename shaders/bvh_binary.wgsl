@@ -27,7 +27,6 @@ fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
     var stack_node: array<u32, TRACE_STACK_SIZE>;
     var stack_t: array<f32, TRACE_STACK_SIZE>;
     var sp = 0u;
-    var pending: Pending;
     var node = root;
     loop {
         if node.prim_count > 0u {
@@ -37,13 +36,9 @@ fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
                 }
                 let tri = triangles[i];
                 let h = intersect_triangle(tri, r, best.t);
-                if beats(h, i, best) {
-                    // A masked hit waits for its mask (see Pending), unless too many wait.
-                    let masked = HAS_CUTOUTS && tri.cutout != 0u;
-                    if !masked || (!defer_masked(&pending, h, i) && !cut_out(i, tri.material, h.y, h.z)) {
-                        best = Hit(h.x, i, h.y, h.z);
-                        limit = best.t * CULL_SCALE + slack;
-                    }
+                if beats(h, i, best) && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
+                    best = Hit(h.x, i, h.y, h.z);
+                    limit = best.t * CULL_SCALE + slack;
                 }
             }
         } else {
@@ -92,9 +87,6 @@ fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
             break;
         }
     }
-    if HAS_CUTOUTS {
-        return resolve_closest(&pending, best);
-    }
     return best;
 }
 
@@ -109,7 +101,6 @@ fn occluded(ray: Ray, t_max: f32, skip: u32) -> bool {
     }
     var stack_node: array<u32, TRACE_STACK_SIZE>;
     var sp = 0u;
-    var pending: Pending;
     var node = root;
     loop {
         if node.prim_count > 0u {
@@ -119,11 +110,8 @@ fn occluded(ray: Ray, t_max: f32, skip: u32) -> bool {
                 }
                 let tri = triangles[i];
                 let h = intersect_triangle(tri, r, t_max);
-                if h.x > 0.0 {
-                    let masked = HAS_CUTOUTS && tri.cutout != 0u;
-                    if !masked || (!defer_masked(&pending, h, i) && !cut_out(i, tri.material, h.y, h.z)) {
-                        return true;
-                    }
+                if h.x > 0.0 && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
+                    return true;
                 }
             }
         } else {
@@ -159,5 +147,5 @@ fn occluded(ray: Ray, t_max: f32, skip: u32) -> bool {
         sp -= 1u;
         node = nodes[stack_node[sp]];
     }
-    return HAS_CUTOUTS && resolve_any(&pending) != INVALID_INDEX;
+    return false;
 }

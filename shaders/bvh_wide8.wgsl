@@ -46,7 +46,6 @@ fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
     let near = octant ^ 7u;
     var stack: array<vec2<u32>, WIDE_STACK_SIZE>;
     var sp = 0u;
-    var pending: Pending;
     // The root as the one inner child of a group based at 0, in slot 0.
     var nodes_group = vec2<u32>(0u, (1u << (24u + near)) | 1u);
     loop {
@@ -111,16 +110,12 @@ fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
             }
             let tri = triangles[i];
             let h = intersect_triangle(tri, r, best.t);
-            if beats(h, i, best) {
-                // A masked hit waits for its mask (see Pending), unless too many wait.
-                let masked = HAS_CUTOUTS && tri.cutout != 0u;
-                if !masked || (!defer_masked(&pending, h, i) && !cut_out(i, tri.material, h.y, h.z)) {
-                    best = Hit(h.x, i, h.y, h.z);
-                    if any {
-                        return best;
-                    }
-                    limit = best.t * CULL_SCALE + slack;
+            if beats(h, i, best) && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
+                best = Hit(h.x, i, h.y, h.z);
+                if any {
+                    return best;
                 }
+                limit = best.t * CULL_SCALE + slack;
             }
         }
         if (nodes_group.y & 0xff000000u) == 0u {
@@ -130,16 +125,6 @@ fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
             sp -= 1u;
             nodes_group = stack[sp];
         }
-    }
-    if HAS_CUTOUTS {
-        if any {
-            let i = resolve_any(&pending);
-            if i != INVALID_INDEX {
-                return Hit(t_max, i, 0.0, 0.0);
-            }
-            return best;
-        }
-        return resolve_closest(&pending, best);
     }
     return best;
 }

@@ -366,69 +366,6 @@ fn beats(h: vec3<f32>, i: u32, best: Hit) -> bool {
         && (h.x < best.t || (h.x == best.t && (best.index == INVALID_INDEX || prim_ids[i] < prim_ids[best.index])));
 }
 
-// Hits on triangles with a cut-out mask, whose mask is looked up after the traversal rather than
-// inside its loop: a texture lookup there made every lane of a SIMD group wait for the few that
-// hit a masked triangle, and slowed the loop even where no ray did. A masked hit does not shrink
-// the culling limit until its mask is known, so nothing it might not hide is culled. Where more
-// than MASKED_PENDING are pending, the next is tested at once, as before.
-const MASKED_PENDING: u32 = 4u;
-
-struct Pending {
-    count: u32,
-    // (t, u, v) and position of each.
-    h: array<vec3<f32>, MASKED_PENDING>,
-    index: array<u32, MASKED_PENDING>,
-}
-
-// Keeps hit `h` of masked triangle `i` for later; false where the list is full.
-fn defer_masked(p: ptr<function, Pending>, h: vec3<f32>, i: u32) -> bool {
-    if (*p).count == MASKED_PENDING {
-        return false;
-    }
-    (*p).h[(*p).count] = h;
-    (*p).index[(*p).count] = i;
-    (*p).count += 1u;
-    return true;
-}
-
-// The closest of `best` and the pending hits whose mask keeps them: the pending nearer than
-// `best` are tested nearest first (ties to the lowest primitive id), and the first kept wins.
-fn resolve_closest(p: ptr<function, Pending>, best_in: Hit) -> Hit {
-    var best = best_in;
-    var left = (1u << (*p).count) - 1u;
-    loop {
-        // The nearest pending hit still beating `best`.
-        var pick = MASKED_PENDING;
-        var pick_hit = best;
-        for (var k = 0u; k < (*p).count; k++) {
-            if (left & (1u << k)) != 0u && beats((*p).h[k], (*p).index[k], pick_hit) {
-                pick = k;
-                pick_hit = Hit((*p).h[k].x, (*p).index[k], (*p).h[k].y, (*p).h[k].z);
-            }
-        }
-        if pick == MASKED_PENDING {
-            return best;
-        }
-        left &= ~(1u << pick);
-        let i = (*p).index[pick];
-        if !cut_out(i, triangles[i].material, pick_hit.u, pick_hit.v) {
-            return pick_hit;
-        }
-    }
-    return best;
-}
-
-// Whether any pending hit's mask keeps it: INVALID_INDEX if none, else its position.
-fn resolve_any(p: ptr<function, Pending>) -> u32 {
-    for (var k = 0u; k < (*p).count; k++) {
-        let i = (*p).index[k];
-        if !cut_out(i, triangles[i].material, (*p).h[k].y, (*p).h[k].z) {
-            return i;
-        }
-    }
-    return INVALID_INDEX;
-}
-
 // ---- textures: src/texture/mod.rs ----
 
 // Index `i` (integer-valued) wrapped into 0..n: 0 repeat, 1 clamp, 2 mirror.
