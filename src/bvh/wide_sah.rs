@@ -24,6 +24,8 @@
 //! Which lane a child gets, and how lanes are stored, is the consumer's: the GPU's compressed
 //! nodes (`gpu::wide`) order them by ray octant and quantise their boxes.
 
+use rayon::prelude::*;
+
 use crate::bvh::Bvh;
 use crate::geometry::Aabb;
 
@@ -106,8 +108,14 @@ impl Binary {
                 t.count.push(0);
                 stack.push((n.first + 1, Some((id, 1))));
                 stack.push((n.first, Some((id, 0))));
+            } else if n.prim_count <= max_leaf {
+                t.aabb.push(n.aabb());
+                t.children.push([NONE; 2]);
+                t.first.push(t.prims.len() as u32);
+                t.count.push(n.prim_count);
+                t.prims.extend_from_slice(&bvh.prim_ids[n.prim_range()]);
             } else {
-                // A leaf, split where it is too large, in this node's place.
+                // A leaf too large, split in this node's place.
                 scratch.clear();
                 scratch.extend_from_slice(&bvh.prim_ids[n.prim_range()]);
                 t.split(&mut scratch, prim_aabbs, max_leaf);
@@ -164,6 +172,86 @@ impl Binary {
     }
 }
 
+/// Subtrees of at most this many nodes fill their part of the table as one task.
+const PARALLEL_NODES: usize = 1 << 14;
+
+/// One binary node's row of the table.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    /// `cost[k]` = C(n, k + 1).
+    cost: [f32; MAX_WIDTH],
+    /// The best `k` of D(n, j), for j in 2..=width.
+    split: [u8; MAX_WIDTH + 1],
+    /// Bit k: whether C(n, k + 1) is D(n, k + 1).
+    dist: u8,
+    /// Whether C(n, 1) is the leaf.
+    leaf: bool,
+}
+
+impl Default for Entry {
+    fn default() -> Self {
+        Entry { cost: [f32::INFINITY; MAX_WIDTH], split: [0; MAX_WIDTH + 1], dist: 0, leaf: false }
+    }
+}
+
+impl Entry {
+    /// The row of a node whose leaf costs `leaf_cost` and whose own box costs `node_cost` as a
+    /// wide node, from its children's costs (none for a leaf).
+    fn new(
+        leaf_cost: f32,
+        node_cost: f32,
+        children: Option<([f32; MAX_WIDTH], [f32; MAX_WIDTH])>,
+        width: usize,
+    ) -> Entry {
+        let mut e = Entry::default();
+        let Some((cl, cr)) = children else {
+            e.cost = [leaf_cost; MAX_WIDTH];
+            e.leaf = true;
+            return e;
+        };
+        // D(n, j) for j in 2..=width.
+        let mut d = [f32::INFINITY; MAX_WIDTH + 1];
+        for j in 2..=width {
+            // Some split, should every cost be infinite.
+            e.split[j] = 1;
+            for k in 1..j {
+                let c = cl[k - 1] + cr[j - k - 1];
+                if c < d[j] {
+                    d[j] = c;
+                    e.split[j] = k as u8;
+                }
+            }
+        }
+        let inner_cost = node_cost + d[width];
+        e.leaf = leaf_cost <= inner_cost;
+        e.cost[0] = leaf_cost.min(inner_cost);
+        for k in 1..width {
+            if d[k + 1] < e.cost[k - 1] {
+                e.dist |= 1 << k;
+                e.cost[k] = d[k + 1];
+            } else {
+                e.cost[k] = e.cost[k - 1];
+            }
+        }
+        for k in width..MAX_WIDTH {
+            e.cost[k] = e.cost[width - 1];
+        }
+        e
+    }
+}
+
+/// Nodes in each node's subtree, itself included.
+fn subtree_sizes(children: &[[u32; 2]]) -> Vec<usize> {
+    let mut size = vec![1usize; children.len()];
+    for i in (0..children.len()).rev() {
+        let [l, r] = children[i];
+        if l != NONE {
+            size[i] += size[l as usize] + size[r as usize];
+        }
+    }
+    size
+}
+
 /// The SAH-optimal `width`-wide tree (2 to [`MAX_WIDTH`] lanes) over `bvh`'s primitives, with
 /// leaf lanes of at most `max_leaf` primitives (see the module docs). `prim_aabbs` are the
 /// primitives' boxes by id (for splitting large leaves). An empty tree gives no nodes.
@@ -185,58 +273,82 @@ pub fn collapse(bvh: &Bvh, prim_aabbs: &[Aabb], width: usize, max_leaf: u32, cos
         let a = (half_area(&t.aabb[i]) / root_area) as f32;
         if a.is_finite() { a } else { 1.0 }
     };
-    // cost[i][k] = C(i, k + 1); split[i][j] = the best k of D(i, j) (0: none);
-    // dist[i][k] = whether C(i, k + 1) is D(i, k + 1); leaf[i] = whether C(i, 1) is a leaf.
-    let mut cost = vec![[f32::INFINITY; MAX_WIDTH]; n];
-    let mut split = vec![[0u8; MAX_WIDTH + 1]; n];
-    let mut dist = vec![[false; MAX_WIDTH]; n];
-    let mut leaf = vec![false; n];
-    for i in (0..n).rev() {
-        let a = area(i);
-        let leaf_cost = if t.count[i] <= max_leaf { a * t.count[i] as f32 * costs.prim } else { f32::INFINITY };
+    // The table, bottom-up. A subtree is a contiguous run of indices (depth-first order), so
+    // subtrees of at most PARALLEL_NODES nodes fill their runs of the table in parallel, and the
+    // nodes above them follow.
+    let mut table = vec![Entry::default(); n];
+    let size = subtree_sizes(&t.children);
+    let mut roots = Vec::new();
+    let mut stack = vec![0usize];
+    while let Some(i) = stack.pop() {
         let [l, r] = t.children[i];
-        if l == NONE {
-            cost[i] = [leaf_cost; MAX_WIDTH];
-            leaf[i] = true;
-            continue;
-        }
-        let (cl, cr) = (cost[l as usize], cost[r as usize]);
-        // D(i, j) for j in 2..=width.
-        let mut d = [f32::INFINITY; MAX_WIDTH + 1];
-        for j in 2..=width {
-            // Some split, should every cost be infinite.
-            split[i][j] = 1;
-            for k in 1..j {
-                let c = cl[k - 1] + cr[j - k - 1];
-                if c < d[j] {
-                    d[j] = c;
-                    split[i][j] = k as u8;
-                }
-            }
-        }
-        let inner_cost = a * costs.node + d[width];
-        leaf[i] = leaf_cost <= inner_cost;
-        cost[i][0] = leaf_cost.min(inner_cost);
-        for k in 1..width {
-            dist[i][k] = d[k + 1] < cost[i][k - 1];
-            cost[i][k] = if dist[i][k] { d[k + 1] } else { cost[i][k - 1] };
-        }
-        for k in width..MAX_WIDTH {
-            cost[i][k] = cost[i][width - 1];
+        if size[i] <= PARALLEL_NODES || l == NONE {
+            roots.push(i);
+        } else {
+            stack.extend([r as usize, l as usize]);
         }
     }
+    roots.sort_unstable();
+    let fill = |i: usize, table: &mut [Entry], base: usize| {
+        let [l, r] = t.children[i];
+        let (cl, cr) = if l == NONE {
+            (None, None)
+        } else {
+            (Some(table[l as usize - base].cost), Some(table[r as usize - base].cost))
+        };
+        let leaf_cost = if t.count[i] <= max_leaf { area(i) * t.count[i] as f32 * costs.prim } else { f32::INFINITY };
+        table[i - base] = Entry::new(leaf_cost, area(i) * costs.node, cl.zip(cr), width);
+    };
+    {
+        // Split the table into the subtrees' runs.
+        let mut runs: Vec<(usize, &mut [Entry])> = Vec::with_capacity(roots.len());
+        let mut rest: &mut [Entry] = &mut table;
+        let mut at = 0;
+        for &root in &roots {
+            let (_, tail) = rest.split_at_mut(root - at);
+            let (run, tail) = tail.split_at_mut(size[root]);
+            runs.push((root, run));
+            rest = tail;
+            at = root + size[root];
+        }
+        runs.par_iter_mut().for_each(|(root, run)| {
+            for i in (*root..*root + run.len()).rev() {
+                fill(i, run, *root);
+            }
+        });
+    }
+    // The nodes above the subtrees, children first.
+    let is_root: std::collections::HashSet<usize> = roots.iter().copied().collect();
+    let mut above = Vec::new();
+    let mut stack = vec![0usize];
+    while let Some(i) = stack.pop() {
+        if is_root.contains(&i) {
+            continue;
+        }
+        above.push(i);
+        let [l, r] = t.children[i];
+        stack.extend([r as usize, l as usize]);
+    }
+    for &i in above.iter().rev() {
+        fill(i, &mut table, 0);
+    }
+    let leaf = |i: usize| table[i].leaf;
+    let split = |i: usize, j: usize| usize::from(table[i].split[j]);
+    let dist = |i: usize, k: usize| table[i].dist & (1 << k) != 0;
     // Read top-down. The root is a node even where one leaf would be cheaper.
     let mut out = WideSah { prim_ids: Vec::with_capacity(t.prims.len()), ..Default::default() };
-    let root_cost = if leaf[0] && t.children[0][0] == NONE {
+    let root_cost = if leaf(0) && t.children[0][0] == NONE {
         // A tree of one leaf: a node with one leaf lane.
         out.nodes.push(vec![(t.aabb[0], Lane::Leaf { first: 0, count: t.count[0] })]);
         out.prim_ids.extend_from_slice(&t.prims);
-        out.cost = f64::from(costs.node) + f64::from(cost[0][0]);
+        out.cost = f64::from(costs.node) + f64::from(table[0].cost[0]);
         return out;
     } else {
         let [l, r] = t.children[0];
-        let k = usize::from(split[0][width]);
-        f64::from(costs.node) + f64::from(cost[l as usize][k - 1]) + f64::from(cost[r as usize][width - k - 1])
+        let k = split(0, width);
+        f64::from(costs.node)
+            + f64::from(table[l as usize].cost[k - 1])
+            + f64::from(table[r as usize].cost[width - k - 1])
     };
     out.cost = root_cost;
     // Binary nodes that become wide nodes, in the order of their indices in `out.nodes`.
@@ -248,19 +360,19 @@ pub fn collapse(bvh: &Bvh, prim_aabbs: &[Aabb], width: usize, max_leaf: u32, cos
         next += 1;
         let mut lanes = Vec::with_capacity(width);
         let [l, r] = t.children[root];
-        let k = usize::from(split[root][width]);
+        let k = split(root, width);
         work.clear();
         work.push((r as usize, width - k));
         work.push((l as usize, k));
         while let Some((i, j)) = work.pop() {
-            if j >= 2 && dist[i][j - 1] {
+            if j >= 2 && dist(i, j - 1) {
                 let [l, r] = t.children[i];
-                let k = usize::from(split[i][j]);
+                let k = split(i, j);
                 work.push((r as usize, j - k));
                 work.push((l as usize, k));
             } else if j >= 2 {
                 work.push((i, j - 1));
-            } else if leaf[i] {
+            } else if leaf(i) {
                 let (first, count) = (out.prim_ids.len() as u32, t.count[i]);
                 let run = t.first[i] as usize..(t.first[i] + t.count[i]) as usize;
                 out.prim_ids.extend_from_slice(&t.prims[run]);

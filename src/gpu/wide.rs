@@ -108,26 +108,35 @@ fn quantize_hi(lo: f32, s: f32, x: f32) -> u32 {
     q
 }
 
-/// Slot of each lane: the lane farthest along each octant's direction, largest first.
+/// Slot of each lane: the lane farthest along each octant's direction, largest first (ties to
+/// the lower lane, then the lower slot).
 fn assign_slots(boxes: &[Aabb], node: Aabb) -> [Option<usize>; 8] {
     let centre = node.center();
-    let mut cost = Vec::with_capacity(boxes.len() * 8);
+    let mut cost = [[0f32; 8]; 8];
     for (lane, b) in boxes.iter().enumerate() {
         let d = b.center() - centre;
-        for s in 0..8usize {
+        for (s, c) in cost[lane].iter_mut().enumerate() {
             let sign = |bit: usize| if s & bit != 0 { -1.0 } else { 1.0 };
-            cost.push((d.x * sign(1) + d.y * sign(2) + d.z * sign(4), lane, s));
+            *c = d.x * sign(1) + d.y * sign(2) + d.z * sign(4);
         }
     }
-    // Largest first; ties by lane then slot, so the layout is deterministic.
-    cost.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
     let mut slots = [None; 8];
-    let mut placed = vec![false; boxes.len()];
-    for (_, lane, s) in cost {
-        if !placed[lane] && slots[s].is_none() {
-            slots[s] = Some(lane);
-            placed[lane] = true;
+    let mut placed = [false; 8];
+    for _ in 0..boxes.len() {
+        let mut pick: Option<(f32, usize, usize)> = None;
+        for (lane, row) in cost.iter().enumerate().take(boxes.len()) {
+            if placed[lane] {
+                continue;
+            }
+            for (s, &c) in row.iter().enumerate() {
+                if slots[s].is_none() && pick.is_none_or(|(best, _, _)| c > best) {
+                    pick = Some((c, lane, s));
+                }
+            }
         }
+        let (_, lane, s) = pick.expect("a free slot for every lane");
+        slots[s] = Some(lane);
+        placed[lane] = true;
     }
     slots
 }
@@ -151,9 +160,13 @@ impl CompressedBvh {
         while let Some((w, at, depth)) = queue.pop_front() {
             out.depth = out.depth.max(depth);
             let lanes = &wide.nodes[w];
-            let boxes: Vec<Aabb> = lanes.iter().map(|(b, _)| *b).collect();
+            let mut boxes = [Aabb::EMPTY; 8];
+            for (b, (lane_box, _)) in boxes.iter_mut().zip(lanes) {
+                *b = *lane_box;
+            }
+            let boxes = &boxes[..lanes.len()];
             let node_box = boxes.iter().fold(Aabb::EMPTY, |acc, b| acc.union(*b));
-            let slots = assign_slots(&boxes, node_box);
+            let slots = assign_slots(boxes, node_box);
             let (lo, hi) = (node_box.min.to_array(), node_box.max.to_array());
             let exps: [u32; 3] = std::array::from_fn(|a| axis_exponent(lo[a], hi[a]));
             let scales = exps.map(scale_of);
