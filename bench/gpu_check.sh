@@ -11,7 +11,9 @@
 #      scenes/textured-sky.toml on the GPU in both forms and on the CPU.
 # Prints one table and writes OUT_DIR/gpu_check.json (rewritten after every step, so a run
 # stopped by a signal or by a step's time limit still leaves what it measured, and prints a
-# partial table). Each step has a time limit (STEP_SECONDS, default 90).
+# partial table). Each step has a time limit (STEP_SECONDS, default 90), and the whole run one
+# (TOTAL_SECONDS, default 420, the build included): a step that would start with under 15 s left
+# is recorded as skipped.
 #
 # Environment: ARBOR_BIN=DIR uses already-built `render` and `bvh-bench` from DIR instead of
 # building; GPU_CHECK_QUICK=1 uses small inputs (a smoke test of the script itself, as CI runs
@@ -23,10 +25,18 @@ out=$(cd "$out" && pwd)
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root" || exit 2
 step_seconds=${STEP_SECONDS:-90}
+total_seconds=${TOTAL_SECONDS:-420}
 quick=${GPU_CHECK_QUICK:-0}
 results="$out/gpu_check.steps"
 : >"$results"
 started=$(date +%s)
+
+# The time limit of the next step: STEP_SECONDS or what is left of TOTAL_SECONDS; 0 when too
+# little is left to start one.
+step_limit() {
+    local left=$((started + total_seconds - $(date +%s)))
+    if [ "$left" -lt 15 ]; then echo 0; elif [ "$left" -lt "$step_seconds" ]; then echo "$left"; else echo "$step_seconds"; fi
+}
 
 # One JSON line per step in $results; the table and gpu_check.json are made from them.
 summarise() {
@@ -82,7 +92,13 @@ bvh_step() {
     local name=$1; shift
     local json="$out/bvh-$name.json"
     rm -f "$json"
-    timeout "$step_seconds" "$bin/bvh-bench" --gpu "$@" --builders lbvh+prbvh --runs 3 --json "$json" >"$out/bvh-$name.log" 2>&1
+    local limit
+    limit=$(step_limit)
+    if [ "$limit" = 0 ]; then
+        echo "{\"kind\": \"bvh\", \"input\": \"$name\", \"error\": \"skipped: TOTAL_SECONDS spent\"}" >>"$results"
+        return
+    fi
+    timeout "$limit" "$bin/bvh-bench" --gpu "$@" --builders lbvh+prbvh --runs 3 --json "$json" >"$out/bvh-$name.log" 2>&1
     local rc=$?
     python3 - "$json" "$name" "$rc" >>"$results" <<'EOF'
 import json, sys
@@ -90,7 +106,8 @@ path, name, rc = sys.argv[1], sys.argv[2], int(sys.argv[3])
 try:
     r = json.load(open(path))
 except Exception:
-    print(json.dumps({"kind": "bvh", "input": name, "error": f"bvh-bench exit {rc} (see bvh-{name}.log)"}))
+    why = "stopped by its time limit" if rc == 124 else f"bvh-bench exit {rc}"
+    print(json.dumps({"kind": "bvh", "input": name, "error": f"{why} (see bvh-{name}.log)"}))
     sys.exit()
 row = lambda stage, device: next((x for x in r["rows"] if x["stage"] == stage and x["device"] == device), {})
 b = r["builders"][0]
@@ -120,7 +137,14 @@ render_step() {
     # A frame range writes a sequence: its name takes the frame number.
     local name="$out/$tag.exr"
     case " $* " in *" --frames "*) name="$out/$tag-%04d.exr" ;; esac
-    timeout "$step_seconds" "$bin/render" "$scene" -o "$name" --device "$device" "${trace[@]}" \
+    local limit
+    limit=$(step_limit)
+    if [ "$limit" = 0 ]; then
+        echo "{\"kind\": \"render\", \"scene\": \"$(basename "$scene" .toml)\", \"device\": \"$device\", \"form\": \"$form\", \"error\": \"skipped: TOTAL_SECONDS spent\"}" >>"$results"
+        summarise >/dev/null
+        return
+    fi
+    timeout "$limit" "$bin/render" "$scene" -o "$name" --device "$device" "${trace[@]}" \
         --report "$report" --quiet "$@" >"$out/render-$tag.log" 2>&1
     local rc=$?
     python3 - "$report" "$scene" "$device" "$form" "$rc" "$tag" >>"$results" <<'EOF'
@@ -132,7 +156,8 @@ try:
     frames = [f for f in r.get("frames", []) if f.get("status") == "rendered"]
     assert frames
 except Exception:
-    print(json.dumps({"kind": "render", "scene": name, "device": device, "form": form, "error": f"render exit {rc} (see render-{tag}.log)"}))
+    why = "stopped by its time limit" if rc == 124 else f"render exit {rc}"
+    print(json.dumps({"kind": "render", "scene": name, "device": device, "form": form, "error": f"{why} (see render-{tag}.log)"}))
     sys.exit()
 seconds = sum(f["render_seconds"] for f in frames)
 rays = sum(f["rays"] for f in frames)
