@@ -198,3 +198,47 @@ fn both_forms_render_the_same_image_on_the_gpu() {
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("--trace wide4 is a CPU form"), "{stderr}");
 }
+
+/// The collapse on the GPU (`gpu::wide::collapse_on_device`) from the GPU's own LBVH: a valid
+/// compressed tree (every decoded box holding its contents, every triangle once), within 2% of
+/// the host's collapse of the same tree in nodes, and tracing the same hits as the binary tree,
+/// bit for bit; also after the GPU's PRBVH.
+#[test]
+fn the_gpu_collapse_makes_a_valid_tree_that_finds_the_same_hits() {
+    use arbor::gpu::{lbvh, prbvh, wide};
+    let Some(ctx) = common::gpu_or_skip("the_gpu_collapse_makes_a_valid_tree_that_finds_the_same_hits") else {
+        return;
+    };
+    let mut inputs = vec![("soup".to_owned(), common::random_triangles(5000, 0.05, &mut common::rng(5)))];
+    if let Some(bunny) = common::shared_model("bunny.obj") {
+        inputs.push(("bunny".to_owned(), bunny.triangles()));
+    }
+    for (name, triangles) in inputs {
+        let prims = common::aabbs(&triangles);
+        for optimise in [false, true] {
+            let (gpu, _) = lbvh::build_on_device(ctx, &prims).unwrap();
+            if optimise {
+                let config = PrbvhConfig { collapse: None, ..Default::default() };
+                prbvh::optimize_on_device(ctx, &gpu, &config, prbvh::LockScheme::best_for(ctx)).unwrap();
+            }
+            let binary = gpu.read(ctx).unwrap();
+            let made = wide::collapse_on_device(ctx, &gpu).unwrap();
+            let read = made.read(ctx).unwrap();
+            read.validate(&prims).unwrap_or_else(|e| panic!("{name}, optimised {optimise}: {e}"));
+            let host = CompressedBvh::new(&binary, &prims);
+            let (a, b) = (read.nodes.len() as f64, host.nodes.len() as f64);
+            assert!((a - b).abs() <= 0.02 * b, "{name}: {a} wide nodes on the GPU, {b} on the host");
+            let rays = rays(&triangles, 3000);
+            let queries: Vec<QueryRay> =
+                rays.iter().map(|&ray| QueryRay { ray, t_max: f32::MAX, skip: INVALID_INDEX }).collect();
+            let scene = GpuScene::for_rays_with(ctx, made, &triangles).unwrap();
+            let reference = GpuScene::for_rays(ctx, &binary, &triangles, GpuForm::Binary).unwrap();
+            let (hw, _) = trace_rays(ctx, &scene, &queries, false).unwrap();
+            let (hb, _) = trace_rays(ctx, &reference, &queries, false).unwrap();
+            let bits = |h: &QueryHit| (h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits());
+            for (i, (w, b)) in hw.iter().zip(&hb).enumerate() {
+                assert_eq!(bits(w), bits(b), "{name}: ray {i}: GPU-made wide {w:?}, binary {b:?}");
+            }
+        }
+    }
+}

@@ -129,11 +129,12 @@ fn bvh_node_layout() -> StructLayout {
 }
 
 /// Every struct shared with WGSL, in the order the prelude declares them.
-pub const SHARED_STRUCTS: [fn() -> StructLayout; 9] = [
+pub const SHARED_STRUCTS: [fn() -> StructLayout; 10] = [
     bvh_node_layout,
     GpuAabb::layout,
     LbvhParams::layout,
     PrbvhParams::layout,
+    CollapseParams::layout,
     GpuTriangle::layout,
     GpuMaterial::layout,
     GpuLight::layout,
@@ -175,6 +176,23 @@ pub struct PrbvhParams {
     /// neither overflow nor underflow (the CPU search's `search_scale`; 1 for most scenes).
     pub area_scale: f32,
     pub pad1: u32,
+}
+
+/// The GPU collapse's parameters (`shaders/collapse.wgsl`).
+pub struct CollapseParams {
+    /// Nodes of the binary tree, padding included (`2n`).
+    pub node_count: u32,
+    /// The most triangles of a leaf lane.
+    pub max_leaf: u32,
+    /// Wide nodes to make in this dispatch.
+    pub queue_len: u32,
+    pub pad: u32,
+    pub cost_node: f32,
+    pub cost_prim: f32,
+    /// One over the root's half area, of its extents times `area_scale` (a power of two that
+    /// keeps f32 areas finite).
+    pub inv_root_area: f32,
+    pub area_scale: f32,
 }
 
 /// A triangle in leaf order, with what shading needs of its primitive: its material, the
@@ -307,6 +325,7 @@ pub struct TraceParams {
 const _: () = assert!(size_of::<GpuAabb>() == 32);
 const _: () = assert!(size_of::<LbvhParams>() == 32);
 const _: () = assert!(size_of::<PrbvhParams>() == 32);
+const _: () = assert!(size_of::<CollapseParams>() == 32);
 const _: () = assert!(size_of::<GpuTriangle>() == 48);
 const _: () = assert!(size_of::<GpuMaterial>() == 96);
 const _: () = assert!(size_of::<GpuLight>() == 112);

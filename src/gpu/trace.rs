@@ -304,7 +304,7 @@ pub struct GpuScene {
     /// Bytes of the tree's nodes and triangle order.
     pub tree_bytes: usize,
     /// The tree's SAH cost in its form: [`crate::bvh::sah_cost`] for the binary tree, the wide
-    /// tree's own ([`super::wide::CompressedBvh::cost`]).
+    /// tree's own ([`super::wide::CompressedBvh::cost`]); NaN for a wide tree the GPU made.
     pub tree_sah: f64,
     /// A scene for ray queries ([`GpuScene::for_rays`]): each primitive's triangle position;
     /// empty for a render's.
@@ -413,13 +413,28 @@ impl GpuScene {
     /// Fails when a buffer is over the adapter's storage-binding limit, or the tree is deeper
     /// than the traversal stack allows.
     pub fn upload(ctx: &GpuContext, scene: &RenderScene, form: GpuForm) -> Result<GpuScene, GpuError> {
+        Self::upload_with(ctx, scene, form, None)
+    }
+
+    /// [`GpuScene::upload`] with the wide tree the GPU collapse made of the scene's tree
+    /// ([`super::wide::collapse_on_device`]), when given: then in the wide form.
+    pub fn upload_with(
+        ctx: &GpuContext,
+        scene: &RenderScene,
+        form: GpuForm,
+        wide: Option<super::wide::DeviceWide>,
+    ) -> Result<GpuScene, GpuError> {
         let Geometry::Flat(flat) = &scene.geometry else {
             return Err(GpuError::Other(
                 "the GPU path renders flat scenes; flatten an instanced one first (gpu::trace::flatten)".into(),
             ));
         };
-        let tree = Tree::new(&flat.mesh.bvh, &flat.triangles, form)?;
-        let order = &tree.prim_ids;
+        let (mut tree, form) = match wide {
+            Some(w) => (Tree::from_device(w)?, GpuForm::Wide8),
+            None => (Tree::new(&flat.mesh.bvh, &flat.triangles, form)?, form),
+        };
+        let order = tree.prim_ids.clone();
+        let order = &order;
         let triangles: Vec<GpuTriangle> = order
             .par_iter()
             .map(|&prim| {
@@ -495,6 +510,7 @@ impl GpuScene {
             (params.env_width, params.env_height, params.env_select) = (map.width, map.height, select);
             env_map = env_map_data(map);
         }
+        let tree_bytes = tree.bytes();
         Ok(GpuScene {
             nodes: tree.buffer(ctx)?,
             triangles: ctx.storage_buffer("triangles", &at_least_one(triangles))?,
@@ -512,7 +528,7 @@ impl GpuScene {
             height: scene.height,
             depth: tree.depth,
             form,
-            tree_bytes: tree.bytes(),
+            tree_bytes,
             tree_sah: tree.sah,
             position_of: Vec::new(),
         })
@@ -521,7 +537,24 @@ impl GpuScene {
     /// Bare triangles (by primitive id) under `bvh`, in `form`, for ray queries ([`trace_rays`]):
     /// no materials, lights or camera.
     pub fn for_rays(ctx: &GpuContext, bvh: &Bvh, triangles: &[Triangle], form: GpuForm) -> Result<GpuScene, GpuError> {
-        let tree = Tree::new(bvh, triangles, form)?;
+        Self::rays_scene(ctx, Tree::new(bvh, triangles, form)?, triangles, form)
+    }
+
+    /// [`GpuScene::for_rays`] with the wide tree the GPU collapse made.
+    pub fn for_rays_with(
+        ctx: &GpuContext,
+        wide: super::wide::DeviceWide,
+        triangles: &[Triangle],
+    ) -> Result<GpuScene, GpuError> {
+        Self::rays_scene(ctx, Tree::from_device(wide)?, triangles, GpuForm::Wide8)
+    }
+
+    fn rays_scene(
+        ctx: &GpuContext,
+        mut tree: Tree,
+        triangles: &[Triangle],
+        form: GpuForm,
+    ) -> Result<GpuScene, GpuError> {
         let gpu_triangles: Vec<GpuTriangle> = tree
             .prim_ids
             .iter()
@@ -535,6 +568,7 @@ impl GpuScene {
         for (pos, &prim) in tree.prim_ids.iter().enumerate() {
             position_of[prim as usize] = pos as u32;
         }
+        let tree_bytes = tree.bytes();
         Ok(GpuScene {
             nodes: tree.buffer(ctx)?,
             triangles: ctx.storage_buffer("triangles", &at_least_one(gpu_triangles))?,
@@ -563,7 +597,7 @@ impl GpuScene {
             height: 0,
             depth: tree.depth,
             form,
-            tree_bytes: tree.bytes(),
+            tree_bytes,
             tree_sah: tree.sah,
             position_of,
         })
@@ -577,8 +611,10 @@ fn unused_buffers(ctx: &GpuContext) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuE
 
 /// A tree in the form the GPU traces, before upload.
 struct Tree {
-    /// Binary nodes, or compressed wide nodes, as words.
+    /// Binary nodes, or compressed wide nodes, as words on the host, or already on the device
+    /// (the GPU collapse's) with their bytes.
     words: Vec<u32>,
+    on_device: Option<(wgpu::Buffer, usize)>,
     /// The primitive id at each triangle position.
     prim_ids: Vec<u32>,
     depth: usize,
@@ -589,7 +625,7 @@ impl Tree {
     /// `bvh` (leaf-collapsed or not) over `triangles` (by primitive id) in `form`; a tree deeper
     /// than the form's traversal stack allows is refused.
     fn new(bvh: &Bvh, triangles: &[Triangle], form: GpuForm) -> Result<Tree, GpuError> {
-        let (words, prim_ids, depth, stack, sah) = match form {
+        let (words, prim_ids, depth, sah) = match form {
             GpuForm::Binary => {
                 let nodes: Vec<BvhNode> = if bvh.nodes.is_empty() {
                     // One leaf with an empty box: every ray misses it.
@@ -598,33 +634,61 @@ impl Tree {
                     bvh.nodes.to_vec()
                 };
                 let words = bytemuck::cast_slice(&nodes).to_vec();
-                (words, bvh.prim_ids.clone(), depth(bvh), TRACE_STACK_SIZE, crate::bvh::sah_cost(bvh))
+                (words, bvh.prim_ids.clone(), depth(bvh), crate::bvh::sah_cost(bvh))
             }
             GpuForm::Wide8 => {
                 let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
                 let wide = super::wide::CompressedBvh::new(bvh, &prim_aabbs);
                 let words = wide.nodes.iter().flatten().copied().collect();
-                (words, wide.prim_ids, wide.depth, WIDE_STACK_SIZE, wide.cost)
+                (words, wide.prim_ids, wide.depth, wide.cost)
             }
         };
-        if depth > stack as usize + 1 {
-            return Err(GpuError::Other(format!(
-                "the {} BVH is {depth} nodes deep, deeper than the GPU traversal stack allows ({stack} entries: \
-                 depth {}); use another builder or --device cpu",
-                form.name(),
-                stack + 1
-            )));
-        }
-        Ok(Tree { words, prim_ids, depth, sah })
+        check_depth(depth, form)?;
+        Ok(Tree { words, on_device: None, prim_ids, depth, sah })
     }
 
-    fn buffer(&self, ctx: &GpuContext) -> Result<wgpu::Buffer, GpuError> {
-        ctx.storage_buffer("BVH nodes", &self.words)
+    /// The wide tree the GPU collapse left on the device.
+    fn from_device(wide: super::wide::DeviceWide) -> Result<Tree, GpuError> {
+        check_depth(wide.depth, GpuForm::Wide8)?;
+        let bytes = wide.node_count * super::wide::WIDE_NODE_WORDS * 4;
+        Ok(Tree {
+            words: Vec::new(),
+            on_device: Some((wide.nodes, bytes)),
+            prim_ids: wide.prim_ids,
+            depth: wide.depth,
+            sah: f64::NAN,
+        })
+    }
+
+    /// The nodes' buffer: uploaded, or the device's own (taken: call [`Tree::bytes`] first).
+    fn buffer(&mut self, ctx: &GpuContext) -> Result<wgpu::Buffer, GpuError> {
+        match self.on_device.take() {
+            Some((buffer, _)) => Ok(buffer),
+            None => ctx.storage_buffer("BVH nodes", &self.words),
+        }
     }
 
     fn bytes(&self) -> usize {
-        size_of_val(self.words.as_slice()) + size_of_val(self.prim_ids.as_slice())
+        let nodes = self.on_device.as_ref().map_or(size_of_val(self.words.as_slice()), |(_, b)| *b);
+        nodes + size_of_val(self.prim_ids.as_slice())
     }
+}
+
+/// Refuses a tree deeper than `form`'s traversal stack allows.
+fn check_depth(depth: usize, form: GpuForm) -> Result<(), GpuError> {
+    let stack = match form {
+        GpuForm::Binary => TRACE_STACK_SIZE,
+        GpuForm::Wide8 => WIDE_STACK_SIZE,
+    };
+    if depth > stack as usize + 1 {
+        return Err(GpuError::Other(format!(
+            "the {} BVH is {depth} nodes deep, deeper than the GPU traversal stack allows ({stack} entries: \
+             depth {}); use another builder or --device cpu",
+            form.name(),
+            stack + 1
+        )));
+    }
+    Ok(())
 }
 
 impl GpuScene {

@@ -313,3 +313,133 @@ impl CompressedBvh {
         Ok(())
     }
 }
+
+/// The compressed wide tree made on the device by [`collapse_on_device`]: its nodes stay there,
+/// ready to trace.
+pub struct DeviceWide {
+    /// The nodes, [`WIDE_NODE_WORDS`] words each.
+    pub nodes: wgpu::Buffer,
+    pub node_count: usize,
+    /// The primitive at each triangle position, read back (the scene's per-triangle arrays are
+    /// laid out by it on the host).
+    pub prim_ids: Vec<u32>,
+    pub depth: usize,
+    /// Device time of the collapse (its dispatches and the per-level reads of one counter).
+    pub seconds: f64,
+}
+
+impl DeviceWide {
+    /// The nodes read back, as [`CompressedBvh`] (for checks and tests).
+    pub fn read(&self, ctx: &super::GpuContext) -> Result<CompressedBvh, super::GpuError> {
+        let words: Vec<[u32; WIDE_NODE_WORDS]> = ctx.read_buffer("wide nodes", &self.nodes, self.node_count)?;
+        Ok(CompressedBvh { nodes: words, prim_ids: self.prim_ids.clone(), depth: self.depth, cost: 0.0 })
+    }
+}
+
+/// The source of the GPU collapse's kernels.
+pub fn collapse_source() -> String {
+    super::layout::with_prelude(include_str!("../../shaders/collapse.wgsl"))
+}
+
+/// [`CompressedBvh::new`] on the device, from the GPU's binary tree as its LBVH and PRBVH leave
+/// it (one primitive a leaf): the SAH table bottom-up in one dispatch (boxes and tables passed
+/// between threads through atomics, as the refit passes boxes), then the wide nodes top-down, one
+/// dispatch a level. The tree chosen is the host's up to the rounding of the table's costs (f32
+/// here, areas in f64 there), so ties may go otherwise.
+pub fn collapse_on_device(ctx: &super::GpuContext, bvh: &super::lbvh::GpuBvh) -> Result<DeviceWide, super::GpuError> {
+    use super::layout::CollapseParams;
+    let n = bvh.prim_count as usize;
+    if n < 2 {
+        return Err(super::GpuError::Other("the GPU collapse needs at least 2 primitives".into()));
+    }
+    let start = std::time::Instant::now();
+    let node_count = 2 * n;
+    let root: Vec<crate::bvh::BvhNode> = ctx.read_buffer("BVH root", &bvh.nodes, 1)?;
+    let root_box = root[0].aabb();
+    let scale = root_box.area_scale();
+    let e = (root_box.extent() * scale).as_dvec3();
+    let root_area = (e.x * e.y + e.y * e.z + e.z * e.x).max(f64::MIN_POSITIVE);
+    let costs = WideCosts::default();
+    let mut params = CollapseParams {
+        node_count: node_count as u32,
+        max_leaf: WIDE_MAX_LEAF,
+        queue_len: 1,
+        pad: 0,
+        cost_node: costs.node,
+        cost_prim: costs.prim,
+        inv_root_area: (1.0 / root_area) as f32,
+        area_scale: scale,
+    };
+    let params_buffer = ctx.storage_buffer("collapse parameters", std::slice::from_ref(&params))?;
+    let u32s = |what: &str, count: usize| ctx.storage_buffer_zeroed(what, (count.max(1) * 4) as u64);
+    let visits = u32s("collapse visits", node_count)?;
+    let published = u32s("collapse tables", node_count * 9)?;
+    let decisions = u32s("collapse decisions", node_count * 2)?;
+    // At most n - 1 wide nodes: each takes at least one inner binary node.
+    let max_nodes = n - 1;
+    let queues = [u32s("collapse queue", max_nodes * 2)?, u32s("collapse queue", max_nodes * 2)?];
+    ctx.queue.write_buffer(&queues[0], 0, bytemuck::cast_slice(&[0u32, 0u32]));
+    let counters = ctx.storage_buffer("collapse counters", &[1u32, 0, 0, 0])?;
+    let out_nodes = ctx.storage_buffer_zeroed("wide nodes", (max_nodes * WIDE_NODE_WORDS * 4) as u64)?;
+    let out_prims = u32s("wide triangle order", n)?;
+    let costs_pipeline = ctx.pipeline("collapse", collapse_source, "collapse_costs");
+    let expand_pipeline = ctx.pipeline("collapse", collapse_source, "collapse_expand");
+    let costs_group = ctx.bind_group(
+        &costs_pipeline,
+        &[(0, &params_buffer), (1, &bvh.nodes), (2, &bvh.parents), (3, &visits), (4, &published), (5, &decisions)],
+    );
+    let dispatch = |pipeline: &wgpu::ComputePipeline, group: &wgpu::BindGroup, items: u32| {
+        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, group, &[]);
+            let (x, y) = ctx.dispatch_size(items);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        ctx.queue.submit([encoder.finish()]);
+    };
+    let timed = std::time::Instant::now();
+    dispatch(&costs_pipeline, &costs_group, node_count as u32);
+    let mut len = 1u32;
+    let mut depth = 0;
+    let mut from = 0;
+    while len > 0 {
+        depth += 1;
+        params.queue_len = len;
+        ctx.queue.write_buffer(&params_buffer, 0, bytemuck::bytes_of(&params));
+        ctx.queue.write_buffer(&counters, 8, bytemuck::bytes_of(&0u32));
+        let group = ctx.bind_group(
+            &expand_pipeline,
+            &[
+                (0, &params_buffer),
+                (1, &bvh.nodes),
+                (5, &decisions),
+                (6, &queues[from]),
+                (7, &queues[1 - from]),
+                (8, &counters),
+                (9, &out_nodes),
+                (10, &out_prims),
+                (11, &bvh.prim_ids),
+            ],
+        );
+        dispatch(&expand_pipeline, &group, len);
+        let c: Vec<u32> = ctx.read_buffer("collapse counters", &counters, 3)?;
+        len = c[2];
+        from = 1 - from;
+        if depth > max_nodes {
+            return Err(super::GpuError::Other("the GPU collapse did not end".into()));
+        }
+    }
+    let c: Vec<u32> = ctx.read_buffer("collapse counters", &counters, 3)?;
+    let seconds = timed.elapsed().as_secs_f64();
+    let prim_ids: Vec<u32> = ctx.read_buffer("wide triangle order", &out_prims, n)?;
+    if c[1] as usize != n || c[0] as usize > max_nodes {
+        return Err(super::GpuError::Other(format!(
+            "the GPU collapse placed {} of {n} triangles in {} nodes",
+            c[1], c[0]
+        )));
+    }
+    let _ = start;
+    Ok(DeviceWide { nodes: out_nodes, node_count: c[0] as usize, prim_ids, depth, seconds })
+}
