@@ -352,6 +352,7 @@ impl Renderer {
         (flat_builder, form): (Builder, trace::GpuForm),
     ) -> Result<Renderer, DeviceError> {
         let mut timed = None;
+        let mut device_wide = None;
         let (render_scene, build) = if wants_instancing(scene) {
             trace::flatten(scene, time, &flat_builder)
         } else {
@@ -364,11 +365,16 @@ impl Renderer {
                 BuilderChoice::Auto => None,
             };
             let built_on_gpu = match on_gpu {
-                Some(optimize) => crate::gpu::build_render_scene(ctx, scene, optimize).map_err(DeviceError::Build)?,
+                Some(optimize) => {
+                    crate::gpu::build_render_scene_for(ctx, scene, optimize, form).map_err(DeviceError::Build)?
+                }
                 None => None,
             };
             match (built_on_gpu, builder) {
-                (Some(built), _) => built,
+                (Some((rs, report, wide)), _) => {
+                    device_wide = wide;
+                    (rs, report)
+                }
                 (None, BuilderChoice::Fixed(b)) => RenderScene::build(scene, b, Tracing::gpu()),
                 (None, BuilderChoice::Auto) => {
                     let (rs, report, partial) = trace::build_auto(ctx, scene, settings, frames, form);
@@ -391,16 +397,23 @@ impl Renderer {
             gpu: None,
             gpu_form: form,
         };
-        renderer.upload(settings.clamp, timed)?;
+        renderer.upload(settings.clamp, timed, device_wide)?;
         Ok(renderer)
     }
 
-    /// Uploads the scene as it stands and compiles its kernel variant.
+    /// Uploads the scene as it stands (with the wide tree the GPU made of it, if any) and
+    /// compiles its kernel variant.
     #[cfg(feature = "gpu")]
-    fn upload(&mut self, clamp: Option<f32>, timed: Option<trace::PartialFilm>) -> Result<(), DeviceError> {
+    fn upload(
+        &mut self,
+        clamp: Option<f32>,
+        timed: Option<trace::PartialFilm>,
+        wide: Option<crate::gpu::wide::DeviceWide>,
+    ) -> Result<(), DeviceError> {
         let Device::Gpu(ctx) = self.device else { return Ok(()) };
         self.render_scene.sample_clamp = clamp;
-        let scene = trace::GpuScene::upload(ctx, &self.render_scene, self.gpu_form).map_err(DeviceError::Upload)?;
+        let scene =
+            trace::GpuScene::upload_with(ctx, &self.render_scene, self.gpu_form, wide).map_err(DeviceError::Upload)?;
         let t = Instant::now();
         trace::compile(ctx, &scene).map_err(DeviceError::Compile)?;
         self.compile_seconds += t.elapsed().as_secs_f64();
@@ -476,7 +489,7 @@ impl Renderer {
                 self.gpu = None;
                 self.render_scene = rs;
                 self.time = time;
-                self.upload(clamp, None)?;
+                self.upload(clamp, None, None)?;
                 Ok(Some(build.build_ms))
             }
         }

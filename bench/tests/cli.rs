@@ -602,6 +602,7 @@ fn gpu_builds_are_reported_beside_the_cpu() {
     );
     assert!(gpu < lbvh && (gpu - cpu).abs() <= 0.02 * cpu, "SAH: LBVH {lbvh}, CPU PRBVH {cpu}, GPU PRBVH {gpu}");
     assert!(row("collapse", "cpu")["sah"].as_f64().unwrap() > 0.0);
+    assert!(row("collapse", "gpu")["nodes"].as_u64().unwrap() > 0);
     // Every builder's rays on the GPU, through both forms, hitting what the CPU hits.
     let builders = report["builders"].as_array().unwrap();
     assert!(!builders.is_empty());

@@ -6,6 +6,7 @@
 //! - [`lbvh`]: the LBVH build, the same tree as the CPU's `lbvh::build_karras`;
 //! - [`prbvh`]: parallel reinsertion, the paper's six kernels per iteration;
 //! - [`texture`]: textures packed for the shaders;
+//! - [`wide`]: the compressed 8-wide tree, made on the host or on the device;
 //! - [`trace`]: path tracing, the CPU's integrator in one kernel per scene variant.
 //!
 //! On machines without a GPU, wgpu runs on Mesa's lavapipe (Vulkan on the CPU).
@@ -35,6 +36,19 @@ pub fn build_render_scene(
     scene: &Scene,
     optimize: bool,
 ) -> Result<Option<(RenderScene, BuildReport)>, GpuError> {
+    Ok(build_render_scene_for(ctx, scene, optimize, trace::GpuForm::Binary)?.map(|(rs, report, _)| (rs, report)))
+}
+
+/// [`build_render_scene`] for tracing in `form`: for the wide form, the GPU also collapses its
+/// tree into the compressed wide one ([`wide::collapse_on_device`], counted in the build's
+/// time), which is returned for the upload ([`trace::GpuScene::upload_with`]). A tree the GPU
+/// did not build itself (the CPU's LBVH, below) is collapsed on the host at upload instead.
+pub fn build_render_scene_for(
+    ctx: &GpuContext,
+    scene: &Scene,
+    optimize: bool,
+    form: trace::GpuForm,
+) -> Result<Option<(RenderScene, BuildReport, Option<wide::DeviceWide>)>, GpuError> {
     let start = std::time::Instant::now();
     let compiled_before = ctx.compile_time();
     let (triangles, material_of) = scene.world_triangles();
@@ -53,6 +67,7 @@ pub fn build_render_scene(
     // all the same.
     let (codes, ids) = gpu.read_codes(ctx)?;
     let scrambled = crate::bvh::build::lbvh::refinable_primitives(&prims, &codes, &ids);
+    let mut device_wide = None;
     let (tree, mut label) = if scrambled > prims.len() / 64 {
         drop(gpu);
         let cpu = crate::bvh::build::lbvh::build(&prims);
@@ -73,6 +88,11 @@ pub fn build_render_scene(
             let stats = prbvh::optimize_on_device(ctx, &gpu, &config, scheme)?;
             label = format!("lbvh+prbvh on the GPU, {} iterations, {scheme:?} locks", stats.iterations.len());
         }
+        if form == trace::GpuForm::Wide8 {
+            let w = wide::collapse_on_device(ctx, &gpu)?;
+            label += &format!(", collapsed to 8-wide on the GPU in {:.1} ms", w.seconds * 1e3);
+            device_wide = Some(w);
+        }
         (gpu.read(ctx)?, label)
     };
     // Pipeline compilation, paid once per process, is reported apart from the build.
@@ -80,14 +100,9 @@ pub fn build_render_scene(
     if compiled >= std::time::Duration::from_millis(1) {
         label += &format!("; {:.2} s compiling its kernels, not counted", compiled.as_secs_f64());
     }
-    Ok(Some(RenderScene::assemble(
-        scene,
-        (triangles, material_of, 0.0),
-        &tree,
-        start + compiled,
-        label,
-        Tracing::gpu(),
-    )))
+    let (rs, report) =
+        RenderScene::assemble(scene, (triangles, material_of, 0.0), &tree, start + compiled, label, Tracing::gpu());
+    Ok(Some((rs, report, device_wide)))
 }
 
 /// Turns off Mesa's Vulkan device-select layer where `XDG_RUNTIME_DIR` is unset (as in CI): the

@@ -35,8 +35,8 @@ pub(crate) struct MemoryComparison<'a> {
     pub builders: &'a [MemoryReport],
 }
 
-/// `--gpu`'s JSON report: a row per build stage and device (`rows`; the `collapse` row's SAH
-/// is the wide tree's own), and the builder comparison with its GPU fields (`builders` and the
+/// `--gpu`'s JSON report: a row per build stage and device (`rows`; the `collapse` rows' SAH
+/// is the host's wide tree's own), and the builder comparison with its GPU fields (`builders` and the
 /// rest of the comparison's report, inline).
 #[derive(serde::Serialize)]
 pub(crate) struct GpuComparison {
@@ -67,11 +67,24 @@ pub(crate) struct GpuRow {
     /// PRBVH on the GPU: iterations run.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub iterations: Option<usize>,
+    /// The collapse on the GPU: wide nodes made.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nodes: Option<usize>,
 }
 
 impl GpuRow {
     pub fn new(stage: &'static str, device: &'static str, ms: f64, sah: f64) -> Self {
-        Self { stage, device, locks: None, ms, upload_ms: None, sah, same_tree_as_cpu: None, iterations: None }
+        Self {
+            stage,
+            device,
+            locks: None,
+            ms,
+            upload_ms: None,
+            sah,
+            same_tree_as_cpu: None,
+            iterations: None,
+            nodes: None,
+        }
     }
 }
 
