@@ -38,6 +38,12 @@ step_limit() {
     if [ "$left" -lt 15 ]; then echo 0; elif [ "$left" -lt "$step_seconds" ]; then echo "$left"; else echo "$step_seconds"; fi
 }
 
+# Records a step that was not started: the time was spent.
+skipped() {
+    echo "$1" | python3 -c 'import json,sys; d=json.loads(sys.stdin.read()); d["error"]="skipped: TOTAL_SECONDS spent"; print(json.dumps(d))' >>"$results"
+    summarise >/dev/null
+}
+
 # One JSON line per step in $results; the table and gpu_check.json are made from them.
 summarise() {
     python3 - "$results" "$out/gpu_check.json" "$started" <<'EOF'
@@ -94,10 +100,7 @@ bvh_step() {
     rm -f "$json"
     local limit
     limit=$(step_limit)
-    if [ "$limit" = 0 ]; then
-        echo "{\"kind\": \"bvh\", \"input\": \"$name\", \"error\": \"skipped: TOTAL_SECONDS spent\"}" >>"$results"
-        return
-    fi
+    [ "$limit" = 0 ] && { skipped "{\"kind\": \"bvh\", \"input\": \"$name\"}"; return; }
     timeout "$limit" "$bin/bvh-bench" --gpu "$@" --builders lbvh+prbvh --runs 3 --json "$json" >"$out/bvh-$name.log" 2>&1
     local rc=$?
     python3 - "$json" "$name" "$rc" >>"$results" <<'EOF'
@@ -140,11 +143,10 @@ render_step() {
     case " $* " in *" --frames "*) name="$out/$tag-%04d.exr" ;; esac
     local limit
     limit=$(step_limit)
-    if [ "$limit" = 0 ]; then
-        echo "{\"kind\": \"render\", \"scene\": \"$(basename "$scene" .toml)\", \"device\": \"$device\", \"form\": \"$form\", \"error\": \"skipped: TOTAL_SECONDS spent\"}" >>"$results"
-        summarise >/dev/null
+    [ "$limit" = 0 ] && {
+        skipped "{\"kind\": \"render\", \"scene\": \"$(basename "$scene" .toml)\", \"device\": \"$device\", \"form\": \"$form\"}"
         return
-    fi
+    }
     timeout "$limit" "$bin/render" "$scene" -o "$name" --device "$device" "${trace[@]}" \
         --report "$report" --quiet "$@" >"$out/render-$tag.log" 2>&1
     local rc=$?

@@ -1,7 +1,7 @@
 // The binary tree's traversal (Bvh::closest_hit and Bvh::any_hit over the leaf-collapsed
 // tree, triangles in leaf order), concatenated after trace.wgsl for `--trace binary`
-// (src/gpu/trace.rs). bvh_wide8.wgsl defines the same three functions over the compressed wide
-// tree.
+// (src/gpu/trace.rs). One loop, `traverse`, serves closest and any hit; bvh_wide8.wgsl defines
+// the same functions over the compressed wide tree.
 
 @group(0) @binding(1) var<storage, read> nodes: array<BvhNode>;
 
@@ -10,16 +10,17 @@ fn cull_slack(r: Ray) -> f32 {
     return cull_slack_in(r, root.aabb_min, root.aabb_max);
 }
 
-// Closest hit with 0 < t <= t_max (Bvh::closest_hit), leaving out triangle position `skip`
-// (the surface a ray leaves; INVALID_INDEX: none): near child first, the far one pushed with
-// its entry distance and skipped on pop when it begins past the best hit plus the slack. Ties
-// in t go to the lowest primitive id (`beats`). The stack cannot overflow: trees deeper than
-// TRACE_STACK_SIZE + 1 are refused on upload.
-fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
+// Closest hit (any = false; Bvh::closest_hit) or any hit (any = true; Bvh::any_hit, its
+// index then any hit's) with 0 < t <= t_max, leaving out triangle position `skip` (the surface a
+// ray leaves; INVALID_INDEX: none): near child first, the far one pushed with its entry distance
+// and skipped on pop when it begins past the best hit plus the slack. Ties in t go to the lowest
+// primitive id (`beats`). The stack cannot overflow: trees deeper than TRACE_STACK_SIZE + 1 are
+// refused on upload.
+fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
     var best = Hit(t_max, INVALID_INDEX, 0.0, 0.0);
     let r = prepare_ray(ray);
     let slack = cull_slack(ray);
-    var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR);
+    var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
     let root = nodes[0];
     if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
         return best;
@@ -34,10 +35,12 @@ fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
                 if i == skip {
                     continue;
                 }
-                let tri = triangles[i];
-                let h = intersect_triangle(tri, r, best.t);
-                if beats(h, i, best) && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
-                    best = Hit(h.x, i, h.y, h.z);
+                let hit = try_triangle(i, r, best);
+                if hit.index == i {
+                    best = hit;
+                    if any {
+                        return best;
+                    }
                     limit = best.t * CULL_SCALE + slack;
                 }
             }
@@ -90,62 +93,10 @@ fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
     return best;
 }
 
-// Whether anything but triangle position `skip` is hit with 0 < t <= t_max (Bvh::any_hit):
-// shadow rays.
+fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
+    return traverse(ray, t_max, skip, false);
+}
+
 fn occluded(ray: Ray, t_max: f32, skip: u32) -> bool {
-    let r = prepare_ray(ray);
-    let limit = t_max * CULL_SCALE + cull_slack(ray);
-    let root = nodes[0];
-    if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
-        return false;
-    }
-    var stack_node: array<u32, TRACE_STACK_SIZE>;
-    var sp = 0u;
-    var node = root;
-    loop {
-        if node.prim_count > 0u {
-            for (var i = node.first; i < node.first + node.prim_count; i++) {
-                if i == skip {
-                    continue;
-                }
-                let tri = triangles[i];
-                let h = intersect_triangle(tri, r, t_max);
-                if h.x > 0.0 && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
-                    return true;
-                }
-            }
-        } else {
-            let left = nodes[node.first];
-            let right = nodes[node.first + 1u];
-            let tl = slab(left.aabb_min, left.aabb_max, r, limit);
-            let tr = slab(right.aabb_min, right.aabb_max, r, limit);
-            if tl >= 0.0 && tr >= 0.0 {
-                // The limit never shrinks, so the entry distance need not be kept.
-                if sp < TRACE_STACK_SIZE {
-                    stack_node[sp] = select(node.first, node.first + 1u, tl <= tr);
-                    sp += 1u;
-                }
-                if tl <= tr {
-                    node = left;
-                } else {
-                    node = right;
-                }
-                continue;
-            }
-            if tl >= 0.0 {
-                node = left;
-                continue;
-            }
-            if tr >= 0.0 {
-                node = right;
-                continue;
-            }
-        }
-        if sp == 0u {
-            break;
-        }
-        sp -= 1u;
-        node = nodes[stack_node[sp]];
-    }
-    return false;
+    return traverse(ray, t_max, skip, true).index != INVALID_INDEX;
 }

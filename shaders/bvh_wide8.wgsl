@@ -108,10 +108,9 @@ fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
             if i == skip {
                 continue;
             }
-            let tri = triangles[i];
-            let h = intersect_triangle(tri, r, best.t);
-            if beats(h, i, best) && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
-                best = Hit(h.x, i, h.y, h.z);
+            let hit = try_triangle(i, r, best);
+            if hit.index == i {
+                best = hit;
                 if any {
                     return best;
                 }

@@ -366,6 +366,17 @@ fn beats(h: vec3<f32>, i: u32, best: Hit) -> bool {
         && (h.x < best.t || (h.x == best.t && (best.index == INVALID_INDEX || prim_ids[i] < prim_ids[best.index])));
 }
 
+// Triangle position `i` tested against the ray: its hit where it beats `best` and its cut-out
+// mask (tested only then) keeps it, else `best` itself. Both traversals' leaf test.
+fn try_triangle(i: u32, r: TraceRay, best: Hit) -> Hit {
+    let tri = triangles[i];
+    let h = intersect_triangle(tri, r, best.t);
+    if beats(h, i, best) && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
+        return Hit(h.x, i, h.y, h.z);
+    }
+    return best;
+}
+
 // ---- textures: src/texture/mod.rs ----
 
 // Index `i` (integer-valued) wrapped into 0..n: 0 repeat, 1 clamp, 2 mirror.
