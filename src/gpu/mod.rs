@@ -89,9 +89,16 @@ pub fn build_render_scene_for(
             label = format!("lbvh+prbvh on the GPU, {} iterations, {scheme:?} locks", stats.iterations.len());
         }
         if form == trace::GpuForm::Wide8 {
-            let w = wide::collapse_on_device(ctx, &gpu)?;
-            label += &format!(", collapsed to 8-wide on the GPU in {:.1} ms", w.seconds * 1e3);
-            device_wide = Some(w);
+            // Where its working buffers do not fit the adapter's bindings, the host collapses
+            // the tree at upload instead.
+            match wide::collapse_on_device(ctx, &gpu) {
+                Ok(w) => {
+                    label += &format!(", collapsed to 8-wide on the GPU in {:.1} ms", w.seconds * 1e3);
+                    device_wide = Some(w);
+                }
+                Err(e @ GpuError::BufferTooLarge { .. }) => label += &format!(", collapsed on the host ({e})"),
+                Err(e) => return Err(e),
+            }
         }
         (gpu.read(ctx)?, label)
     };

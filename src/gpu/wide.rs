@@ -345,7 +345,8 @@ pub fn collapse_source() -> String {
 /// it (one primitive a leaf): the SAH table bottom-up in one dispatch (boxes and tables passed
 /// between threads through atomics, as the refit passes boxes), then the wide nodes top-down, one
 /// dispatch a level. The tree chosen is the host's up to the rounding of the table's costs (f32
-/// here, areas in f64 there), so ties may go otherwise.
+/// here, areas in f64 there), so ties may go otherwise. A tree whose buffers would be over the
+/// adapter's binding size is refused with [`super::GpuError::BufferTooLarge`].
 pub fn collapse_on_device(ctx: &super::GpuContext, bvh: &super::lbvh::GpuBvh) -> Result<DeviceWide, super::GpuError> {
     use super::layout::CollapseParams;
     let n = bvh.prim_count as usize;
@@ -375,9 +376,11 @@ pub fn collapse_on_device(ctx: &super::GpuContext, bvh: &super::lbvh::GpuBvh) ->
     let visits = u32s("collapse visits", node_count)?;
     let published = u32s("collapse tables", node_count * 9)?;
     let decisions = u32s("collapse decisions", node_count * 2)?;
-    // At most n - 1 wide nodes: each takes at least one inner binary node.
-    let max_nodes = n - 1;
-    let queues = [u32s("collapse queue", max_nodes * 2)?, u32s("collapse queue", max_nodes * 2)?];
+    // At most n - 1 wide nodes (each takes at least one inner binary node), and usually about
+    // n / 8: room for what the adapter's binding allows, the rest refused after the fact.
+    let binding = ctx.limits.max_storage_buffer_binding_size.min(ctx.limits.max_buffer_size);
+    let max_nodes = (n - 1).min((binding / (WIDE_NODE_WORDS as u64 * 4)) as usize).max(1);
+    let queues = [u32s("collapse queue", (n - 1) * 2)?, u32s("collapse queue", (n - 1) * 2)?];
     ctx.queue.write_buffer(&queues[0], 0, bytemuck::cast_slice(&[0u32, 0u32]));
     let counters = ctx.storage_buffer("collapse counters", &[1u32, 0, 0, 0])?;
     let out_nodes = ctx.storage_buffer_zeroed("wide nodes", (max_nodes * WIDE_NODE_WORDS * 4) as u64)?;
@@ -427,18 +430,23 @@ pub fn collapse_on_device(ctx: &super::GpuContext, bvh: &super::lbvh::GpuBvh) ->
         let c: Vec<u32> = ctx.read_buffer("collapse counters", &counters, 3)?;
         len = c[2];
         from = 1 - from;
-        if depth > max_nodes {
+        if depth > n {
             return Err(super::GpuError::Other("the GPU collapse did not end".into()));
         }
     }
     let c: Vec<u32> = ctx.read_buffer("collapse counters", &counters, 3)?;
     let seconds = timed.elapsed().as_secs_f64();
     let prim_ids: Vec<u32> = ctx.read_buffer("wide triangle order", &out_prims, n)?;
-    if c[1] as usize != n || c[0] as usize > max_nodes {
-        return Err(super::GpuError::Other(format!(
-            "the GPU collapse placed {} of {n} triangles in {} nodes",
-            c[1], c[0]
-        )));
+    if c[0] as usize > max_nodes {
+        return Err(super::GpuError::BufferTooLarge {
+            what: "the GPU collapse's wide nodes".into(),
+            bytes: u64::from(c[0]) * WIDE_NODE_WORDS as u64 * 4,
+            limit_name: "max_storage_buffer_binding_size",
+            limit: binding,
+        });
+    }
+    if c[1] as usize != n {
+        return Err(super::GpuError::Other(format!("the GPU collapse placed {} of {n} triangles", c[1])));
     }
     let _ = start;
     Ok(DeviceWide { nodes: out_nodes, node_count: c[0] as usize, prim_ids, depth, seconds })
