@@ -33,7 +33,7 @@
 //! `s ^ o ^ 7`, nearest corner first, with no sort: the hit mask's inner bits are placed at
 //! `24 + (s ^ o ^ 7)` and popped lowest first.
 
-use std::collections::VecDeque;
+use rayon::prelude::*;
 
 use crate::bvh::Bvh;
 use crate::bvh::wide_sah::{self, Lane, WideCosts};
@@ -141,6 +141,68 @@ fn assign_slots(boxes: &[Aabb], node: Aabb) -> [Option<usize>; 8] {
     slots
 }
 
+/// One node encoded, but for its child and triangle bases (words 4 and 5): its inner children
+/// (wide node indices) and its leaves' runs of [`wide_sah::WideSah::prim_ids`], in slot order.
+struct Encoded {
+    words: [u32; WIDE_NODE_WORDS],
+    children: Vec<u32>,
+    leaves: Vec<(u32, u32)>,
+}
+
+/// Encodes a node with `lanes` (see the module docs).
+fn encode(lanes: &[(Aabb, Lane)]) -> Encoded {
+    let mut boxes = [Aabb::EMPTY; 8];
+    for (b, (lane_box, _)) in boxes.iter_mut().zip(lanes) {
+        *b = *lane_box;
+    }
+    let boxes = &boxes[..lanes.len()];
+    let node_box = boxes.iter().fold(Aabb::EMPTY, |acc, b| acc.union(*b));
+    let slots = assign_slots(boxes, node_box);
+    let (lo, hi) = (node_box.min.to_array(), node_box.max.to_array());
+    let exps: [u32; 3] = std::array::from_fn(|a| axis_exponent(lo[a], hi[a]));
+    let scales = exps.map(scale_of);
+    let mut e = Encoded { words: [0; WIDE_NODE_WORDS], children: Vec::new(), leaves: Vec::new() };
+    e.words[0..3].copy_from_slice(&node_box.min.to_array().map(f32::to_bits));
+    let mut imask = 0u32;
+    let mut meta = [0u8; 8];
+    let mut q = [[0u8; 8]; 6];
+    let mut offset = 0u32;
+    for (s, lane) in slots.iter().enumerate() {
+        let Some(lane) = *lane else {
+            // Empty: an inverted box, and no bits.
+            (0..3).for_each(|a| q[a][s] = 255);
+            continue;
+        };
+        let (b, kind) = lanes[lane];
+        let (bl, bh) = (b.min.to_array(), b.max.to_array());
+        for a in 0..3 {
+            q[a][s] = quantize_lo(lo[a], scales[a], bl[a]) as u8;
+            q[3 + a][s] = quantize_hi(lo[a], scales[a], bh[a]) as u8;
+        }
+        match kind {
+            Lane::Node(child) => {
+                imask |= 1 << s;
+                meta[s] = 0b0010_0000 | (24 + s as u8);
+                e.children.push(child);
+            }
+            Lane::Leaf { first, count } => {
+                debug_assert!((1..=WIDE_MAX_LEAF).contains(&count) && offset + count <= 24);
+                meta[s] = (((1u8 << count) - 1) << 5) | offset as u8;
+                e.leaves.push((first, count));
+                offset += count;
+            }
+        }
+    }
+    e.words[3] = exps[0] | exps[1] << 8 | exps[2] << 16 | imask << 24;
+    e.words[6] = u32::from_le_bytes(meta[0..4].try_into().expect("4 bytes"));
+    e.words[7] = u32::from_le_bytes(meta[4..8].try_into().expect("4 bytes"));
+    for (plane, bytes) in q.iter().enumerate() {
+        e.words[8 + 2 * plane] = u32::from_le_bytes(bytes[0..4].try_into().expect("4 bytes"));
+        e.words[9 + 2 * plane] = u32::from_le_bytes(bytes[4..8].try_into().expect("4 bytes"));
+    }
+    e
+}
+
 impl CompressedBvh {
     /// Collapses `bvh` (see the module docs) and encodes it; `prim_aabbs` are the primitives'
     /// boxes by id. An empty tree gives one node with no lanes, which every ray misses.
@@ -155,66 +217,28 @@ impl CompressedBvh {
             depth: 0,
             cost: wide.cost,
         };
-        // (wide node, its encoded index, its depth)
-        let mut queue = VecDeque::from([(0usize, 0usize, 1usize)]);
-        while let Some((w, at, depth)) = queue.pop_front() {
-            out.depth = out.depth.max(depth);
-            let lanes = &wide.nodes[w];
-            let mut boxes = [Aabb::EMPTY; 8];
-            for (b, (lane_box, _)) in boxes.iter_mut().zip(lanes) {
-                *b = *lane_box;
-            }
-            let boxes = &boxes[..lanes.len()];
-            let node_box = boxes.iter().fold(Aabb::EMPTY, |acc, b| acc.union(*b));
-            let slots = assign_slots(boxes, node_box);
-            let (lo, hi) = (node_box.min.to_array(), node_box.max.to_array());
-            let exps: [u32; 3] = std::array::from_fn(|a| axis_exponent(lo[a], hi[a]));
-            let scales = exps.map(scale_of);
-            let mut words = [0u32; WIDE_NODE_WORDS];
-            words[0..3].copy_from_slice(&node_box.min.to_array().map(f32::to_bits));
-            let child_base = out.nodes.len();
-            let tri_base = out.prim_ids.len();
-            let mut imask = 0u32;
-            let mut meta = [0u8; 8];
-            let mut q = [[0u8; 8]; 6];
-            for (s, lane) in slots.iter().enumerate() {
-                let Some(lane) = *lane else {
-                    // Empty: an inverted box, and no bits.
-                    (0..3).for_each(|a| q[a][s] = 255);
-                    continue;
-                };
-                let (b, kind) = lanes[lane];
-                let (bl, bh) = (b.min.to_array(), b.max.to_array());
-                for a in 0..3 {
-                    q[a][s] = quantize_lo(lo[a], scales[a], bl[a]) as u8;
-                    q[3 + a][s] = quantize_hi(lo[a], scales[a], bh[a]) as u8;
+        // Level by level: the nodes of a level are encoded in parallel, then given their
+        // children's indices and triangle positions in order, so that each node's inner
+        // children, and its leaves' triangles, are contiguous and in slot order.
+        // (wide node, its encoded index)
+        let mut level = vec![(0usize, 0usize)];
+        while !level.is_empty() {
+            out.depth += 1;
+            let encoded: Vec<Encoded> = level.par_iter().map(|&(w, _)| encode(&wide.nodes[w])).collect();
+            let mut next = Vec::new();
+            for (&(_, at), mut e) in level.iter().zip(encoded) {
+                e.words[4] = out.nodes.len() as u32;
+                e.words[5] = out.prim_ids.len() as u32;
+                for child in e.children {
+                    next.push((child as usize, out.nodes.len()));
+                    out.nodes.push([0; WIDE_NODE_WORDS]);
                 }
-                match kind {
-                    Lane::Node(child) => {
-                        imask |= 1 << s;
-                        meta[s] = 0b0010_0000 | (24 + s as u8);
-                        let index = out.nodes.len();
-                        out.nodes.push([0; WIDE_NODE_WORDS]);
-                        queue.push_back((child as usize, index, depth + 1));
-                    }
-                    Lane::Leaf { first, count } => {
-                        let offset = out.prim_ids.len() - tri_base;
-                        debug_assert!((1..=WIDE_MAX_LEAF).contains(&count) && offset + count as usize <= 24);
-                        meta[s] = (((1u8 << count) - 1) << 5) | offset as u8;
-                        out.prim_ids.extend_from_slice(&wide.prim_ids[first as usize..(first + count) as usize]);
-                    }
+                for (first, count) in e.leaves {
+                    out.prim_ids.extend_from_slice(&wide.prim_ids[first as usize..(first + count) as usize]);
                 }
+                out.nodes[at] = e.words;
             }
-            words[3] = exps[0] | exps[1] << 8 | exps[2] << 16 | imask << 24;
-            words[4] = child_base as u32;
-            words[5] = tri_base as u32;
-            words[6] = u32::from_le_bytes(meta[0..4].try_into().expect("4 bytes"));
-            words[7] = u32::from_le_bytes(meta[4..8].try_into().expect("4 bytes"));
-            for (plane, bytes) in q.iter().enumerate() {
-                words[8 + 2 * plane] = u32::from_le_bytes(bytes[0..4].try_into().expect("4 bytes"));
-                words[9 + 2 * plane] = u32::from_le_bytes(bytes[4..8].try_into().expect("4 bytes"));
-            }
-            out.nodes[at] = words;
+            level = next;
         }
         out
     }
