@@ -18,6 +18,15 @@
 # Environment: ARBOR_BIN=DIR uses already-built `render` and `bvh-bench` from DIR instead of
 # building; GPU_CHECK_QUICK=1 uses small inputs (a smoke test of the script itself, as CI runs
 # it on lavapipe).
+#
+# On a lent machine without a Rust toolchain (this workplace's `device`), build here and carry
+# the stripped binaries, the dragon and the Vulkan loader (the device README's `.gl` folder):
+#   cargo build --release --bin render -p arbor && cargo build --release -p arbor-bench --bin bvh-bench
+#   mkdir -p .gpu-bin && strip -o .gpu-bin/render target/release/render \
+#     && strip -o .gpu-bin/bvh-bench target/release/bvh-bench && cp ../shared/models/dragon_res2.obj .gpu-bin/
+#   (.gpu-bin and .gl listed in .git/info/exclude), then run with carry [".gl", ".gpu-bin"]:
+#   for f in .gl/*.deb; do dpkg -x $f /; done; ldconfig; mkdir -p ../shared/models \
+#     && cp .gpu-bin/dragon_res2.obj ../shared/models/ && ARBOR_BIN=.gpu-bin bash bench/gpu_check.sh $OUT
 set -u
 out=${1:?usage: bench/gpu_check.sh OUT_DIR}
 mkdir -p "$out" || exit 2
