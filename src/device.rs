@@ -449,6 +449,16 @@ impl Renderer {
         &self.render_scene
     }
 
+    /// The tree form traced: the CPU's layout (`binary`, `wide4`, `wide8`), or the GPU's
+    /// (`binary`, `wide8`).
+    pub fn trace_form(&self) -> &'static str {
+        match self.device {
+            Device::Cpu => self.build.tracing.layout.name(),
+            #[cfg(feature = "gpu")]
+            Device::Gpu(_) => self.gpu_form.name(),
+        }
+    }
+
     /// On the GPU, a line on the kernel variant compiled for the scene (once, at the build).
     pub fn kernel_note(&self) -> Option<&str> {
         self.kernel_note.as_deref()

@@ -197,6 +197,26 @@ fn both_forms_render_the_same_image_on_the_gpu() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("--trace wide4 is a CPU form"), "{stderr}");
+    // The report names the form traced: the GPU's default, or the one asked for.
+    let dir = std::env::temp_dir().join(format!("arbor-forms-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (args, form) in [(vec![], "wide8"), (vec!["--trace", "binary"], "binary")] {
+        let report = dir.join("r.json");
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_render"))
+            .args(["--device", "gpu", "--spp", "1", "--quiet"])
+            .args(&args)
+            .arg("--report")
+            .arg(&report)
+            .arg("-o")
+            .arg(dir.join("f.png"))
+            .arg(scenes.join("furnace.toml"))
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+        assert_eq!(json["bvh"]["trace"], form, "{args:?}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The collapse on the GPU (`gpu::wide::collapse_on_device`) from the GPU's own LBVH: a valid

@@ -243,6 +243,8 @@ pub struct BvhReport {
     pub triangles: usize,
     pub build_ms: f64,
     pub sah: f64,
+    /// The tree form traced on the device rendering: `binary`, `wide4` or `wide8` (`--trace`).
+    pub trace: &'static str,
 }
 
 #[derive(Debug, Serialize)]

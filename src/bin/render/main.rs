@@ -259,6 +259,7 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
         triangles: build.triangles,
         build_ms: build.build_ms,
         sah: build.sah,
+        trace: renderer.trace_form(),
     });
     if !args.quiet {
         print::print_build(scene_path, build, device.name() == "cpu", scene.texture_bytes());
