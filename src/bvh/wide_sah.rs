@@ -41,8 +41,8 @@ pub struct WideCosts {
 }
 
 impl Default for WideCosts {
-    /// A node test (eight boxes at once) against a triangle test at about a third of it: the
-    /// balance Ylitie et al. tune for GPU traversal.
+    /// A node test (eight boxes at once) against a triangle test at about a third of it: a
+    /// starting balance, not yet tuned on a lent GPU.
     fn default() -> Self {
         Self { node: 1.0, prim: 0.3 }
     }
