@@ -1,5 +1,5 @@
 // The compressed 8-wide tree's traversal (src/gpu/wide.rs has the node layout; Ylitie, Karras
-// & Laine 2017, section 4), concatenated after trace.wgsl for `--trace wide8`. One loop,
+// & Laine 2017, after their traversal), concatenated after trace.wgsl for `--trace wide8`. One loop,
 // `traverse`, serves closest and any hit; bvh_binary.wgsl defines the same three functions over
 // the binary tree.
 //

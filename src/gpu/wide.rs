@@ -1,5 +1,5 @@
 //! The GPU's compressed 8-wide BVH, after Ylitie, Karras & Laine 2017 ("Efficient Incoherent
-//! Ray Traversal on GPUs Through Compressed Wide BVHs", sections 3 and 4), traced by
+//! Ray Traversal on GPUs Through Compressed Wide BVHs"; the collapse is their section 3), traced by
 //! `shaders/bvh_wide8.wgsl`.
 //!
 //! **Shape.** The binary tree (any builder's; on the GPU path the one its LBVH and PRBVH made)
