@@ -239,7 +239,9 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
     let Some(first) = pending.first() else { return Ok(()) };
     let first_time = plan.job(first, &scene, &scene_hash, device.name()).time;
     // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
-    let binary = device.name() == "gpu" || tracing.layout == TraceLayout::Binary;
+    // The memory checked: the binary tree alone, or with the wide form and what making it holds.
+    let gpu_form = args.trace.unwrap_or(TraceLayout::Wide8);
+    let binary = if device.name() == "gpu" { gpu_form } else { tracing.layout } == TraceLayout::Binary;
     if device.name() == "gpu" || !wants_instancing(&scene) {
         scene.check_flat_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
     } else {
@@ -251,7 +253,7 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
     if device.name() == "gpu" && args.trace == Some(TraceLayout::Wide4) {
         return Err(bad("--trace wide4 is a CPU form: the GPU traces binary or wide8 (its default)"));
     }
-    let forms = Forms { cpu: tracing, gpu: args.trace.unwrap_or(TraceLayout::Wide8) };
+    let forms = Forms { cpu: tracing, gpu: gpu_form };
     let mut renderer = Renderer::new(device, &scene, &builder, forms, settings, count, first_time)?;
     let build = renderer.build_report();
     report.bvh = Some(BvhReport {
