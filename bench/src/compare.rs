@@ -512,9 +512,14 @@ fn trace_on_gpu(
     let wide = arbor::gpu::wide::CompressedBvh::new(&mesh.bvh, &prim_aabbs);
     r.gpu_wide_collapse_ms = Some(start.elapsed().as_secs_f64() * 1e3);
     r.gpu_wide_sah = Some(wide.cost);
+    let mut wide = Some(wide);
     let mut mismatches = 0;
     for form in [GpuForm::Wide8, GpuForm::Binary] {
-        let scene = GpuScene::for_rays(ctx, &mesh.bvh, triangles, form)?;
+        // The wide tree just timed is the one traced, not made again.
+        let scene = match (form, wide.take()) {
+            (GpuForm::Wide8, Some(w)) => GpuScene::for_rays_compressed(ctx, w, triangles)?,
+            _ => GpuScene::for_rays(ctx, &mesh.bvh, triangles, form)?,
+        };
         let mut speeds = [None; 3];
         for (k, &(set, t_max)) in sets.iter().enumerate() {
             let queries: Vec<QueryRay> =

@@ -136,17 +136,16 @@ impl Binary {
 impl Binary {
     /// Appends the subtree over `ids` that splits them at median centroids until every leaf holds
     /// at most `max_leaf` primitives (one leaf where they fit), its root at the next index.
-    fn split(&mut self, ids: &mut [u32], prim_aabbs: &[Aabb], max_leaf: u32) {
+    fn split(&mut self, all: &mut [u32], prim_aabbs: &[Aabb], max_leaf: u32) {
         let t = self;
         // (run, parent and which child)
-        let mut stack = vec![((0, ids.len()), None::<(u32, usize)>)];
-        let scratch = ids;
+        let mut stack = vec![((0, all.len()), None::<(u32, usize)>)];
         while let Some(((a, b), parent)) = stack.pop() {
             let here = t.aabb.len() as u32;
             if let Some((p, k)) = parent {
                 t.children[p as usize][k] = here;
             }
-            let ids = &mut scratch[a..b];
+            let ids = &mut all[a..b];
             let aabb = ids.iter().fold(Aabb::EMPTY, |acc, &p| acc.union(prim_aabbs[p as usize]));
             t.aabb.push(aabb);
             t.children.push([NONE; 2]);
@@ -240,6 +239,12 @@ impl Entry {
     }
 }
 
+/// A box's half area in f64: f32 areas overflow for scenes beyond about 10^19.
+fn half_area(b: &Aabb) -> f64 {
+    let e = b.extent().as_dvec3().max(glam::DVec3::ZERO);
+    e.x * e.y + e.y * e.z + e.z * e.x
+}
+
 /// Nodes in each node's subtree, itself included.
 fn subtree_sizes(children: &[[u32; 2]]) -> Vec<usize> {
     let mut size = vec![1usize; children.len()];
@@ -263,11 +268,6 @@ pub fn collapse(bvh: &Bvh, prim_aabbs: &[Aabb], width: usize, max_leaf: u32, cos
     let t = Binary::from_bvh(bvh, prim_aabbs, max_leaf);
     let n = t.aabb.len();
     // Areas over the root's, so that the costs are in units of rays entering the root.
-    // In f64: f32 areas overflow for scenes beyond about 10^19.
-    let half_area = |b: &Aabb| {
-        let e = b.extent().as_dvec3().max(glam::DVec3::ZERO);
-        e.x * e.y + e.y * e.z + e.z * e.x
-    };
     let root_area = half_area(&t.aabb[0]).max(f64::MIN_POSITIVE);
     let area = |i: usize| {
         let a = (half_area(&t.aabb[i]) / root_area) as f32;
@@ -318,11 +318,12 @@ pub fn collapse(bvh: &Bvh, prim_aabbs: &[Aabb], width: usize, max_leaf: u32, cos
         });
     }
     // The nodes above the subtrees, children first.
-    let is_root: std::collections::HashSet<usize> = roots.iter().copied().collect();
+    let mut is_root = vec![false; n];
+    roots.iter().for_each(|&i| is_root[i] = true);
     let mut above = Vec::new();
     let mut stack = vec![0usize];
     while let Some(i) = stack.pop() {
-        if is_root.contains(&i) {
+        if is_root[i] {
             continue;
         }
         above.push(i);
@@ -337,20 +338,18 @@ pub fn collapse(bvh: &Bvh, prim_aabbs: &[Aabb], width: usize, max_leaf: u32, cos
     let dist = |i: usize, k: usize| table[i].dist & (1 << k) != 0;
     // Read top-down. The root is a node even where one leaf would be cheaper.
     let mut out = WideSah { prim_ids: Vec::with_capacity(t.prims.len()), ..Default::default() };
-    let root_cost = if leaf(0) && t.children[0][0] == NONE {
+    let [l, r] = t.children[0];
+    if l == NONE {
         // A tree of one leaf: a node with one leaf lane.
         out.nodes.push(vec![(t.aabb[0], Lane::Leaf { first: 0, count: t.count[0] })]);
         out.prim_ids.extend_from_slice(&t.prims);
         out.cost = f64::from(costs.node) + f64::from(table[0].cost[0]);
         return out;
-    } else {
-        let [l, r] = t.children[0];
-        let k = split(0, width);
-        f64::from(costs.node)
-            + f64::from(table[l as usize].cost[k - 1])
-            + f64::from(table[r as usize].cost[width - k - 1])
-    };
-    out.cost = root_cost;
+    }
+    let k = split(0, width);
+    out.cost = f64::from(costs.node)
+        + f64::from(table[l as usize].cost[k - 1])
+        + f64::from(table[r as usize].cost[width - k - 1]);
     // Binary nodes that become wide nodes, in the order of their indices in `out.nodes`.
     let mut pending = vec![0usize];
     let mut next = 0;
@@ -397,11 +396,11 @@ impl WideSah {
             return 0.0;
         }
         let root = self.nodes[0].iter().fold(Aabb::EMPTY, |acc, (b, _)| acc.union(*b));
-        let root_area = f64::from(root.half_area()).max(f64::MIN_POSITIVE);
+        let root_area = half_area(&root).max(f64::MIN_POSITIVE);
         let mut total = f64::from(costs.node);
         for lanes in &self.nodes {
             for (b, lane) in lanes {
-                let a = f64::from(b.half_area()) / root_area;
+                let a = half_area(b) / root_area;
                 total += match lane {
                     Lane::Node(_) => a * f64::from(costs.node),
                     Lane::Leaf { count, .. } => a * f64::from(*count) * f64::from(costs.prim),

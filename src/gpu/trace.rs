@@ -167,6 +167,20 @@ pub struct Features {
 }
 
 impl Features {
+    /// No feature: what ray queries need of the path tracer's source.
+    pub const NONE: Features = Features {
+        dielectric: false,
+        conductor: false,
+        coated: false,
+        environment: false,
+        lights: false,
+        thin_lens: false,
+        shading_normals: false,
+        env_map: false,
+        textures: false,
+        cutouts: false,
+    };
+
     /// Every feature: a variant that renders any scene.
     pub const ALL: Features = Features {
         dielectric: true,
@@ -433,8 +447,10 @@ impl GpuScene {
             Some(w) => (Tree::from_device(w)?, GpuForm::Wide8),
             None => (Tree::new(&flat.mesh.bvh, &flat.triangles, form)?, form),
         };
-        let order = tree.prim_ids.clone();
-        let order = &order;
+        // The nodes go first: a device tree's buffer is taken, its bytes counted before.
+        let tree_bytes = tree.bytes();
+        let nodes = tree.buffer(ctx)?;
+        let order = &tree.prim_ids;
         let triangles: Vec<GpuTriangle> = order
             .par_iter()
             .map(|&prim| {
@@ -510,11 +526,10 @@ impl GpuScene {
             (params.env_width, params.env_height, params.env_select) = (map.width, map.height, select);
             env_map = env_map_data(map);
         }
-        let tree_bytes = tree.bytes();
         Ok(GpuScene {
-            nodes: tree.buffer(ctx)?,
+            nodes,
             triangles: ctx.storage_buffer("triangles", &at_least_one(triangles))?,
-            prim_ids: ctx.storage_buffer("triangle ids", &at_least_one(tree.prim_ids.clone()))?,
+            prim_ids: ctx.storage_buffer("triangle ids", &at_least_one(tree.prim_ids))?,
             unused: unused_buffers(ctx)?,
             materials: ctx.storage_buffer("materials", &at_least_one(materials))?,
             lights: ctx.storage_buffer("lights", &at_least_one(lights))?,
@@ -538,6 +553,16 @@ impl GpuScene {
     /// no materials, lights or camera.
     pub fn for_rays(ctx: &GpuContext, bvh: &Bvh, triangles: &[Triangle], form: GpuForm) -> Result<GpuScene, GpuError> {
         Self::rays_scene(ctx, Tree::new(bvh, triangles, form)?, triangles, form)
+    }
+
+    /// [`GpuScene::for_rays`] with a wide tree the host already made (for a caller that times
+    /// or inspects it).
+    pub fn for_rays_compressed(
+        ctx: &GpuContext,
+        wide: super::wide::CompressedBvh,
+        triangles: &[Triangle],
+    ) -> Result<GpuScene, GpuError> {
+        Self::rays_scene(ctx, Tree::from_compressed(wide)?, triangles, GpuForm::Wide8)
     }
 
     /// [`GpuScene::for_rays`] with the wide tree the GPU collapse made.
@@ -572,7 +597,7 @@ impl GpuScene {
         Ok(GpuScene {
             nodes: tree.buffer(ctx)?,
             triangles: ctx.storage_buffer("triangles", &at_least_one(gpu_triangles))?,
-            prim_ids: ctx.storage_buffer("triangle ids", &at_least_one(tree.prim_ids.clone()))?,
+            prim_ids: ctx.storage_buffer("triangle ids", &at_least_one(std::mem::take(&mut tree.prim_ids)))?,
             unused: unused_buffers(ctx)?,
             materials: ctx.storage_buffer("materials", &[GpuMaterial::default()])?,
             lights: ctx.storage_buffer("lights", &[GpuLight::default()])?,
@@ -581,18 +606,7 @@ impl GpuScene {
             textures: one("textures")?,
             uvs: one("texture coordinates")?,
             params: TraceParams::default(),
-            features: Features {
-                dielectric: false,
-                conductor: false,
-                coated: false,
-                environment: false,
-                lights: false,
-                thin_lens: false,
-                shading_normals: false,
-                env_map: false,
-                textures: false,
-                cutouts: false,
-            },
+            features: Features::NONE,
             width: 0,
             height: 0,
             depth: tree.depth,
@@ -638,13 +652,18 @@ impl Tree {
             }
             GpuForm::Wide8 => {
                 let prim_aabbs: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
-                let wide = super::wide::CompressedBvh::new(bvh, &prim_aabbs);
-                let words = wide.nodes.iter().flatten().copied().collect();
-                (words, wide.prim_ids, wide.depth, wide.cost)
+                return Tree::from_compressed(super::wide::CompressedBvh::new(bvh, &prim_aabbs));
             }
         };
         check_depth(depth, form)?;
         Ok(Tree { words, on_device: None, prim_ids, depth, sah })
+    }
+
+    /// A wide tree the host made.
+    fn from_compressed(wide: super::wide::CompressedBvh) -> Result<Tree, GpuError> {
+        check_depth(wide.depth, GpuForm::Wide8)?;
+        let words = wide.nodes.iter().flatten().copied().collect();
+        Ok(Tree { words, on_device: None, prim_ids: wide.prim_ids, depth: wide.depth, sah: wide.cost })
     }
 
     /// The wide tree the GPU collapse left on the device.

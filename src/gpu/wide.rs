@@ -84,6 +84,11 @@ fn axis_exponent(lo: f32, hi: f32) -> u32 {
     let extent = f64::from(hi) - f64::from(lo);
     let mut e = if extent > 0.0 { (extent / 255.0).log2().ceil() as i32 } else { -126 };
     e = e.clamp(-126, 127);
+    // The estimate, settled by the decoder's own arithmetic (the condition is monotonic in e),
+    // as `shaders/collapse.wgsl` settles its f32 estimate: both find the same exponent.
+    while e > -126 && lo + 255.0 * scale_of((e + 126) as u32) >= hi {
+        e -= 1;
+    }
     while e < 127 && lo + 255.0 * scale_of((e + 127) as u32) < hi {
         e += 1;
     }
@@ -377,7 +382,6 @@ pub fn collapse_on_device(ctx: &super::GpuContext, bvh: &super::lbvh::GpuBvh) ->
     if n < 2 {
         return Err(super::GpuError::Other("the GPU collapse needs at least 2 primitives".into()));
     }
-    let start = std::time::Instant::now();
     let node_count = 2 * n;
     let root: Vec<crate::bvh::BvhNode> = ctx.read_buffer("BVH root", &bvh.nodes, 1)?;
     let root_box = root[0].aabb();
@@ -472,6 +476,5 @@ pub fn collapse_on_device(ctx: &super::GpuContext, bvh: &super::lbvh::GpuBvh) ->
     if c[1] as usize != n {
         return Err(super::GpuError::Other(format!("the GPU collapse placed {} of {n} triangles", c[1])));
     }
-    let _ = start;
     Ok(DeviceWide { nodes: out_nodes, node_count: c[0] as usize, prim_ids, depth, seconds })
 }

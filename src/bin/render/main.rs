@@ -250,8 +250,9 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
     let builder = named.unwrap_or_else(|| BuilderChoice::default_for(device, &scene));
     let count = pending.count();
     // Each device takes its own default form; a form it lacks is refused, under auto too.
-    if device.name() == "gpu" && args.trace == Some(TraceLayout::Wide4) {
-        return Err(bad("--trace wide4 is a CPU form: the GPU traces binary or wide8 (its default)"));
+    #[cfg(feature = "gpu")]
+    if device.name() == "gpu" {
+        arbor::gpu::trace::GpuForm::of(gpu_form).map_err(|e| bad(e.to_string()))?;
     }
     let forms = Forms { cpu: tracing, gpu: gpu_form };
     let mut renderer = Renderer::new(device, &scene, &builder, forms, settings, count, first_time)?;
