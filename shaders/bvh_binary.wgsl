@@ -1,27 +1,25 @@
 // The binary tree's traversal (Bvh::closest_hit and Bvh::any_hit over the leaf-collapsed
 // tree, triangles in leaf order), concatenated after trace.wgsl for `--trace binary`
 // (src/gpu/trace.rs). One loop, `traverse`, serves closest and any hit; bvh_wide8.wgsl defines
-// the same functions over the compressed wide tree.
+// the same function over the compressed wide tree.
 
 @group(0) @binding(1) var<storage, read> nodes: array<BvhNode>;
 
-fn cull_slack(r: Ray) -> f32 {
-    let root = nodes[0];
-    return cull_slack_in(r, root.aabb_min, root.aabb_max);
-}
-
 // Closest hit (any = false; Bvh::closest_hit) or any hit (any = true; Bvh::any_hit, its
-// index then any hit's) with 0 < t <= t_max, leaving out triangle position `skip` (the surface a
-// ray leaves; INVALID_INDEX: none): near child first, the far one pushed with its entry distance
+// index then any hit's) in the tree whose root is node `root` (0 in a flat scene, a mesh's root
+// in a two-level one), better than `best_in` (its t the limit), leaving out triangle position
+// `skip` (the surface a ray leaves; INVALID_INDEX: none); `inst` and `inst_material` are the
+// instance traced and its material override (0 and INVALID_INDEX in a flat scene). Near child first, the far one pushed with its entry distance
 // and skipped on pop when it begins past the best hit plus the slack. Ties in t go to the lowest
 // primitive id (`beats`). The stack cannot overflow: trees deeper than TRACE_STACK_SIZE + 1 are
 // refused on upload.
-fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
-    var best = Hit(t_max, INVALID_INDEX, 0.0, 0.0);
+fn traverse_tree(root_index: u32, ray: Ray, best_in: Hit, skip: u32, any: bool, inst: u32, inst_material: u32) -> Hit {
+    var best = best_in;
+    let t_max = best.t;
     let r = prepare_ray(ray);
-    let slack = cull_slack(ray);
+    let root = nodes[root_index];
+    let slack = cull_slack_in(ray, root.aabb_min, root.aabb_max);
     var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
-    let root = nodes[0];
     if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
         return best;
     }
@@ -35,8 +33,8 @@ fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
                 if i == skip {
                     continue;
                 }
-                let hit = try_triangle(i, r, best);
-                if hit.index == i {
+                let hit = try_triangle(i, inst, inst_material, r, best);
+                if hit.index == i && hit.instance == inst {
                     best = hit;
                     if any {
                         return best;
@@ -91,12 +89,4 @@ fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
         }
     }
     return best;
-}
-
-fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
-    return traverse(ray, t_max, skip, false);
-}
-
-fn occluded(ray: Ray, t_max: f32, skip: u32) -> bool {
-    return traverse(ray, t_max, skip, true).index != INVALID_INDEX;
 }

@@ -1,6 +1,6 @@
 // The compressed 8-wide tree's traversal (src/gpu/wide.rs has the node layout; Ylitie, Karras
 // & Laine 2017, after their traversal), concatenated after trace.wgsl for `--trace wide8`. One loop,
-// `traverse`, serves closest and any hit; bvh_binary.wgsl defines the same three functions over
+// `traverse_tree`, serves closest and any hit; bvh_binary.wgsl defines the same function over
 // the binary tree.
 //
 // The loop keeps two groups: the inner children of a node still to visit (their node's
@@ -17,9 +17,9 @@ fn wide_word(n: u32, w: u32) -> u32 {
     return wide_nodes[n * 5u + w / 4u][w % 4u];
 }
 
-// The root's quantisation grid spans p .. p + 255 * scale: a box holding the scene.
-fn cull_slack(r: Ray) -> f32 {
-    let a = wide_nodes[0];
+// The quantisation grid of the root `root` spans p .. p + 255 * scale: a box holding its tree.
+fn cull_slack(root: u32, r: Ray) -> f32 {
+    let a = wide_nodes[root * 5u];
     let e = a.w;
     let p = bitcast<vec3<f32>>(a.xyz);
     let scale = vec3<f32>(
@@ -35,19 +35,23 @@ fn byte_of(lo: u32, hi: u32, k: u32) -> u32 {
     return (select(lo, hi, k >= 4u) >> (8u * (k & 3u))) & 0xffu;
 }
 
-// Closest hit (any = false) or any hit (any = true; its index is then any hit's) with
-// 0 < t <= t_max, leaving out triangle position `skip`.
-fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
-    var best = Hit(t_max, INVALID_INDEX, 0.0, 0.0);
+// Closest hit (any = false) or any hit (any = true; its index is then any hit's) in the tree
+// whose root is node `root` (0 in a flat scene, a mesh's root in a two-level one), better than
+// `best_in` (its t the limit), leaving out triangle position `skip`; `inst` and
+// `inst_material` are the instance traced and its material override (0 and INVALID_INDEX in a
+// flat scene).
+fn traverse_tree(root: u32, ray: Ray, best_in: Hit, skip: u32, any: bool, inst: u32, inst_material: u32) -> Hit {
+    var best = best_in;
+    let t_max = best.t;
     let r = prepare_ray(ray);
-    let slack = cull_slack(ray);
+    let slack = cull_slack(root, ray);
     var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
     let octant = select(0u, 1u, ray.dir.x < 0.0) | select(0u, 2u, ray.dir.y < 0.0) | select(0u, 4u, ray.dir.z < 0.0);
     let near = octant ^ 7u;
     var stack: array<vec2<u32>, WIDE_STACK_SIZE>;
     var sp = 0u;
-    // The root as the one inner child of a group based at 0, in slot 0.
-    var nodes_group = vec2<u32>(0u, (1u << (24u + near)) | 1u);
+    // The root as the one inner child of a group based at it, in slot 0.
+    var nodes_group = vec2<u32>(root, (1u << (24u + near)) | 1u);
     loop {
         var tris_group = vec2<u32>(0u, 0u);
         if (nodes_group.y & 0xff000000u) != 0u {
@@ -108,8 +112,8 @@ fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
             if i == skip {
                 continue;
             }
-            let hit = try_triangle(i, r, best);
-            if hit.index == i {
+            let hit = try_triangle(i, inst, inst_material, r, best);
+            if hit.index == i && hit.instance == inst {
                 best = hit;
                 if any {
                     return best;
@@ -126,12 +130,4 @@ fn traverse(ray: Ray, t_max: f32, skip: u32, any: bool) -> Hit {
         }
     }
     return best;
-}
-
-fn closest_hit(ray: Ray, t_max: f32, skip: u32) -> Hit {
-    return traverse(ray, t_max, skip, false);
-}
-
-fn occluded(ray: Ray, t_max: f32, skip: u32) -> bool {
-    return traverse(ray, t_max, skip, true).index != INVALID_INDEX;
 }

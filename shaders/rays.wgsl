@@ -17,7 +17,7 @@ fn trace_rays(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     let a = query_rays[2u * i];
     let b = query_rays[2u * i + 1u];
     let ray = Ray(a.xyz, b.xyz);
-    let skip = bitcast<u32>(b.w);
+    let skip = vec2<u32>(0u, bitcast<u32>(b.w));
     if params.height != 0u {
         query_hits[i] = vec4<u32>(select(0u, 1u, occluded(ray, a.w, skip)), 0u, 0u, 0u);
         return;

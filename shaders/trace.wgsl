@@ -25,6 +25,14 @@
 // The primitive id of each triangle position: ties between hits at one distance go to the
 // lowest, as on the CPU, in every tree form.
 @group(0) @binding(10) var<storage, read> prim_ids: array<u32>;
+// Two levels (HAS_INSTANCES; src/gpu/trace.rs's upload of an instanced scene): the meshes' trees
+// share binding 1 and their object-space triangles binding 2 (with their normals and texture
+// coordinates), each mesh's from its own base; the instances by id; the top-level tree over
+// them (binary, a leaf's `first` an instance id); and each light id's area density
+// (Lights::pdf_area; a light id is its instance's light_base plus the triangle's id in its mesh).
+@group(0) @binding(13) var<storage, read> instances: array<GpuInstance>;
+@group(0) @binding(14) var<storage, read> tlas: array<BvhNode>;
+@group(0) @binding(15) var<storage, read> light_pdfs: array<f32>;
 
 // The largest finite f32: "no hit yet". (Infinite literals are not valid WGSL.)
 const T_FAR: f32 = 3.40282347e38;
@@ -356,25 +364,155 @@ struct Hit {
     index: u32,
     u: f32,
     v: f32,
+    // The instance hit (0 in a flat scene).
+    instance: u32,
 }
 
-// Whether the triangle test's result `h` at position `i` is a closer hit than `best` (whose t
-// is the query's t_max while it has none): nearer, or as near with a lower primitive id, so
-// that every tree form finds the same hit as the CPU.
-fn beats(h: vec3<f32>, i: u32, best: Hit) -> bool {
-    return h.x > 0.0
-        && (h.x < best.t || (h.x == best.t && (best.index == INVALID_INDEX || prim_ids[i] < prim_ids[best.index])));
+// No hit yet, closer than t_max.
+fn no_hit(t_max: f32) -> Hit {
+    return Hit(t_max, INVALID_INDEX, 0.0, 0.0, 0u);
+}
+
+// Whether the triangle test's result `h` at position `i` of instance `inst` is a closer hit
+// than `best` (whose t is the query's t_max while it has none): nearer, or as near with a lower
+// instance, then primitive id, so that every tree form finds the same hit as the CPU.
+fn beats(h: vec3<f32>, i: u32, inst: u32, best: Hit) -> bool {
+    if !(h.x > 0.0) {
+        return false;
+    }
+    if h.x < best.t {
+        return true;
+    }
+    if h.x != best.t {
+        return false;
+    }
+    return best.index == INVALID_INDEX || inst < best.instance
+        || (inst == best.instance && prim_ids[i] < prim_ids[best.index]);
 }
 
 // Triangle position `i` tested against the ray: its hit where it beats `best` and its cut-out
 // mask (tested only then) keeps it, else `best` itself. Both traversals' leaf test.
-fn try_triangle(i: u32, r: TraceRay, best: Hit) -> Hit {
+// `inst` is the instance traced (0 in a flat scene) and `inst_material` its material override
+// (INVALID_INDEX: none).
+fn try_triangle(i: u32, inst: u32, inst_material: u32, r: TraceRay, best: Hit) -> Hit {
     let tri = triangles[i];
     let h = intersect_triangle(tri, r, best.t);
-    if beats(h, i, best) && !(HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, tri.material, h.y, h.z)) {
-        return Hit(h.x, i, h.y, h.z);
+    if beats(h, i, inst, best) {
+        if HAS_CUTOUTS && tri.cutout != 0u && cut_out(i, select(tri.material, inst_material, inst_material != INVALID_INDEX), h.y, h.z) {
+            return best;
+        }
+        return Hit(h.x, i, h.y, h.z, inst);
     }
     return best;
+}
+
+// ---- two levels: the top-level tree over instances ----
+
+fn inst_to_object(inst: GpuInstance, ray: Ray) -> Ray {
+    let o = ray.origin;
+    let d = ray.dir;
+    // As glam's Affine3A: the axes scaled and summed in order, then the translation. The
+    // direction is not renormalised, so t is the same in both spaces.
+    let origin = inst.to_object_x * o.x + inst.to_object_y * o.y + inst.to_object_z * o.z + inst.to_object_t;
+    let dir = inst.to_object_x * d.x + inst.to_object_y * d.y + inst.to_object_z * d.z;
+    return Ray(origin, dir);
+}
+
+fn inst_to_world(inst: GpuInstance, p: vec3<f32>) -> vec3<f32> {
+    return inst.to_world_x * p.x + inst.to_world_y * p.y + inst.to_world_z * p.z + inst.to_world_t;
+}
+
+// TwoLevel::closest_hit_skipping and any_hit_skipping: the top-level tree, near child first;
+// at an instance's leaf the ray goes into object space and through its mesh's tree
+// (`traverse_tree`, the form's), with the best hit so far as its limit. `skip` is (instance,
+// triangle position).
+fn traverse_instances(ray: Ray, t_max: f32, skip: vec2<u32>, any: bool) -> Hit {
+    var best = no_hit(t_max);
+    let r = prepare_ray(ray);
+    let root = tlas[0];
+    let slack = cull_slack_in(ray, root.aabb_min, root.aabb_max);
+    var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
+    if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
+        return best;
+    }
+    var stack_node: array<u32, TRACE_STACK_SIZE>;
+    var stack_t: array<f32, TRACE_STACK_SIZE>;
+    var sp = 0u;
+    var node = root;
+    loop {
+        if node.prim_count > 0u {
+            for (var k = node.first; k < node.first + node.prim_count; k++) {
+                let inst = instances[k];
+                if inst.root == INVALID_INDEX {
+                    continue; // a mesh without triangles
+                }
+                let s = select(INVALID_INDEX, skip.y, skip.x == k);
+                let h = traverse_tree(inst.root, inst_to_object(inst, ray), best, s, any, k, inst.material);
+                if h.index != best.index || h.instance != best.instance {
+                    best = h;
+                    if any {
+                        return best;
+                    }
+                    limit = best.t * CULL_SCALE + slack;
+                }
+            }
+        } else {
+            let left = tlas[node.first];
+            let right = tlas[node.first + 1u];
+            let tl = slab(left.aabb_min, left.aabb_max, r, limit);
+            let tr = slab(right.aabb_min, right.aabb_max, r, limit);
+            if tl >= 0.0 && tr >= 0.0 {
+                if sp < TRACE_STACK_SIZE {
+                    stack_node[sp] = select(node.first, node.first + 1u, tl <= tr);
+                    stack_t[sp] = max(tl, tr);
+                    sp += 1u;
+                }
+                if tl <= tr {
+                    node = left;
+                } else {
+                    node = right;
+                }
+                continue;
+            }
+            if tl >= 0.0 {
+                node = left;
+                continue;
+            }
+            if tr >= 0.0 {
+                node = right;
+                continue;
+            }
+        }
+        var found = false;
+        while sp > 0u {
+            sp -= 1u;
+            if stack_t[sp] <= limit {
+                node = tlas[stack_node[sp]];
+                found = true;
+                break;
+            }
+        }
+        if !found {
+            break;
+        }
+    }
+    return best;
+}
+
+// The closest hit with 0 < t <= t_max, leaving out the triangle `skip` (instance, triangle
+// position; INVALID_INDEX positions: none): the scene's one tree, or its two levels.
+fn closest_hit(ray: Ray, t_max: f32, skip: vec2<u32>) -> Hit {
+    if HAS_INSTANCES {
+        return traverse_instances(ray, t_max, skip, false);
+    }
+    return traverse_tree(0u, ray, no_hit(t_max), skip.y, false, 0u, INVALID_INDEX);
+}
+
+fn occluded(ray: Ray, t_max: f32, skip: vec2<u32>) -> bool {
+    if HAS_INSTANCES {
+        return traverse_instances(ray, t_max, skip, true).index != INVALID_INDEX;
+    }
+    return traverse_tree(0u, ray, no_hit(t_max), skip.y, true, 0u, INVALID_INDEX).index != INVALID_INDEX;
 }
 
 // ---- textures: src/texture/mod.rs ----
@@ -480,6 +618,9 @@ fn triangle_uv(index: u32, u: f32, v: f32) -> vec2<f32> {
 // The caller tests the triangle's `cutout` flag first, from the copy it intersected.
 fn cut_out(index: u32, material: u32, u: f32, v: f32) -> bool {
     let mat = materials[material];
+    if mat.alpha_tex == INVALID_INDEX {
+        return false; // an instance's opaque override of a masked mesh
+    }
     let t = tex_sample(mat.alpha_tex, triangle_uv(index, u, v));
     let header = 256u + 4u * (mat.alpha_tex & 0xffffffu);
     let coverage = select(t.x, t.w, (textures[header + 3u] & 2u) != 0u);
@@ -669,7 +810,7 @@ fn direct_env(
     wo: vec3<f32>,
     beta: vec3<f32>,
     u: vec2<f32>,
-    surface: u32,
+    surface: vec2<u32>,
 ) -> vec4<f32> {
     let s = env_sample(u);
     if !(s.w > 0.0) {
@@ -718,13 +859,27 @@ fn agrees(wi_ng: f32, wo_ng: f32, wi_n: f32, wo_n: f32) -> bool {
     return ((wi_ng > 0.0) == (wo_ng > 0.0)) == ((wi_n > 0.0) == (wo_n > 0.0)) && wi_ng != 0.0;
 }
 
-// SurfaceHit::shading_normal: the vertex normals of leaf `index` interpolated at (u, v),
-// normalised and turned to ng's side; zero where a vertex has none or they cancel.
-fn shading_normal(index: u32, u: f32, v: f32, ng: vec3<f32>) -> vec3<f32> {
+// The inverse transpose of instance `inst`'s placement applied to the object-space normal
+// `n`, normalised (as Geometry::intersect_from places a mesh's vertex normals).
+fn inst_normal(inst: u32, n: vec3<f32>) -> vec3<f32> {
+    let m = instances[inst];
+    return normalize_or_zero(vec3<f32>(dot(m.to_object_x, n), dot(m.to_object_y, n), dot(m.to_object_z, n)));
+}
+
+// SurfaceHit::shading_normal: the vertex normals of leaf `index` (of instance `inst`, in a
+// two-level scene) interpolated at (u, v), normalised and turned to ng's side; zero where a
+// vertex has none or they cancel. A mirroring instance swaps two vertices and the
+// barycentrics with them, which leaves the interpolation as it is.
+fn shading_normal(index: u32, inst: u32, u: f32, v: f32, ng: vec3<f32>) -> vec3<f32> {
     let b = 9u * index;
-    let a = vec3<f32>(normals[b], normals[b + 1u], normals[b + 2u]);
-    let c1 = vec3<f32>(normals[b + 3u], normals[b + 4u], normals[b + 5u]);
-    let c2 = vec3<f32>(normals[b + 6u], normals[b + 7u], normals[b + 8u]);
+    var a = vec3<f32>(normals[b], normals[b + 1u], normals[b + 2u]);
+    var c1 = vec3<f32>(normals[b + 3u], normals[b + 4u], normals[b + 5u]);
+    var c2 = vec3<f32>(normals[b + 6u], normals[b + 7u], normals[b + 8u]);
+    if HAS_INSTANCES {
+        a = inst_normal(inst, a);
+        c1 = inst_normal(inst, c1);
+        c2 = inst_normal(inst, c2);
+    }
     let zero = vec3<f32>(0.0);
     if all(a == zero) || all(c1 == zero) || all(c2 == zero) {
         return zero;
@@ -748,7 +903,7 @@ fn direct_light(
     wo: vec3<f32>,
     beta: vec3<f32>,
     rng: ptr<function, Rng>,
-    surface: u32,
+    surface: vec2<u32>,
 ) -> vec4<f32> {
     var u_select = rng_f32(rng);
     let u = rng_vec2(rng);
@@ -819,7 +974,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
     var rays = 0u;
     var ray = camera;
     // The triangle the ray leaves, which it skips (as on the CPU); shadow rays skip theirs.
-    var surface = INVALID_INDEX;
+    var surface = vec2<u32>(0u, INVALID_INDEX);
     // The probability that next-event estimation picks an area light, not the map.
     var area_select = 1.0;
     var env_lit = false;
@@ -836,10 +991,30 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
             }
             break;
         }
-        let tri = triangles[hit.index];
-        let ng = unit_normal(tri.v0, tri.v1, tri.v2);
+        var tri = triangles[hit.index];
+        var mirrors = false;
+        if HAS_INSTANCES {
+            // The triangle placed in the world (Triangle::placed, its vertex order kept: a
+            // mirroring instance's normal is turned instead), its material and light density.
+            let inst = instances[hit.instance];
+            tri.v0 = inst_to_world(inst, tri.v0);
+            tri.v1 = inst_to_world(inst, tri.v1);
+            tri.v2 = inst_to_world(inst, tri.v2);
+            if inst.material != INVALID_INDEX {
+                tri.material = inst.material;
+            }
+            tri.light_pdf = 0.0;
+            if inst.light_base != INVALID_INDEX {
+                tri.light_pdf = light_pdfs[inst.light_base + prim_ids[hit.index]];
+            }
+            mirrors = inst.mirrors != 0u;
+        }
+        var ng = unit_normal(tri.v0, tri.v1, tri.v2);
         if all(ng == vec3<f32>(0.0)) {
             break;
+        }
+        if mirrors {
+            ng = -ng;
         }
         let sp = point_with_error(tri.v0, tri.v1, tri.v2, hit.u, hit.v);
         let wo_world = -ray.dir;
@@ -874,7 +1049,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         var check = false;
         var ns = vec3<f32>(0.0);
         if HAS_SHADING_NORMALS {
-            ns = shading_normal(hit.index, hit.u, hit.v, ng);
+            ns = shading_normal(hit.index, hit.instance, hit.u, hit.v, ng);
         }
         if HAS_TEXTURES && mat.normal_tex != INVALID_INDEX {
             let mapped = normal_mapped(hit.index, hit.u, hit.v, tri, mat, select(ns, ng, all(ns == vec3<f32>(0.0))), ng);
@@ -889,7 +1064,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         let frame = frame_from_normal(n);
         let wo = to_local(frame, wo_world);
         if ((HAS_LIGHTS && params.light_count > 0u) || env_lit) && !mat_is_delta(mat) {
-            let direct = direct_light(mat, frame, sp, ng, check, wo_ng, wo, beta, rng, hit.index);
+            let direct = direct_light(mat, frame, sp, ng, check, wo_ng, wo, beta, rng, vec2<u32>(hit.instance, hit.index));
             l += direct.xyz;
             rays += u32(direct.w);
         }
@@ -907,7 +1082,7 @@ fn radiance(camera: Ray, rng: ptr<function, Rng>) -> PathResult {
         prev_pdf = s.pdf;
         prev_delta = s.is_delta;
         ray = spawn_ray(sp, ng, wi_world);
-        surface = hit.index;
+        surface = vec2<u32>(hit.instance, hit.index);
         if depth >= RR_DEPTH {
             let q = min(max3(beta), 0.95);
             if rng_f32(rng) >= q {

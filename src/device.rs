@@ -6,9 +6,10 @@
 //! holds what differs between them beyond the kernel:
 //! - the BVH: `lbvh` and `lbvh+prbvh` build on the GPU itself, `auto` times the device it
 //!   renders on, and other builders build on the CPU;
-//! - animation: the CPU keeps an instanced scene's two-level BVH and updates it each frame; the
-//!   GPU traces flat scenes only, so an animated or instanced scene is flattened and rebuilt
-//!   per frame (with `lbvh` unless a builder other than `auto` is named);
+//! - animation: both devices keep an instanced scene's two-level BVH (a tree per mesh, built
+//!   once, under a top-level tree of instances) and update its top level in place each frame;
+//!   the GPU then uploads the instances and the top level again, its meshes staying on the
+//!   device;
 //! - samples `auto` timed on the GPU become the first samples of the first frame.
 //!
 //! Without the `gpu` feature only [`Device::Cpu`] exists.
@@ -128,11 +129,10 @@ impl BuilderChoice {
     /// within 10% of the fastest fixed builder on every scene and sample count measured but a
     /// 1M-triangle city, where binned SAH wins, and within 10% of the former default
     /// `lbvh+prbvh` nearly everywhere, many times faster at 1 spp (docs/benchmarks.md,
-    /// "Builder auto"). On the GPU, `lbvh+prbvh` (built there), and `lbvh`
-    /// for a scene the GPU rebuilds flat every frame (animated or instanced), where PRBVH over
-    /// every world-space triangle would cost each frame far more than it saves; the GPU's
-    /// `auto`, decided before the render, missed that mark (it stayed on the LBVH where the
-    /// GPU's own reinsertion would have paid).
+    /// "Builder auto"). On the GPU, `lbvh+prbvh` (built there) for a flat scene, and `auto`
+    /// for a two-level one (animated or instanced), whose meshes, built once, get `lbvh+prbvh`
+    /// as on the CPU; the GPU's `auto` for flat scenes, decided before the render, missed that
+    /// mark (it stayed on the LBVH where the GPU's own reinsertion would have paid).
     pub fn default_for(device: Device, scene: &Scene) -> BuilderChoice {
         match device {
             Device::Cpu => {
@@ -141,8 +141,11 @@ impl BuilderChoice {
             }
             #[cfg(feature = "gpu")]
             Device::Gpu(_) => {
-                let name = if wants_instancing(scene) { "lbvh" } else { "lbvh+prbvh" };
-                BuilderChoice::Fixed(name.parse().expect("a builder name"))
+                if wants_instancing(scene) {
+                    BuilderChoice::Auto
+                } else {
+                    BuilderChoice::Fixed("lbvh+prbvh".parse().expect("a builder name"))
+                }
             }
         }
     }
@@ -233,9 +236,6 @@ pub struct Renderer {
     device: Device,
     render_scene: RenderScene,
     build: BuildReport,
-    /// The builder an instanced scene is flattened with on the GPU, per frame.
-    #[cfg_attr(not(feature = "gpu"), allow(dead_code))]
-    flat_builder: Builder,
     /// The scene time the geometry stands at.
     time: f32,
     /// A line about the GPU kernel, for the user.
@@ -279,7 +279,7 @@ impl From<Tracing> for Forms {
 
 impl Renderer {
     /// Builds `scene` for rendering on `device`. `time` is the scene time of the first frame to
-    /// be rendered ([`first_frame_time`] for a still): the GPU's flat scene is built there, while
+    /// be rendered ([`first_frame_time`] for a still): the GPU's scene is placed there, while
     /// the CPU builds at the scene's first frame and moves with [`Renderer::set_time`].
     /// `settings` and `frames` (the number of frames to come) tell `auto` how long the render
     /// will be; `settings.clamp` is applied. On the CPU the trees are traced as `tracing` says
@@ -296,12 +296,6 @@ impl Renderer {
     ) -> Result<Renderer, DeviceError> {
         let forms: Forms = forms.into();
         let tracing = forms.cpu;
-        let lbvh: Builder = "lbvh".parse().expect("a builder name");
-        let flat_builder = match builder {
-            BuilderChoice::Fixed(b) => *b,
-            // `auto` has no model for per-frame builds.
-            BuilderChoice::Auto => lbvh,
-        };
         #[cfg(not(feature = "gpu"))]
         let _ = time; // the CPU builds at the scene's first frame and moves with `set_time`
         let mut refiner = None;
@@ -320,7 +314,7 @@ impl Renderer {
             #[cfg(feature = "gpu")]
             Device::Gpu(ctx) => {
                 let form = trace::GpuForm::of(forms.gpu).map_err(DeviceError::Upload)?;
-                return Self::new_gpu(ctx, scene, builder, settings, (frames, time), (flat_builder, form));
+                return Self::new_gpu(ctx, scene, builder, settings, (frames, time), form);
             }
         };
         render_scene.sample_clamp = settings.clamp;
@@ -328,7 +322,6 @@ impl Renderer {
             device,
             render_scene,
             build,
-            flat_builder,
             time: first_frame_time(scene),
             kernel_note: None,
             compile_seconds: 0.0,
@@ -349,12 +342,22 @@ impl Renderer {
         builder: &BuilderChoice,
         settings: &RenderSettings,
         (frames, time): (usize, f32),
-        (flat_builder, form): (Builder, trace::GpuForm),
+        form: trace::GpuForm,
     ) -> Result<Renderer, DeviceError> {
         let mut timed = None;
         let mut device_wide = None;
         let (render_scene, build) = if wants_instancing(scene) {
-            trace::flatten(scene, time, &flat_builder)
+            // Two levels, as on the CPU: each mesh's tree built once (in object space), the
+            // instances under a top-level tree the frames update in place.
+            let mesh_builder = match builder {
+                BuilderChoice::Fixed(b) => *b,
+                BuilderChoice::Auto => crate::render::auto::instanced_builder(),
+            };
+            let (mut rs, report) = RenderScene::build(scene, &mesh_builder, Tracing::gpu());
+            if time != first_frame_time(scene) {
+                rs.set_time(scene, time, &TopLevelUpdate::Dynamic(DynamicConfig::default()));
+            }
+            (rs, report)
         } else {
             // `lbvh` and `lbvh+prbvh` build on the GPU itself; other builders on the CPU.
             let on_gpu = match builder {
@@ -387,7 +390,6 @@ impl Renderer {
             device: Device::Gpu(ctx),
             render_scene,
             build,
-            flat_builder,
             time,
             kernel_note: None,
             compile_seconds: 0.0,
@@ -471,9 +473,9 @@ impl Renderer {
     }
 
     /// Moves an animated scene to scene time `time` and returns what updating its BVH took, in
-    /// milliseconds; `None` where nothing was updated (a static scene, or the GPU's flat scene
-    /// already at `time`). The CPU updates the two-level BVH in place (delete, clean up,
-    /// reinsert); the GPU flattens, rebuilds and uploads (all counted).
+    /// milliseconds; `None` where nothing was updated (a static scene, or the GPU's scene
+    /// already at `time`). Both devices update the two-level BVH's top level in place (delete,
+    /// clean up, reinsert); the GPU then uploads the instances and the top level (counted).
     pub fn set_time(&mut self, scene: &Scene, time: f32) -> Result<Option<f64>, DeviceError> {
         match self.device {
             Device::Cpu => {
@@ -490,18 +492,25 @@ impl Renderer {
                 Ok(stats.map(|_| t.elapsed().as_secs_f64() * 1e3))
             }
             #[cfg(feature = "gpu")]
-            Device::Gpu(_) => {
+            Device::Gpu(ctx) => {
                 if !wants_instancing(scene) || time == self.time {
                     return Ok(None);
                 }
-                let clamp = self.render_scene.sample_clamp;
                 let t = Instant::now();
-                let (rs, _) = trace::flatten(scene, time, &self.flat_builder);
-                self.gpu = None;
-                self.render_scene = rs;
+                // The top level updated in place on the host as on the CPU (delete, clean,
+                // reinsert), then the instances, the top-level tree and the lights uploaded:
+                // the meshes' trees stay on the device.
+                let stats =
+                    self.render_scene.set_time(scene, time, &TopLevelUpdate::Dynamic(DynamicConfig::default()));
                 self.time = time;
-                self.upload(clamp, None, None)?;
-                // The whole update: flattening, the build, the wide form and the upload.
+                if stats.is_none() {
+                    return Ok(None);
+                }
+                if let Some(gpu) = self.gpu.as_mut() {
+                    gpu.scene.update_instances(ctx, &self.render_scene).map_err(DeviceError::Upload)?;
+                    gpu.timed = None;
+                }
+                // The whole update: the top level and the upload.
                 Ok(Some(t.elapsed().as_secs_f64() * 1e3))
             }
         }

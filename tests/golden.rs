@@ -28,7 +28,8 @@
 //!
 //! The GPU path tracer (`src/gpu/trace.rs`) is checked against the same goldens by the same
 //! comparison ([`scenes_match_their_golden_images_on_the_gpu`]), at the same size, spp and seed;
-//! an animated scene is flattened at the same mid-sequence frame. Its failure images are named
+//! an animated scene is rendered in two levels at the same mid-sequence frame, reached frame by
+//! frame as on the CPU. Its failure images are named
 //! `<scene>.gpu.{actual,diff,z}.exr`. Without a GPU adapter those tests print why and pass,
 //! except under `CI=true`.
 
@@ -43,7 +44,6 @@ use arbor::gpu::trace::{self as gpu_trace, GpuForm, GpuScene};
 use arbor::image_io::{Image, read_exr, write_image};
 use arbor::render::RenderScene;
 use arbor::render::film::Film;
-use arbor::render::geometry::wants_instancing;
 use arbor::scene::{Scattering, Scene};
 
 /// Longest side of the test renders, in pixels; the scene's aspect ratio is kept.
@@ -124,20 +124,23 @@ fn render(scene: &Scene, seed: u64) -> Estimate {
     Estimate { mean: film.mean(), stderr: film.stderr() }
 }
 
-/// [`render`] on the GPU: the same scene, frame, seed and spp. A static scene is built as for
-/// the CPU; an animated one is flattened at the middle of its frame range.
+/// [`render`] on the GPU: the same scene, frame, seed and spp. An animated scene is uploaded in
+/// two levels at its first frame and brought to the middle of its frame range frame by frame,
+/// each frame's top level uploaded again ([`GpuScene::update_instances`]), as a sequence render
+/// gets there.
 fn render_gpu(scene: &Scene, seed: u64) -> Estimate {
     let ctx = arbor::gpu::GpuContext::shared().unwrap_or_else(|e| panic!("{e}"));
     let lbvh = "lbvh".parse::<Builder>().unwrap();
-    let (rs, _) = if wants_instancing(scene) {
-        let time =
-            scene.animation.as_ref().map_or(0.0, |a| scene.frame_time(a.frames.start + a.frames.len() as u32 / 2));
-        gpu_trace::flatten(scene, time, &lbvh)
-    } else {
-        RenderScene::build(scene, &lbvh, common::tracing())
-    };
-    let gpu =
+    let (mut rs, _) = RenderScene::build(scene, &lbvh, arbor::bvh::Tracing::gpu());
+    let mut gpu =
         GpuScene::upload(ctx, &rs, GpuForm::default()).unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
+    if let Some(a) = &scene.animation {
+        let update = arbor::bvh::dynamic::instances::TopLevelUpdate::Dynamic(Default::default());
+        for f in a.frames.start + 1..=a.frames.start + a.frames.len() as u32 / 2 {
+            rs.set_time(scene, scene.frame_time(f), &update);
+            gpu.update_instances(ctx, &rs).unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
+        }
+    }
     let out = gpu_trace::render(ctx, &gpu, seed, scene.render.max_depth, SPP)
         .unwrap_or_else(|e| panic!("{}: {e}", scene.path.display()));
     assert_eq!(out.film.non_finite_count(), 0, "{}: non-finite samples on the GPU", scene.path.display());

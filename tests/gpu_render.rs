@@ -189,6 +189,94 @@ fn gpu_matches_cpu_with_a_thin_lens_and_a_clamp() {
     gpu_matches_cpu("cornell-box, thin lens, clamp 2", scene, 32, Some(2.0));
 }
 
+/// Two levels on the GPU: `textured-sky` made animated (so it renders with a tree per mesh
+/// under a top-level tree of objects), with a mirrored copy of its lattice, renders as the CPU
+/// renders it (cut-out masks, a normal map, textures, the sky map and a conductor, through
+/// instance transforms), in both tree forms, at its first frame and after the top level was
+/// updated to its second frame and uploaded again.
+#[test]
+fn gpu_matches_cpu_in_two_levels() {
+    let Some(ctx) = gpu_or_skip("gpu_matches_cpu_in_two_levels") else { return };
+    let assets = scene_path("assets");
+    let text = std::fs::read_to_string(scene_path("textured-sky.toml"))
+        .unwrap()
+        .replace("\"assets/", &format!("\"{}/", assets.display()))
+        + "\n[animation]\nfps = 24\nframes = [0, 2]\n\
+           [[objects]]\nshape = \"quad\"\nmaterial = \"lattice\"\nscale = [-0.8, 0.8, 0.8]\n\
+           [[objects.keyframes]]\ntime = 0\ntranslate = [-0.9, 0.8, 0.4]\n\
+           [[objects.keyframes]]\ntime = 1\ntranslate = [-0.5, 0.8, 0.4]\n";
+    let dir = std::env::temp_dir().join(format!("arbor-gpu-two-level-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("scene.toml"), text).unwrap();
+    let mut scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
+    assert!(arbor::render::geometry::wants_instancing(&scene));
+    scene.camera.width = 64;
+    scene.camera.height = 40;
+    let (mut rs, _) = RenderScene::build(&scene, &lbvh(), arbor::bvh::Tracing::gpu());
+    assert!(matches!(rs.geometry, arbor::render::geometry::Geometry::Instanced(_)));
+    let (spp, depth) = (64, 4);
+    for form in [GpuForm::Wide8, GpuForm::Binary] {
+        let mut gpu = GpuScene::upload(ctx, &rs, form).unwrap_or_else(|e| panic!("{e}"));
+        assert!(gpu.features.instances && gpu.features.cutouts, "{:?}", gpu.features);
+        for frame in 0..2 {
+            if frame == 1 {
+                let update = arbor::bvh::dynamic::instances::TopLevelUpdate::Dynamic(Default::default());
+                rs.set_time(&scene, scene.frame_time(1), &update);
+                gpu.update_instances(ctx, &rs).unwrap();
+            }
+            let out = trace::render(ctx, &gpu, 1, depth, spp).unwrap();
+            assert_eq!(out.film.non_finite_count(), 0);
+            let cpu = render_cpu(&rs, 2, spp, depth);
+            let (worst, threshold) = block_z(&out.film, &cpu);
+            let name = format!("two levels, {}, frame {frame}", form.name());
+            eprintln!("{name}: worst block |z| {worst:.2} (limit {threshold:.2})");
+            assert!(worst <= threshold, "{name}: GPU and CPU differ: worst block |z| {worst:.2} > {threshold:.2}");
+        }
+        // Back to frame 0 for the other form.
+        let update = arbor::bvh::dynamic::instances::TopLevelUpdate::Dynamic(Default::default());
+        rs.set_time(&scene, scene.frame_time(0), &update);
+    }
+}
+
+/// The memory of a two-level scene on the GPU follows its instances: 300 instances of one
+/// 20,480-triangle mesh take the mesh's bytes once plus a fixed number of bytes an instance
+/// (its transforms and indices, 128 bytes, and its share of the top-level tree, two nodes of
+/// 32), not 300 copies of its triangles; and they render.
+#[test]
+fn instances_cost_their_transforms_on_the_gpu() {
+    let Some(ctx) = gpu_or_skip("instances_cost_their_transforms_on_the_gpu") else { return };
+    let mut text = String::from(
+        "[camera]\nposition = [0, 30, 60]\nlook_at = [0, 0, 0]\nfov = 40\nresolution = [32, 24]\n\
+         [environment]\nradiance = [1, 1, 1]\n[materials.m]\ntype = \"diffuse\"\nalbedo = [0.5, 0.5, 0.5]\n\
+         [animation]\nfps = 24\nframes = [0, 2]\n",
+    );
+    text += "[[objects]]\nshape = \"sphere\"\nsubdivisions = 5\nmaterial = \"m\"\n\
+             [objects.scatter]\ncount = 300\nseed = 4\nmin = [-30, 1, -20]\nmax = [30, 1, 20]\n\
+             moving = 0.2\nradius = 1.0\nperiod = 2.0\n";
+    let dir = std::env::temp_dir().join(format!("arbor-gpu-instances-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("scene.toml"), text).unwrap();
+    let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("{e}"));
+    let (rs, _) = RenderScene::build(&scene, &lbvh(), arbor::bvh::Tracing::gpu());
+    let arbor::render::geometry::Geometry::Instanced(g) = &rs.geometry else { panic!("not two levels") };
+    let per_mesh: Vec<usize> = g.mesh_triangles().iter().map(Vec::len).collect();
+    let (instances, world) = (g.two_level.instances().len(), rs.geometry.world_triangle_count());
+    assert_eq!(instances, 300);
+    for form in [GpuForm::Wide8, GpuForm::Binary] {
+        let gpu = GpuScene::upload(ctx, &rs, form).unwrap();
+        let mesh_triangles: usize = per_mesh.iter().sum();
+        // The trees and triangle order hold each mesh's triangles once.
+        assert!(gpu.tree_bytes < 200 * mesh_triangles, "{}: {} tree bytes", form.name(), gpu.tree_bytes);
+        assert!(gpu.tree_bytes * 100 < 200 * world, "{}: the trees follow the world's triangles", form.name());
+        // The instances: 128 bytes each, and the top-level tree's 2n - 1 nodes (and its padding
+        // node) of 32.
+        assert!(gpu.instance_bytes() <= instances * (128 + 2 * 32) + 64, "{} bytes", gpu.instance_bytes());
+        let out = trace::render(ctx, &gpu, 1, 2, 1).unwrap();
+        let lit = out.film.mean().pixels.iter().filter(|p| p[0] < 0.99).count();
+        assert!(lit > 0, "{}: no sphere seen", form.name());
+    }
+}
+
 /// Each scene gets the variant it needs, and the all-features variant renders it the same.
 #[test]
 fn specialized_and_general_variants_agree() {
@@ -209,7 +297,8 @@ fn specialized_and_general_variants_agree() {
             shading_normals: false,
             env_map: false,
             textures: false,
-            cutouts: false
+            cutouts: false,
+            instances: false
         }
     );
     let mut gpu = GpuScene::upload(ctx, &rs, GpuForm::default()).unwrap();

@@ -129,13 +129,14 @@ fn bvh_node_layout() -> StructLayout {
 }
 
 /// Every struct shared with WGSL, in the order the prelude declares them.
-pub const SHARED_STRUCTS: [fn() -> StructLayout; 10] = [
+pub const SHARED_STRUCTS: [fn() -> StructLayout; 11] = [
     bvh_node_layout,
     GpuAabb::layout,
     LbvhParams::layout,
     PrbvhParams::layout,
     CollapseParams::layout,
     GpuTriangle::layout,
+    GpuInstance::layout,
     GpuMaterial::layout,
     GpuLight::layout,
     GpuPixel::layout,
@@ -206,6 +207,30 @@ pub struct GpuTriangle {
     pub light_pdf: f32,
     pub v2: Vec3,
     pub cutout: u32,
+}
+
+/// One placement of a mesh in a two-level scene ([`crate::bvh::dynamic::instances::Instance`]):
+/// its transforms as columns (x, y, z axes and translation; rays go into object space by
+/// `to_object`, hits come out by `to_world`), the root of its mesh's tree in the concatenated
+/// node buffer, its material override (`INVALID_INDEX`: the mesh's own), its first light id
+/// (`INVALID_INDEX`: none of its triangles emits), and whether it mirrors (1, else 0).
+pub struct GpuInstance {
+    pub to_object_x: Vec3,
+    pub root: u32,
+    pub to_object_y: Vec3,
+    pub material: u32,
+    pub to_object_z: Vec3,
+    pub light_base: u32,
+    pub to_object_t: Vec3,
+    pub mirrors: u32,
+    pub to_world_x: Vec3,
+    pub pad0: u32,
+    pub to_world_y: Vec3,
+    pub pad1: u32,
+    pub to_world_z: Vec3,
+    pub pad2: u32,
+    pub to_world_t: Vec3,
+    pub pad3: u32,
 }
 
 /// A material ([`crate::render::bsdf::Bsdf`] plus emission). `albedo` is the diffuse albedo,
@@ -327,6 +352,7 @@ const _: () = assert!(size_of::<LbvhParams>() == 32);
 const _: () = assert!(size_of::<PrbvhParams>() == 32);
 const _: () = assert!(size_of::<CollapseParams>() == 32);
 const _: () = assert!(size_of::<GpuTriangle>() == 48);
+const _: () = assert!(size_of::<GpuInstance>() == 128);
 const _: () = assert!(size_of::<GpuMaterial>() == 96);
 const _: () = assert!(size_of::<GpuLight>() == 112);
 const _: () = assert!(size_of::<GpuPixel>() == 96);

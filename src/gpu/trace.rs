@@ -73,7 +73,7 @@ use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{
-    BvhNode, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COATED, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
+    BvhNode, GpuInstance, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COATED, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
     MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP, TraceParams,
     WIDE_STACK_SIZE, with_prelude,
 };
@@ -164,6 +164,10 @@ pub struct Features {
     /// Cut-out masks, tested in the traversal (only with `textures`). Apart from `textures`,
     /// since the test slows the traversal loop even where no triangle is masked.
     pub cutouts: bool,
+    /// Two levels: meshes in object space under a top-level tree of instances. Not a feature
+    /// to widen: it says what the scene's buffers are, and a render compiles the variant its
+    /// scene's geometry names, whatever this says.
+    pub instances: bool,
 }
 
 impl Features {
@@ -179,9 +183,10 @@ impl Features {
         env_map: false,
         textures: false,
         cutouts: false,
+        instances: false,
     };
 
-    /// Every feature: a variant that renders any scene.
+    /// Every feature: a variant that renders any scene (with its geometry's `instances`).
     pub const ALL: Features = Features {
         dielectric: true,
         conductor: true,
@@ -193,6 +198,7 @@ impl Features {
         env_map: true,
         textures: true,
         cutouts: true,
+        instances: false,
     };
 
     /// What `scene` uses.
@@ -205,10 +211,14 @@ impl Features {
             environment: scene.environment.is_some(),
             lights: !scene.lights.is_empty(),
             thin_lens: scene.camera.parts().lens_radius != 0.0,
-            shading_normals: matches!(&scene.geometry, Geometry::Flat(f) if !f.normals.is_empty()),
+            shading_normals: match &scene.geometry {
+                Geometry::Flat(f) => !f.normals.is_empty(),
+                Geometry::Instanced(g) => g.mesh_normals().iter().any(|n| !n.is_empty()),
+            },
             env_map: scene.environment_light().is_some(),
             textures: scene.materials.iter().any(RenderMaterial::is_textured),
             cutouts: scene.materials.iter().any(|m| m.alpha.is_some()),
+            instances: matches!(scene.geometry, Geometry::Instanced(_)),
         }
     }
 
@@ -216,7 +226,7 @@ impl Features {
     pub fn key(&self) -> String {
         let b = |x: bool| u8::from(x);
         format!(
-            "trace[dielectric={} conductor={} coated={} environment={} lights={} thin_lens={} shading_normals={} env_map={} textures={} cutouts={}]",
+            "trace[dielectric={} conductor={} coated={} environment={} lights={} thin_lens={} shading_normals={} env_map={} textures={} cutouts={} instances={}]",
             b(self.dielectric),
             b(self.conductor),
             b(self.coated),
@@ -226,12 +236,24 @@ impl Features {
             b(self.shading_normals),
             b(self.env_map),
             b(self.textures),
-            b(self.cutouts)
+            b(self.cutouts),
+            b(self.instances)
         )
     }
 
-    /// Every combination (cut-outs only with textures), for tests that validate each variant.
+    /// Every combination (cut-outs only with textures), for tests that validate each variant;
+    /// two levels with each combination of the features the traversal and the hit's shading
+    /// read (lights, shading normals, textures, cut-outs) and the rest off.
     pub fn every() -> Vec<Features> {
+        let flat = Self::every_flat();
+        let two_level = flat
+            .iter()
+            .filter(|f| !(f.dielectric || f.conductor || f.coated || f.environment || f.thin_lens || f.env_map))
+            .map(|&f| Features { instances: true, ..f });
+        flat.iter().copied().chain(two_level).collect()
+    }
+
+    fn every_flat() -> Vec<Features> {
         (0..1024u32)
             .filter(|m| m & 512 == 0 || m & 128 != 0)
             .map(|m| Features {
@@ -245,6 +267,7 @@ impl Features {
                 textures: m & 128 != 0,
                 coated: m & 256 != 0,
                 cutouts: m & 512 != 0,
+                instances: false,
             })
             .collect()
     }
@@ -257,7 +280,8 @@ pub fn shader_source(features: Features, form: GpuForm) -> String {
         "const HAS_DIELECTRIC: bool = {};\nconst HAS_CONDUCTOR: bool = {};\nconst HAS_COATED: bool = {};\n\
          const HAS_ENVIRONMENT: bool = {};\n\
          const HAS_LIGHTS: bool = {};\nconst HAS_THIN_LENS: bool = {};\nconst HAS_SHADING_NORMALS: bool = {};\n\
-         const HAS_ENV_MAP: bool = {};\nconst HAS_TEXTURES: bool = {};\nconst HAS_CUTOUTS: bool = {};\n",
+         const HAS_ENV_MAP: bool = {};\nconst HAS_TEXTURES: bool = {};\nconst HAS_CUTOUTS: bool = {};\n\
+         const HAS_INSTANCES: bool = {};\n",
         features.dielectric,
         features.conductor,
         features.coated,
@@ -267,7 +291,8 @@ pub fn shader_source(features: Features, form: GpuForm) -> String {
         features.shading_normals,
         features.env_map,
         features.textures,
-        features.textures && features.cutouts
+        features.textures && features.cutouts,
+        features.instances
     );
     with_prelude(&format!(
         "{flags}\n{}\n{}\n{}\n{}",
@@ -323,6 +348,23 @@ pub struct GpuScene {
     /// A scene for ray queries ([`GpuScene::for_rays`]): each primitive's triangle position;
     /// empty for a render's.
     position_of: Vec<u32>,
+    /// A two-level scene's instances, top-level tree and light densities; `None` for a flat one.
+    two_level: Option<TwoLevelBuffers>,
+}
+
+/// What a two-level scene holds on the device beside its meshes' trees and triangles, the part
+/// [`GpuScene::update_instances`] rewrites each frame.
+struct TwoLevelBuffers {
+    /// [`GpuInstance`]s by instance id.
+    instances: wgpu::Buffer,
+    /// The top-level tree ([`crate::bvh::dynamic::instances::TwoLevel::top_level`]), binary.
+    tlas: wgpu::Buffer,
+    /// Each light id's area density ([`crate::render::lights::Lights::pdf_area`]).
+    light_pdfs: wgpu::Buffer,
+    /// Each mesh's root node in the node buffer (`INVALID_INDEX` for a mesh without triangles).
+    mesh_roots: Vec<u32>,
+    /// Bytes of the three buffers.
+    bytes: usize,
 }
 
 /// Nodes on the longest root-to-leaf path of `bvh` (0 for an empty tree).
@@ -438,69 +480,18 @@ impl GpuScene {
         form: GpuForm,
         wide: Option<super::wide::DeviceWide>,
     ) -> Result<GpuScene, GpuError> {
-        let Geometry::Flat(flat) = &scene.geometry else {
-            return Err(GpuError::Other(
-                "the GPU path renders flat scenes; flatten an instanced one first (gpu::trace::flatten)".into(),
-            ));
-        };
-        let (mut tree, form) = match wide {
-            Some(w) => (Tree::from_device(w)?, GpuForm::Wide8),
-            None => (Tree::new(&flat.mesh.bvh, &flat.triangles, form)?, form),
-        };
-        // The nodes go first: a device tree's buffer is taken, its bytes counted before.
-        let tree_bytes = tree.bytes();
-        let nodes = tree.buffer(ctx)?;
-        let order = &tree.prim_ids;
-        let triangles: Vec<GpuTriangle> = order
-            .par_iter()
-            .map(|&prim| {
-                let t = &flat.triangles[prim as usize];
-                GpuTriangle {
-                    v0: t.v0,
-                    material: flat.material_of[prim as usize],
-                    v1: t.v1,
-                    light_pdf: scene.lights.pdf_area(prim),
-                    v2: t.v2,
-                    cutout: u32::from(scene.materials[flat.material_of[prim as usize] as usize].alpha.is_some()),
+        let geometry = match &scene.geometry {
+            Geometry::Flat(flat) => flat_geometry(ctx, scene, flat, form, wide)?,
+            Geometry::Instanced(g) => {
+                if wide.is_some() {
+                    return Err(GpuError::Other("a wide tree made on the GPU is of a flat scene".into()));
                 }
-            })
-            .collect();
-        let normals: Vec<f32> = if flat.normals.is_empty() {
-            Vec::new()
-        } else {
-            order.iter().flat_map(|&prim| flat.normals[prim as usize].map(|n| n.to_array())).flatten().collect()
+                instanced_geometry(ctx, scene, g, form)?
+            }
         };
         let materials: Vec<GpuMaterial> = scene.materials.iter().map(gpu_material).collect();
-        let (textures, uvs): (Vec<u32>, Vec<f32>) = if scene.textures.is_empty() {
-            (Vec::new(), Vec::new())
-        } else if flat.uvs.is_empty() {
-            // No mesh has coordinates: every lookup is at (0, 0), as on the CPU.
-            (gpu_texture_data(&scene.textures), vec![0.0; 6 * order.len()])
-        } else {
-            let uvs = order.iter().flat_map(|&prim| flat.uvs[prim as usize].map(|t| t.to_array())).flatten();
-            (gpu_texture_data(&scene.textures), uvs.collect())
-        };
-        let lights: Vec<GpuLight> = scene
-            .lights
-            .gpu_arrays()
-            .into_iter()
-            .map(|(t, cdf, l, texture)| {
-                let uvs = texture.map_or([Vec2::ZERO; 3], |(_, uvs)| uvs);
-                GpuLight {
-                    v0: t.v0,
-                    cdf,
-                    v1: t.v1,
-                    pdf_area: l.pdf_area,
-                    v2: t.v2,
-                    two_sided: u32::from(l.two_sided),
-                    normal: l.normal,
-                    emission_tex: gpu_texture_ref(texture.map(|(r, _)| r)),
-                    radiance: l.radiance,
-                    uvs: [uvs[0].x, uvs[0].y, uvs[1].x, uvs[1].y, uvs[2].x, uvs[2].y],
-                    ..Default::default()
-                }
-            })
-            .collect();
+        let textures = if scene.textures.is_empty() { Vec::new() } else { gpu_texture_data(&scene.textures) };
+        let lights = gpu_lights(scene);
         let light_count = lights.len() as u32;
         let camera = scene.camera.parts();
         let mut params = TraceParams {
@@ -526,27 +517,53 @@ impl GpuScene {
             (params.env_width, params.env_height, params.env_select) = (map.width, map.height, select);
             env_map = env_map_data(map);
         }
+        let g = geometry;
         Ok(GpuScene {
-            nodes,
-            triangles: ctx.storage_buffer("triangles", &at_least_one(triangles))?,
-            prim_ids: ctx.storage_buffer("triangle ids", &at_least_one(tree.prim_ids))?,
+            nodes: g.nodes,
+            triangles: ctx.storage_buffer("triangles", &at_least_one(g.triangles))?,
+            prim_ids: ctx.storage_buffer("triangle ids", &at_least_one(g.prim_ids))?,
             unused: unused_buffers(ctx)?,
             materials: ctx.storage_buffer("materials", &at_least_one(materials))?,
             lights: ctx.storage_buffer("lights", &at_least_one(lights))?,
-            normals: ctx.storage_buffer("normals", &at_least_one(normals))?,
+            normals: ctx.storage_buffer("normals", &at_least_one(g.normals))?,
             env_map: ctx.storage_buffer("environment map", &at_least_one(env_map))?,
             textures: ctx.storage_buffer("textures", &at_least_one(textures))?,
-            uvs: ctx.storage_buffer("texture coordinates", &at_least_one(uvs))?,
+            uvs: ctx.storage_buffer("texture coordinates", &at_least_one(g.uvs))?,
             params,
             features: if specialization_disabled() { Features::ALL } else { Features::of(scene) },
             width: scene.width,
             height: scene.height,
-            depth: tree.depth,
-            form,
-            tree_bytes,
-            tree_sah: tree.sah,
+            depth: g.depth,
+            form: g.form,
+            tree_bytes: g.tree_bytes,
+            tree_sah: g.sah,
             position_of: Vec::new(),
+            two_level: g.two_level,
         })
+    }
+
+    /// Brings a two-level scene's instances up to date with `scene` (the same scene, its
+    /// objects moved by [`RenderScene::set_time`]): the instances, the top-level tree and the
+    /// lights are uploaded again; the meshes' trees and triangles stay. Returns the bytes
+    /// uploaded.
+    pub fn update_instances(&mut self, ctx: &GpuContext, scene: &RenderScene) -> Result<usize, GpuError> {
+        let (Geometry::Instanced(g), Some(two_level)) = (&scene.geometry, self.two_level.as_mut()) else {
+            return Err(GpuError::Other("update_instances: not a two-level scene".into()));
+        };
+        let fresh = two_level_buffers(ctx, scene, g, std::mem::take(&mut two_level.mesh_roots))?;
+        let lights = gpu_lights(scene);
+        self.params.light_count = lights.len() as u32;
+        let light_bytes = size_of_val(lights.as_slice());
+        self.lights = ctx.storage_buffer("lights", &at_least_one(lights))?;
+        let bytes = fresh.bytes + light_bytes;
+        self.two_level = Some(fresh);
+        Ok(bytes)
+    }
+
+    /// Bytes of a two-level scene's instances, top-level tree and light densities (0 for a
+    /// flat scene): what the scene costs beyond its meshes.
+    pub fn instance_bytes(&self) -> usize {
+        self.two_level.as_ref().map_or(0, |t| t.bytes)
     }
 
     /// Bare triangles (by primitive id) under `bvh`, in `form`, for ray queries ([`trace_rays`]):
@@ -614,13 +631,272 @@ impl GpuScene {
             tree_bytes,
             tree_sah: tree.sah,
             position_of,
+            two_level: None,
         })
     }
 }
 
 /// The buffers bound to a kernel's unused bindings: one read-only, one read-write.
 fn unused_buffers(ctx: &GpuContext) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
-    Ok((ctx.storage_buffer("unused", &[0u32; 8])?, ctx.storage_buffer("unused", &[0u32; 8])?))
+    // Large enough for one element of any array bound (a GpuInstance is the largest).
+    Ok((ctx.storage_buffer("unused", &[0u32; 64])?, ctx.storage_buffer("unused", &[0u32; 64])?))
+}
+
+/// A scene's geometry as the GPU reads it, before the rest of the upload.
+struct GeometryData {
+    nodes: wgpu::Buffer,
+    triangles: Vec<GpuTriangle>,
+    prim_ids: Vec<u32>,
+    normals: Vec<f32>,
+    uvs: Vec<f32>,
+    depth: usize,
+    form: GpuForm,
+    tree_bytes: usize,
+    sah: f64,
+    two_level: Option<TwoLevelBuffers>,
+}
+
+/// A flat scene's tree (or the wide tree the GPU made of it) and its triangles in the tree's
+/// order, with their materials, light densities, normals and texture coordinates.
+fn flat_geometry(
+    ctx: &GpuContext,
+    scene: &RenderScene,
+    flat: &crate::render::geometry::Flat,
+    form: GpuForm,
+    wide: Option<super::wide::DeviceWide>,
+) -> Result<GeometryData, GpuError> {
+    let (mut tree, form) = match wide {
+        Some(w) => (Tree::from_device(w)?, GpuForm::Wide8),
+        None => (Tree::new(&flat.mesh.bvh, &flat.triangles, form)?, form),
+    };
+    // The nodes go first: a device tree's buffer is taken, its bytes counted before.
+    let tree_bytes = tree.bytes();
+    let nodes = tree.buffer(ctx)?;
+    let order = &tree.prim_ids;
+    let triangles: Vec<GpuTriangle> = order
+        .par_iter()
+        .map(|&prim| {
+            let t = &flat.triangles[prim as usize];
+            GpuTriangle {
+                v0: t.v0,
+                material: flat.material_of[prim as usize],
+                v1: t.v1,
+                light_pdf: scene.lights.pdf_area(prim),
+                v2: t.v2,
+                cutout: u32::from(scene.materials[flat.material_of[prim as usize] as usize].alpha.is_some()),
+            }
+        })
+        .collect();
+    let normals: Vec<f32> = if flat.normals.is_empty() {
+        Vec::new()
+    } else {
+        order.iter().flat_map(|&prim| flat.normals[prim as usize].map(|n| n.to_array())).flatten().collect()
+    };
+    let uvs: Vec<f32> = if scene.textures.is_empty() {
+        Vec::new()
+    } else if flat.uvs.is_empty() {
+        // No mesh has coordinates: every lookup is at (0, 0), as on the CPU.
+        vec![0.0; 6 * order.len()]
+    } else {
+        order.iter().flat_map(|&prim| flat.uvs[prim as usize].map(|t| t.to_array())).flatten().collect()
+    };
+    Ok(GeometryData {
+        nodes,
+        triangles,
+        prim_ids: std::mem::take(&mut tree.prim_ids),
+        normals,
+        uvs,
+        depth: tree.depth,
+        form,
+        tree_bytes,
+        sah: tree.sah,
+        two_level: None,
+    })
+}
+
+/// A two-level scene: every mesh's tree in `form`, built once, in one node buffer (each tree's
+/// child and triangle indices moved by where it starts), the meshes' object-space triangles in
+/// one array in their trees' orders (with their materials, normals and texture coordinates),
+/// and the instances with their top-level tree ([`two_level_buffers`]). A mesh placed many
+/// times is stored once, so the memory follows the instances, not the world's triangles.
+fn instanced_geometry(
+    ctx: &GpuContext,
+    scene: &RenderScene,
+    g: &crate::render::geometry::Instanced,
+    form: GpuForm,
+) -> Result<GeometryData, GpuError> {
+    let meshes = g.two_level.meshes();
+    let node_words = match form {
+        GpuForm::Binary => size_of::<BvhNode>() / 4,
+        GpuForm::Wide8 => super::wide::WIDE_NODE_WORDS,
+    };
+    let has_alpha = |m: u32| scene.materials.get(m as usize).is_some_and(|m| m.alpha.is_some());
+    // A mesh whose triangles some object overrides with a masked material: its triangles are
+    // tested for cut-outs (with the override, where the instance has one).
+    let mut overridden_masked = vec![false; meshes.len()];
+    for (inst, over) in g.two_level.instances().iter().zip(g.instance_materials()) {
+        if over.is_some_and(has_alpha) {
+            overridden_masked[inst.mesh as usize] = true;
+        }
+    }
+    let with_normals = g.mesh_normals().iter().any(|n| !n.is_empty());
+    let with_uvs = !scene.textures.is_empty();
+    let (mut words, mut prim_ids, mut triangles) = (Vec::<u32>::new(), Vec::new(), Vec::new());
+    let (mut normals, mut uvs, mut mesh_roots) = (Vec::new(), Vec::new(), Vec::with_capacity(meshes.len()));
+    let (mut depth, mut sah, mut largest) = (0, 0.0, 0);
+    for (m, mesh) in meshes.iter().enumerate() {
+        let tris = &g.mesh_triangles()[m];
+        if tris.is_empty() {
+            mesh_roots.push(INVALID_INDEX);
+            continue;
+        }
+        let tree = Tree::new(&mesh.bvh, tris, form)?;
+        let node_base = u32::try_from(words.len() / node_words).map_err(|_| too_many("nodes"))?;
+        let tri_base = u32::try_from(prim_ids.len()).map_err(|_| too_many("triangles"))?;
+        mesh_roots.push(node_base);
+        for node in tree.words.chunks_exact(node_words) {
+            let mut node = node.to_vec();
+            match form {
+                // BvhNode: `first` (word 3) is a child for an inner node, a triangle position
+                // for a leaf (`prim_count`, word 7, above 0).
+                GpuForm::Binary => node[3] += if node[7] > 0 { tri_base } else { node_base },
+                // The child base and the triangle base (words 4 and 5).
+                GpuForm::Wide8 => {
+                    node[4] += node_base;
+                    node[5] += tri_base;
+                }
+            }
+            words.extend(node);
+        }
+        (depth, largest) = (depth.max(tree.depth), largest.max(tris.len()));
+        if tris.len() == largest {
+            sah = tree.sah;
+        }
+        let (materials, mesh_normals, mesh_uvs) = (&g.mesh_materials()[m], &g.mesh_normals()[m], &g.mesh_uvs()[m]);
+        for &prim in &tree.prim_ids {
+            let (t, material) = (&tris[prim as usize], materials[prim as usize]);
+            let cutout = u32::from(overridden_masked[m] || has_alpha(material));
+            triangles.push(GpuTriangle { v0: t.v0, material, v1: t.v1, light_pdf: 0.0, v2: t.v2, cutout });
+            if with_normals {
+                let n = mesh_normals.get(prim as usize).copied().unwrap_or([Vec3::ZERO; 3]);
+                normals.extend(n.iter().flat_map(|v| v.to_array()));
+            }
+            if with_uvs {
+                let t = mesh_uvs.get(prim as usize).copied().unwrap_or([Vec2::ZERO; 3]);
+                uvs.extend(t.iter().flat_map(|v| v.to_array()));
+            }
+        }
+        prim_ids.extend(&tree.prim_ids);
+    }
+    let tree_bytes = size_of_val(words.as_slice()) + size_of_val(prim_ids.as_slice());
+    let nodes = ctx.storage_buffer("BVH nodes", &at_least_one(words))?;
+    let two_level = two_level_buffers(ctx, scene, g, mesh_roots)?;
+    Ok(GeometryData {
+        nodes,
+        triangles,
+        prim_ids,
+        normals,
+        uvs,
+        depth,
+        form,
+        tree_bytes,
+        sah,
+        two_level: Some(two_level),
+    })
+}
+
+fn too_many(what: &str) -> GpuError {
+    GpuError::Other(format!("over 2^32 {what} in the meshes of a two-level scene"))
+}
+
+/// The instances of `g` as the GPU reads them (their meshes' roots `mesh_roots`), the top-level
+/// tree, and each light id's area density.
+fn two_level_buffers(
+    ctx: &GpuContext,
+    scene: &RenderScene,
+    g: &crate::render::geometry::Instanced,
+    mesh_roots: Vec<u32>,
+) -> Result<TwoLevelBuffers, GpuError> {
+    let bases = g.light_bases();
+    let mesh_sizes: Vec<usize> = g.mesh_triangles().iter().map(Vec::len).collect();
+    let mut light_ids = 0usize;
+    let instances: Vec<GpuInstance> = g
+        .two_level
+        .instances()
+        .iter()
+        .enumerate()
+        .map(|(i, inst)| {
+            let base = bases.get(i).copied().unwrap_or(INVALID_INDEX);
+            if base != INVALID_INDEX {
+                light_ids = light_ids.max(base as usize + mesh_sizes[inst.mesh as usize]);
+            }
+            let (o, w) = (&inst.object_from_world, &inst.world_from_object);
+            GpuInstance {
+                to_object_x: o.matrix3.x_axis.into(),
+                root: mesh_roots[inst.mesh as usize],
+                to_object_y: o.matrix3.y_axis.into(),
+                material: g.instance_materials()[i].unwrap_or(INVALID_INDEX),
+                to_object_z: o.matrix3.z_axis.into(),
+                light_base: base,
+                to_object_t: o.translation.into(),
+                mirrors: u32::from(inst.mirrors),
+                to_world_x: w.matrix3.x_axis.into(),
+                to_world_y: w.matrix3.y_axis.into(),
+                to_world_z: w.matrix3.z_axis.into(),
+                to_world_t: w.translation.into(),
+                ..Default::default()
+            }
+        })
+        .collect();
+    let top = g.two_level.top_level();
+    let tlas: Vec<BvhNode> = if top.is_empty() {
+        // One leaf with an empty box: every ray misses it.
+        vec![BvhNode::leaf(Aabb::EMPTY, 0, 1)]
+    } else {
+        let bvh = top.bvh();
+        let d = depth(bvh);
+        if d > TRACE_STACK_SIZE as usize + 1 {
+            return Err(GpuError::Other(format!(
+                "the top-level BVH is {d} nodes deep, deeper than the GPU traversal stack allows ({} entries)",
+                TRACE_STACK_SIZE
+            )));
+        }
+        bvh.nodes.to_vec()
+    };
+    let light_pdfs: Vec<f32> = (0..light_ids as u32).map(|id| scene.lights.pdf_area(id)).collect();
+    let bytes = size_of_val(instances.as_slice()) + size_of_val(tlas.as_slice()) + size_of_val(light_pdfs.as_slice());
+    Ok(TwoLevelBuffers {
+        instances: ctx.storage_buffer("instances", &at_least_one(instances))?,
+        tlas: ctx.storage_buffer("top-level BVH", &tlas)?,
+        light_pdfs: ctx.storage_buffer("light densities", &at_least_one(light_pdfs))?,
+        mesh_roots,
+        bytes,
+    })
+}
+
+/// The scene's lights as the GPU reads them.
+fn gpu_lights(scene: &RenderScene) -> Vec<GpuLight> {
+    scene
+        .lights
+        .gpu_arrays()
+        .into_iter()
+        .map(|(t, cdf, l, texture)| {
+            let uvs = texture.map_or([Vec2::ZERO; 3], |(_, uvs)| uvs);
+            GpuLight {
+                v0: t.v0,
+                cdf,
+                v1: t.v1,
+                pdf_area: l.pdf_area,
+                v2: t.v2,
+                two_sided: u32::from(l.two_sided),
+                normal: l.normal,
+                emission_tex: gpu_texture_ref(texture.map(|(r, _)| r)),
+                radiance: l.radiance,
+                uvs: [uvs[0].x, uvs[0].y, uvs[1].x, uvs[1].y, uvs[2].x, uvs[2].y],
+                ..Default::default()
+            }
+        })
+        .collect()
 }
 
 /// A tree in the form the GPU traces, before upload.
@@ -733,7 +1009,8 @@ pub fn flatten(scene: &Scene, time: f32, builder: &Builder) -> (RenderScene, Bui
 /// The pipeline of `scene`'s variant and form, entry point `entry` (`trace` or `trace_rays`),
 /// compiled on first use and cached in `ctx`.
 fn pipeline(ctx: &GpuContext, scene: &GpuScene, entry: &str) -> wgpu::ComputePipeline {
-    let (features, form) = (scene.features, scene.form);
+    let features = Features { instances: scene.two_level.is_some(), ..scene.features };
+    let form = scene.form;
     ctx.pipeline_with_layout(
         &format!("{}[{}]", features.key(), form.name()),
         || shader_source(features, form),
@@ -744,7 +1021,7 @@ fn pipeline(ctx: &GpuContext, scene: &GpuScene, entry: &str) -> wgpu::ComputePip
 
 /// Bindings of the path tracer and the ray queries, one layout for both kernels: `(binding,
 /// read-only)`.
-const BINDINGS: [(u32, bool); 13] = [
+const BINDINGS: [(u32, bool); 16] = [
     (0, true),   // params
     (1, true),   // nodes
     (2, true),   // triangles
@@ -758,6 +1035,9 @@ const BINDINGS: [(u32, bool); 13] = [
     (10, true),  // triangle ids
     (11, true),  // query rays
     (12, false), // query hits
+    (13, true),  // instances
+    (14, true),  // top-level tree
+    (15, true),  // light densities
 ];
 
 /// The layout of [`BINDINGS`]: explicit, so that a kernel that reads fewer of them (the ray
@@ -827,6 +1107,9 @@ fn bind_group(
         whole(10, &scene.prim_ids),
         whole(11, rays),
         whole(12, hits),
+        whole(13, scene.two_level.as_ref().map_or(unused_read, |t| &t.instances)),
+        whole(14, scene.two_level.as_ref().map_or(unused_read, |t| &t.tlas)),
+        whole(15, scene.two_level.as_ref().map_or(unused_read, |t| &t.light_pdfs)),
     ];
     ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: None,

@@ -208,6 +208,37 @@ impl Instanced {
         }
     }
 
+    /// Each mesh's object-space triangles by triangle id.
+    pub fn mesh_triangles(&self) -> &[Vec<Triangle>] {
+        &self.mesh_triangles
+    }
+
+    /// Each mesh's material ids by triangle id (`u32::MAX` where an object overrides them).
+    pub fn mesh_materials(&self) -> &[Vec<u32>] {
+        &self.mesh_materials
+    }
+
+    /// Each mesh's object-space vertex normals by triangle id, or empty.
+    pub fn mesh_normals(&self) -> &[Vec<[Vec3; 3]>] {
+        &self.mesh_normals
+    }
+
+    /// Each mesh's texture coordinates by triangle id, or empty.
+    pub fn mesh_uvs(&self) -> &[Vec<[Vec2; 3]>] {
+        &self.mesh_uvs
+    }
+
+    /// Each object's material override.
+    pub fn instance_materials(&self) -> &[Option<u32>] {
+        &self.instance_material
+    }
+
+    /// Each object's first light id ([`Instanced::lights`]; `INVALID_INDEX`: none of its
+    /// triangles emits): its triangle `p` is light `base + p`.
+    pub fn light_bases(&self) -> &[u32] {
+        &self.light_base
+    }
+
     fn material(&self, instance: usize, prim: u32) -> u32 {
         let mesh = self.two_level.instances()[instance].mesh as usize;
         self.instance_material[instance].unwrap_or(self.mesh_materials[mesh][prim as usize])
