@@ -141,3 +141,164 @@ pub(crate) fn strategy_values(s: &anim_bench::StrategyReport) -> [f64; 8] {
         s.diffuse_mrays_final,
     ]
 }
+
+/// One way of keeping an animated scene on the GPU, measured over the frames.
+#[derive(serde::Serialize)]
+pub(crate) struct GpuAnimRow {
+    /// `two-level dynamic` (the top level updated in place: delete, clean, reinsert),
+    /// `two-level rebuild` (the top level rebuilt by binned SAH), or `flatten` (every object's
+    /// triangles in world space under one LBVH, rebuilt and uploaded).
+    pub strategy: String,
+    /// The GPU's tree form: `binary` or `wide8`.
+    pub form: String,
+    /// Median and largest per-frame update (host update and upload), the first frame's build
+    /// left out, in milliseconds.
+    pub update_ms: f64,
+    pub update_ms_max: f64,
+    /// Median render speed of a frame at `spp`, in Mrays/s.
+    pub mrays: f64,
+    /// Bytes on the device of the trees, triangle order and (two levels) instances.
+    pub device_bytes: usize,
+}
+
+#[derive(serde::Serialize)]
+pub(crate) struct GpuAnimReport {
+    pub scene: String,
+    pub adapter: String,
+    pub frames: u32,
+    pub spp: u32,
+    pub instances: usize,
+    pub world_triangles: usize,
+    pub rows: Vec<GpuAnimRow>,
+}
+
+/// `--animated SCENE --gpu`: the scene's first `--frames` frames (default 8) on the GPU, kept
+/// each way of [`GpuAnimRow::strategy`] in both forms; the frame rendered at 1 spp after each
+/// update.
+pub(crate) fn run_animated_gpu(args: &Args) -> Result<()> {
+    use arbor::bvh::dynamic::instances::TopLevelUpdate;
+    use arbor::gpu::trace::{self, GpuForm, GpuScene};
+    use arbor::render::RenderScene;
+    use std::time::Instant;
+    let path = args.animated.as_ref().expect("checked by the caller");
+    let scene = arbor::scene::Scene::load(path)?;
+    if !scene.is_animated() {
+        bail!("{}: nothing in the scene moves (no keyframes or orbiting scatter)", path.display());
+    }
+    let ctx = arbor::gpu::GpuContext::shared()?;
+    let animation = scene.animation.as_ref().expect("an animated scene has [animation]");
+    let frames = args.frames.unwrap_or(8).clamp(2, animation.frames.len().max(2) as u32);
+    let first = animation.frames.start;
+    let spp = 1;
+    let depth = scene.render.max_depth;
+    let builder: arbor::bvh::build::Builder = "lbvh+prbvh".parse().expect("a builder name");
+    let lbvh: arbor::bvh::build::Builder = "lbvh".parse().expect("a builder name");
+    eprintln!("{}: {frames} frames at {spp} spp on {}", path.display(), ctx.describe());
+    let mut rows = Vec::new();
+    let (mut instances, mut world) = (0, 0);
+    for strategy in ["two-level dynamic", "two-level rebuild", "flatten"] {
+        for form in [GpuForm::Wide8, GpuForm::Binary] {
+            let how = match strategy {
+                "two-level rebuild" => TopLevelUpdate::Rebuild,
+                _ => TopLevelUpdate::Dynamic(Default::default()),
+            };
+            let (mut updates, mut speeds, mut bytes) = (Vec::new(), Vec::new(), 0);
+            let mut state: Option<(RenderScene, GpuScene)> = None;
+            for f in first..first + frames {
+                let time = scene.frame_time(f);
+                let t = Instant::now();
+                let (rs, gpu) = match (strategy, state.take()) {
+                    ("flatten", _) => {
+                        let (rs, _) = trace::flatten(&scene, time, &lbvh);
+                        let gpu = GpuScene::upload(ctx, &rs, form)?;
+                        (rs, gpu)
+                    }
+                    (_, None) => {
+                        let (mut rs, _) = RenderScene::build(&scene, &builder, arbor::bvh::Tracing::gpu());
+                        rs.set_time(&scene, time, &how);
+                        let gpu = GpuScene::upload(ctx, &rs, form)?;
+                        (rs, gpu)
+                    }
+                    (_, Some((mut rs, mut gpu))) => {
+                        rs.set_time(&scene, time, &how);
+                        gpu.update_instances(ctx, &rs)?;
+                        (rs, gpu)
+                    }
+                };
+                if f > first {
+                    updates.push(t.elapsed().as_secs_f64() * 1e3);
+                } else {
+                    trace::compile(ctx, &gpu)?;
+                    world = rs.geometry.world_triangle_count();
+                    if let arbor::render::geometry::Geometry::Instanced(g) = &rs.geometry {
+                        instances = g.two_level.instances().len();
+                    }
+                }
+                bytes = gpu.tree_bytes + gpu.instance_bytes();
+                let t = Instant::now();
+                let out = trace::render(ctx, &gpu, 1, depth, spp)?;
+                speeds.push(out.rays as f64 / t.elapsed().as_secs_f64() / 1e6);
+                state = Some((rs, gpu));
+            }
+            let update_ms_max = updates.iter().copied().fold(0.0, f64::max);
+            let row = GpuAnimRow {
+                strategy: strategy.to_owned(),
+                form: form.name().to_owned(),
+                update_ms: arbor_bench::median(updates),
+                update_ms_max,
+                mrays: arbor_bench::median(speeds),
+                device_bytes: bytes,
+            };
+            eprintln!("  {} {}: update {:.2} ms, {:.3} Mrays/s", row.strategy, row.form, row.update_ms, row.mrays);
+            rows.push(row);
+        }
+    }
+    let report = GpuAnimReport {
+        scene: path.display().to_string(),
+        adapter: ctx.describe(),
+        frames,
+        spp,
+        instances,
+        world_triangles: world,
+        rows,
+    };
+    outln!(
+        "{} instances, {} triangles in the world, {} frames at {} spp, {}",
+        report.instances,
+        report.world_triangles,
+        report.frames,
+        report.spp,
+        report.adapter
+    );
+    outln!("{:<18} {:>6} {:>10} {:>10} {:>10} {:>12}", "strategy", "form", "update ms", "max ms", "Mrays/s", "device MB");
+    for r in &report.rows {
+        outln!(
+            "{:<18} {:>6} {:>10.2} {:>10.2} {:>10.3} {:>12.1}",
+            r.strategy,
+            r.form,
+            r.update_ms,
+            r.update_ms_max,
+            r.mrays,
+            r.device_bytes as f64 / 1e6
+        );
+    }
+    outln!("(update: median per frame after the first, host update and upload; render speed: median of the frames)");
+    write_outputs(
+        args,
+        &report,
+        |f| {
+            writeln!(f, "strategy,form,update_ms,update_ms_max,mrays,device_bytes")?;
+            for r in &report.rows {
+                writeln!(
+                    f,
+                    "{},{},{},{},{},{}",
+                    r.strategy, r.form, r.update_ms, r.update_ms_max, r.mrays, r.device_bytes
+                )?;
+            }
+            Ok(())
+        },
+        (format!("GPU animation: {}", report.scene), ("frame", "")),
+        &[],
+        false,
+    )
+}

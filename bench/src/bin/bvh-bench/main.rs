@@ -109,8 +109,10 @@ pub(crate) struct Args {
     /// The GPU: its LBVH (checked against the CPU's tree) and PRBVH with each lock scheme the
     /// adapter has, timed over --runs beside the CPU's, the collapse into its compressed 8-wide
     /// form, then the builder comparison with every ray set also traced on the GPU through both
-    /// of its forms (gpu_* fields in each builder's row).
-    #[arg(long, conflicts_with_all = ["converge", "animated", "procedural_animated", "memory"])]
+    /// of its forms (gpu_* fields in each builder's row). With --animated: the scene's frames on
+    /// the GPU, kept in two levels (the top level updated in place, or rebuilt) and flattened
+    /// and rebuilt per frame, each in both forms: per-frame update time, render speed, bytes.
+    #[arg(long, conflicts_with_all = ["converge", "procedural_animated", "memory"])]
     pub(crate) gpu: bool,
     /// (internal) The process --memory runs for one builder.
     #[arg(long, hide = true)]
@@ -153,6 +155,9 @@ fn run() -> Result<()> {
     }
     if args.memory {
         return run_memory(&args);
+    }
+    if args.gpu && args.animated.is_some() {
+        return animated::run_animated_gpu(&args);
     }
     if args.gpu {
         return run_gpu(&args, tracing);
