@@ -8,7 +8,10 @@
 #      primary, shadow and diffuse rays through both forms (binary: the baseline) on the dragon,
 #      city:1M and hairball:1M (`bvh-bench --gpu`);
 #   2. renders of bench/scenes/dragon.toml, scenes/instanced-field.toml (animated, 4 frames) and
-#      scenes/textured-sky.toml on the GPU in both forms and on the CPU.
+#      scenes/textured-sky.toml on the GPU in both forms and on the CPU;
+#   3. the animated scene's per-frame update and render speed on the GPU in two levels (the top
+#      level updated in place, or rebuilt) against flattening it every frame, in both forms
+#      (`bvh-bench --animated SCENE --gpu`).
 # Prints one table and writes OUT_DIR/gpu_check.json (rewritten after every step, so a run
 # stopped by a signal or by a step's time limit still leaves what it measured, and prints a
 # partial table). Each step has a time limit (STEP_SECONDS, default 90), and the whole run one
@@ -82,6 +85,14 @@ if builds:
         print(f"{s['input']:<14} {s['triangles']:>9} {num(s['lbvh_ms'])} {num(s['prbvh_ms']):>9} {num(s['collapse_ms']):>8} | "
               f"{num(w[0]):>9} {num(w[1]):>7} {num(w[2]):>7} | {num(b[0]):>8} {num(b[1]):>7} {num(b[2]):>7} | {num(ratio, '{:.2f}x'):>8} {s['mismatches']:>5}")
     print("(Mrays/s of the device's time per dispatch; ms of the device's time, the collapse on the GPU)")
+anims = [s for s in steps if s["kind"] == "animation"]
+for s in anims:
+    if s.get("error"):
+        print(f"animation {s['scene']}: {s['error']}")
+        continue
+    print(f"{'animation ' + s['scene']:<30} {'form':<7} {'update ms':>9} {'Mrays/s':>9} {'device MB':>9}")
+    for r in s["rows"]:
+        print(f"{r['strategy']:<30} {r['form']:<7} {num(r['update_ms'], '{:.2f}'):>9} {num(r['mrays'], '{:.3f}'):>9} {num(r['device_bytes'] / 1e6):>9}")
 renders = [s for s in steps if s["kind"] == "render"]
 if renders:
     print(f"{'scene':<18} {'device':<6} {'form':<7} {'frames':>6} {'build ms':>9} {'update ms':>9} {'render s':>9} {'Mrays/s':>9}")
@@ -134,6 +145,33 @@ print(json.dumps({
     "cpu": [b.get("primary_mrays"), b.get("shadow_mrays"), b.get("diffuse_mrays")],
     "mismatches": b.get("gpu_hit_mismatches"), "exit": rc,
 }))
+EOF
+    summarise >/dev/null
+}
+
+# bvh-bench --animated SCENE --gpu: two levels against flattening, per frame.
+anim_step() {
+    local scene=$1; shift
+    local name
+    name=$(basename "$scene" .toml)
+    local json="$out/anim-$name.json"
+    rm -f "$json"
+    local limit
+    limit=$(step_limit)
+    [ "$limit" = 0 ] && { skipped "{\"kind\": \"animation\", \"scene\": \"$name\"}"; return; }
+    timeout "$limit" "$bin/bvh-bench" --animated "$scene" --gpu "$@" --json "$json" >"$out/anim-$name.log" 2>&1
+    local rc=$?
+    python3 - "$json" "$name" "$rc" >>"$results" <<'EOF'
+import json, sys
+path, name, rc = sys.argv[1], sys.argv[2], int(sys.argv[3])
+try:
+    r = json.load(open(path))
+except Exception:
+    why = "stopped by its time limit" if rc == 124 else f"bvh-bench exit {rc}"
+    print(json.dumps({"kind": "animation", "scene": name, "error": f"{why} (see anim-{name}.log)"}))
+    sys.exit()
+print(json.dumps({"kind": "animation", "scene": name, "adapter": r["adapter"], "frames": r["frames"],
+                  "instances": r["instances"], "rows": r["rows"], "exit": rc}))
 EOF
     summarise >/dev/null
 }
@@ -213,4 +251,5 @@ for run in "gpu wide8" "gpu binary" "cpu default"; do
     # shellcheck disable=SC2086
     render_step "$animated" $run "${frames[@]}" "${render_opts[@]}"
 done
+anim_step "$animated" --frames 4
 summarise

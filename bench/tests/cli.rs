@@ -617,6 +617,34 @@ fn gpu_builds_are_reported_beside_the_cpu() {
     }
 }
 
+/// `--animated SCENE --gpu`: two levels (top level updated or rebuilt) and flattening, each in
+/// both forms, with an update time, a render speed and the device's bytes.
+#[test]
+fn gpu_animation_strategies_are_reported() {
+    if common::gpu_or_skip("bvh-bench --animated --gpu").is_none() {
+        return;
+    }
+    let dir = temp_dir("gpu-anim");
+    let json = dir.join("a.json");
+    let scene = root().join("scenes/cornell-animated.toml");
+    run_ok(bench().arg("--animated").arg(&scene).args(["--gpu", "--frames", "2", "--json"]).arg(&json));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let rows = report["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 6, "{report}");
+    let row = |strategy: &str, form: &str| {
+        rows.iter().find(|r| r["strategy"] == strategy && r["form"] == form).unwrap_or_else(|| panic!("{report}"))
+    };
+    for strategy in ["two-level dynamic", "two-level rebuild", "flatten"] {
+        for form in ["wide8", "binary"] {
+            let r = row(strategy, form);
+            assert!(r["update_ms"].as_f64().unwrap() >= 0.0 && r["mrays"].as_f64().unwrap() > 0.0, "{r}");
+        }
+    }
+    let bytes = |strategy| row(strategy, "binary")["device_bytes"].as_u64().unwrap();
+    assert!(report["instances"].as_u64().unwrap() > 1, "{report}");
+    assert!(bytes("two-level dynamic") > 0 && bytes("flatten") > 0, "{report}");
+}
+
 /// Without the feature `embree`, naming an Embree builder says how to get it, before any work.
 #[cfg(not(feature = "embree"))]
 #[test]

@@ -12,18 +12,21 @@
 //!
 //! **Specialization.** Each scene gets a shader variant: `HAS_DIELECTRIC`, `HAS_CONDUCTOR`,
 //! `HAS_COATED`, `HAS_ENVIRONMENT`, `HAS_LIGHTS`, `HAS_THIN_LENS`, `HAS_SHADING_NORMALS`,
-//! `HAS_ENV_MAP`, `HAS_TEXTURES` and `HAS_CUTOUTS` are generated as `const` bools in front of
-//! the source ([`Features`]), and code behind a false one (a material's BSDF, the environment,
-//! next-event estimation and shadow rays, the thin lens, vertex normals, the environment map's
-//! sampling, texture lookups, the traversal's cut-out test) is removed by the compiler. The pipeline
+//! `HAS_ENV_MAP`, `HAS_TEXTURES`, `HAS_CUTOUTS` and `HAS_INSTANCES` are generated as `const`
+//! bools in front of the source ([`Features`]), and code behind a false one (a material's BSDF,
+//! the environment, next-event estimation and shadow rays, the thin lens, vertex normals, the
+//! environment map's sampling, texture lookups, the traversal's cut-out test, the top level) is
+//! removed by the compiler. The pipeline
 //! cache key names the variant. `ARBOR_GPU_NO_SPECIALIZE=1` compiles every scene with all
 //! features, for measuring what specialization saves.
 //!
 //! **Scene.** [`GpuScene::upload`] takes a flat [`RenderScene`] (one BVH over world-space
 //! triangles, leaf-collapsed, triangles in leaf order as in [`MeshBvh`](crate::bvh::MeshBvh)); material ids, stored by
 //! original triangle id on the CPU, are mapped to leaf order through `prim_ids`. An instanced or
-//! animated scene is flattened first, frame by frame ([`flatten`]): the GPU path renders
-//! animation by rebuilding one flat BVH per frame, not with two levels. A buffer larger than the
+//! animated scene keeps its two levels: every mesh's tree and object-space triangles end to end
+//! in the same buffers, the instances and the top-level tree beside them, which
+//! [`GpuScene::update_instances`] uploads again after each frame's update (docs/design/gpu.md,
+//! "Two levels"); [`flatten`] remains for comparing against. A buffer larger than the
 //! adapter's largest storage binding (128 MiB on lavapipe: about 2.8 million triangles) is
 //! refused with [`GpuError::BufferTooLarge`], naming the limit; nothing is split.
 //!
@@ -49,11 +52,9 @@
 //!   or `T` or 1/det leaves f32's normal range, is not f64, which WGSL lacks portably: the
 //!   sheared coordinates are rescaled by powers of two (exact) and the test rerun in f32, with
 //!   Kahan's difference of products (correctly signed) for edge functions that are exactly 0;
-//! - ties between hits at the same distance go to the lowest leaf position, not the lowest
-//!   original triangle id (only duplicate triangles can tie);
-//! - WGSL's `sin`, `cos`, division and `sqrt` may be less accurate than Rust's, a few ULPs;
-//! - the geometry is flat for every scene (see Scene above), so an animated scene's tree
-//!   differs from the CPU's two-level one; it finds the same surfaces, up to rounding.
+//! - WGSL's `sin`, `cos`, division and `sqrt` may be less accurate than Rust's, a few ULPs, and
+//!   the compiler may fuse a product and a sum (instance transforms included) where Rust rounds
+//!   twice.
 //!
 //! Everything else is the CPU's, step for step: thin-lens camera rays, the slab test and box
 //! culling slack of the traversal, the watertight test's f32 path with its conservative `t`, error-bound
@@ -465,7 +466,7 @@ fn at_least_one<T: bytemuck::Pod + Default>(mut data: Vec<T>) -> Vec<T> {
 }
 
 impl GpuScene {
-    /// Uploads a flat scene (see the module docs; an instanced one is refused: [`flatten`] it).
+    /// Uploads a scene, flat or in two levels (see the module docs).
     /// Fails when a buffer is over the adapter's storage-binding limit, or the tree is deeper
     /// than the traversal stack allows.
     pub fn upload(ctx: &GpuContext, scene: &RenderScene, form: GpuForm) -> Result<GpuScene, GpuError> {
@@ -995,8 +996,8 @@ impl GpuScene {
 
 /// A flat [`RenderScene`] of `scene` as it stands at `time`: every object's triangles in world
 /// space under one BVH built with `builder`, then the default leaf collapse; materials, lights
-/// and camera as [`RenderScene::build`] makes them. This is how the GPU path renders an animated
-/// or instanced scene, one frame at a time.
+/// and camera as [`RenderScene::build`] makes them. How the GPU rendered animated scenes before
+/// it had two levels, kept for `bvh-bench --animated --gpu` to compare against.
 pub fn flatten(scene: &Scene, time: f32, builder: &Builder) -> (RenderScene, BuildReport) {
     let start = Instant::now();
     let (triangles, material_of) = scene.world_triangles_at(time);

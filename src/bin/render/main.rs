@@ -238,11 +238,11 @@ fn run(args: &Args, signals: &job::Signals, report: &mut Report) -> Result<()> {
     }
     let Some(first) = pending.first() else { return Ok(()) };
     let first_time = plan.job(first, &scene, &scene_hash, device.name()).time;
-    // The GPU renders every scene flat; the CPU all but animated and heavily instanced ones.
+    // Both devices render animated and heavily instanced scenes in two levels, the rest flat.
     // The memory checked: the binary tree alone, or with the wide form and what making it holds.
     let gpu_form = args.trace.unwrap_or(TraceLayout::Wide8);
     let binary = if device.name() == "gpu" { gpu_form } else { tracing.layout } == TraceLayout::Binary;
-    if device.name() == "gpu" || !wants_instancing(&scene) {
+    if !wants_instancing(&scene) {
         scene.check_flat_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
     } else {
         scene.check_instanced_fits(scene_path, arbor::memory::render_bytes_per_triangle(binary))?;
