@@ -90,3 +90,75 @@ fn traverse_tree(root_index: u32, ray: Ray, best_in: Hit, skip: u32, any: bool, 
     }
     return best;
 }
+
+// TwoLevel::closest_hit_skipping and any_hit_skipping over the binary top-level tree (node 0 and
+// on; a leaf's `first` an instance position), near child first; at an instance's leaf the ray
+// goes through its mesh's tree (`visit_instance`), then the culling limit shrinks to the best
+// hit. `skip` is (instance position, triangle position).
+fn traverse_instances(ray: Ray, t_max: f32, skip: vec2<u32>, any: bool) -> Hit {
+    var best = no_hit(t_max);
+    let r = prepare_ray(ray);
+    let root = nodes[0];
+    let slack = cull_slack_in(ray, root.aabb_min, root.aabb_max);
+    var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
+    if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
+        return best;
+    }
+    var stack_node: array<u32, TRACE_STACK_SIZE>;
+    var stack_t: array<f32, TRACE_STACK_SIZE>;
+    var sp = 0u;
+    var node = root;
+    loop {
+        if node.prim_count > 0u {
+            for (var k = node.first; k < node.first + node.prim_count; k++) {
+                let h = visit_instance(k, ray, best, skip, any);
+                if h.index != best.index || h.instance != best.instance {
+                    best = h;
+                    if any {
+                        return best;
+                    }
+                    limit = best.t * CULL_SCALE + slack;
+                }
+            }
+        } else {
+            let left = nodes[node.first];
+            let right = nodes[node.first + 1u];
+            let tl = slab(left.aabb_min, left.aabb_max, r, limit);
+            let tr = slab(right.aabb_min, right.aabb_max, r, limit);
+            if tl >= 0.0 && tr >= 0.0 {
+                if sp < TRACE_STACK_SIZE {
+                    stack_node[sp] = select(node.first, node.first + 1u, tl <= tr);
+                    stack_t[sp] = max(tl, tr);
+                    sp += 1u;
+                }
+                if tl <= tr {
+                    node = left;
+                } else {
+                    node = right;
+                }
+                continue;
+            }
+            if tl >= 0.0 {
+                node = left;
+                continue;
+            }
+            if tr >= 0.0 {
+                node = right;
+                continue;
+            }
+        }
+        var found = false;
+        while sp > 0u {
+            sp -= 1u;
+            if stack_t[sp] <= limit {
+                node = nodes[stack_node[sp]];
+                found = true;
+                break;
+            }
+        }
+        if !found {
+            break;
+        }
+    }
+    return best;
+}

@@ -35,6 +35,52 @@ fn byte_of(lo: u32, hi: u32, k: u32) -> u32 {
     return (select(lo, hi, k >= 4u) >> (8u * (k & 3u))) & 0xffu;
 }
 
+// Node `node`'s lanes the ray `r` enters before `limit`: its inner children's group (child
+// base; hit bits at 24 + (slot ^ near), in visiting order, and the node's imask in 0..7) and its
+// hit leaves' triangles (triangle base; a bit per triangle in 0..23).
+fn wide_node_hits(node: u32, r: TraceRay, limit: f32, near: u32) -> vec4<u32> {
+    let w0 = wide_nodes[node * 5u];
+    let w1 = wide_nodes[node * 5u + 1u];
+    let w2 = wide_nodes[node * 5u + 2u];
+    let w3 = wide_nodes[node * 5u + 3u];
+    let w4 = wide_nodes[node * 5u + 4u];
+    let p = bitcast<vec3<f32>>(w0.xyz);
+    let e = w0.w;
+    let scale = vec3<f32>(
+        bitcast<f32>((e & 0xffu) << 23u),
+        bitcast<f32>(((e >> 8u) & 0xffu) << 23u),
+        bitcast<f32>(((e >> 16u) & 0xffu) << 23u),
+    );
+    // Words 8..19: qlo x, y, z then qhi x, y, z, two words (eight bytes) each.
+    let q = array<vec2<u32>, 6>(w2.xy, w2.zw, w3.xy, w3.zw, w4.xy, w4.zw);
+    var hits = 0u;
+    for (var k = 0u; k < 8u; k++) {
+        let lane = byte_of(w1.z, w1.w, k);
+        if lane == 0u {
+            continue;
+        }
+        let lo = p + scale * vec3<f32>(
+            f32(byte_of(q[0].x, q[0].y, k)),
+            f32(byte_of(q[1].x, q[1].y, k)),
+            f32(byte_of(q[2].x, q[2].y, k)),
+        );
+        let hi = p + scale * vec3<f32>(
+            f32(byte_of(q[3].x, q[3].y, k)),
+            f32(byte_of(q[4].x, q[4].y, k)),
+            f32(byte_of(q[5].x, q[5].y, k)),
+        );
+        if slab(lo, hi, r, limit) >= 0.0 {
+            let offset = lane & 31u;
+            if offset >= 24u {
+                hits |= 1u << (24u + ((offset - 24u) ^ near));
+            } else {
+                hits |= (lane >> 5u) << offset;
+            }
+        }
+    }
+    return vec4<u32>(w1.x, (hits & 0xff000000u) | (e >> 24u), w1.y, hits & 0x00ffffffu);
+}
+
 // Closest hit (any = false) or any hit (any = true; its index is then any hit's) in the tree
 // whose root is node `root` (0 in a flat scene, a mesh's root in a two-level one), better than
 // `best_in` (its t the limit), leaving out triangle position `skip`; `inst` and
@@ -63,47 +109,9 @@ fn traverse_tree(root: u32, ray: Ray, best_in: Hit, skip: u32, any: bool, inst: 
             }
             let slot = bit ^ near;
             let node = nodes_group.x + countOneBits(nodes_group.y & ((1u << slot) - 1u) & 0xffu);
-            let w0 = wide_nodes[node * 5u];
-            let w1 = wide_nodes[node * 5u + 1u];
-            let w2 = wide_nodes[node * 5u + 2u];
-            let w3 = wide_nodes[node * 5u + 3u];
-            let w4 = wide_nodes[node * 5u + 4u];
-            let p = bitcast<vec3<f32>>(w0.xyz);
-            let e = w0.w;
-            let scale = vec3<f32>(
-                bitcast<f32>((e & 0xffu) << 23u),
-                bitcast<f32>(((e >> 8u) & 0xffu) << 23u),
-                bitcast<f32>(((e >> 16u) & 0xffu) << 23u),
-            );
-            // Words 8..19: qlo x, y, z then qhi x, y, z, two words (eight bytes) each.
-            let q = array<vec2<u32>, 6>(w2.xy, w2.zw, w3.xy, w3.zw, w4.xy, w4.zw);
-            var hits = 0u;
-            for (var k = 0u; k < 8u; k++) {
-                let lane = byte_of(w1.z, w1.w, k);
-                if lane == 0u {
-                    continue;
-                }
-                let lo = p + scale * vec3<f32>(
-                    f32(byte_of(q[0].x, q[0].y, k)),
-                    f32(byte_of(q[1].x, q[1].y, k)),
-                    f32(byte_of(q[2].x, q[2].y, k)),
-                );
-                let hi = p + scale * vec3<f32>(
-                    f32(byte_of(q[3].x, q[3].y, k)),
-                    f32(byte_of(q[4].x, q[4].y, k)),
-                    f32(byte_of(q[5].x, q[5].y, k)),
-                );
-                if slab(lo, hi, r, limit) >= 0.0 {
-                    let offset = lane & 31u;
-                    if offset >= 24u {
-                        hits |= 1u << (24u + ((offset - 24u) ^ near));
-                    } else {
-                        hits |= (lane >> 5u) << offset;
-                    }
-                }
-            }
-            nodes_group = vec2<u32>(w1.x, (hits & 0xff000000u) | (e >> 24u));
-            tris_group = vec2<u32>(w1.y, hits & 0x00ffffffu);
+            let visit = wide_node_hits(node, r, limit, near);
+            nodes_group = visit.xy;
+            tris_group = visit.zw;
         }
         while tris_group.y != 0u {
             let k = firstTrailingBit(tris_group.y);
@@ -115,6 +123,58 @@ fn traverse_tree(root: u32, ray: Ray, best_in: Hit, skip: u32, any: bool, inst: 
             let hit = try_triangle(i, inst, inst_material, r, best);
             if hit.index == i && hit.instance == inst {
                 best = hit;
+                if any {
+                    return best;
+                }
+                limit = best.t * CULL_SCALE + slack;
+            }
+        }
+        if (nodes_group.y & 0xff000000u) == 0u {
+            if sp == 0u {
+                break;
+            }
+            sp -= 1u;
+            nodes_group = stack[sp];
+        }
+    }
+    return best;
+}
+
+// TwoLevel::closest_hit_skipping and any_hit_skipping over the wide top-level tree (root node 0;
+// a leaf lane's "triangles" are instance positions): the same loop as `traverse_tree`, each hit
+// leaf's instances traced through their meshes' trees (`visit_instance`), after which the
+// culling limit shrinks to the best hit. `skip` is (instance position, triangle position).
+fn traverse_instances(ray: Ray, t_max: f32, skip: vec2<u32>, any: bool) -> Hit {
+    var best = no_hit(t_max);
+    let r = prepare_ray(ray);
+    let slack = cull_slack(0u, ray);
+    var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
+    let octant = select(0u, 1u, ray.dir.x < 0.0) | select(0u, 2u, ray.dir.y < 0.0) | select(0u, 4u, ray.dir.z < 0.0);
+    let near = octant ^ 7u;
+    var stack: array<vec2<u32>, WIDE_STACK_SIZE>;
+    var sp = 0u;
+    var nodes_group = vec2<u32>(0u, (1u << (24u + near)) | 1u);
+    loop {
+        var leaves_group = vec2<u32>(0u, 0u);
+        if (nodes_group.y & 0xff000000u) != 0u {
+            let bit = firstTrailingBit(nodes_group.y >> 24u);
+            nodes_group.y &= ~(1u << (24u + bit));
+            if (nodes_group.y & 0xff000000u) != 0u && sp < WIDE_STACK_SIZE {
+                stack[sp] = nodes_group;
+                sp += 1u;
+            }
+            let slot = bit ^ near;
+            let node = nodes_group.x + countOneBits(nodes_group.y & ((1u << slot) - 1u) & 0xffu);
+            let visit = wide_node_hits(node, r, limit, near);
+            nodes_group = visit.xy;
+            leaves_group = visit.zw;
+        }
+        while leaves_group.y != 0u {
+            let k = leaves_group.x + firstTrailingBit(leaves_group.y);
+            leaves_group.y &= leaves_group.y - 1u;
+            let h = visit_instance(k, ray, best, skip, any);
+            if h.index != best.index || h.instance != best.instance {
+                best = h;
                 if any {
                     return best;
                 }

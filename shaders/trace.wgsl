@@ -25,14 +25,15 @@
 // The primitive id of each triangle position: ties between hits at one distance go to the
 // lowest, as on the CPU, in every tree form.
 @group(0) @binding(10) var<storage, read> prim_ids: array<u32>;
-// Two levels (HAS_INSTANCES; src/gpu/trace.rs's upload of an instanced scene): the meshes' trees
-// share binding 1 and their object-space triangles binding 2 (with their normals and texture
-// coordinates), each mesh's from its own base; the instances by id; the top-level tree over
-// them (binary, a leaf's `first` an instance id); and each light id's area density
-// (Lights::pdf_area; a light id is its instance's light_base plus the triangle's id in its mesh).
+// Two levels (HAS_INSTANCES; src/gpu/trace.rs's upload of an instanced scene): binding 1 holds
+// the top-level tree over the instances (root at node 0, in the form traced; its leaves name
+// instance positions) and then the meshes' trees, each from its own root; binding 2 the meshes'
+// object-space triangles (with their normals and texture coordinates), each mesh's from its own
+// base. Then the instances by position in the top level's leaf order, and each light id's area
+// density (Lights::pdf_area; a light id is its instance's light_base plus the triangle's id in
+// its mesh).
 @group(0) @binding(13) var<storage, read> instances: array<GpuInstance>;
-@group(0) @binding(14) var<storage, read> tlas: array<BvhNode>;
-@group(0) @binding(15) var<storage, read> light_pdfs: array<f32>;
+@group(0) @binding(14) var<storage, read> light_pdfs: array<f32>;
 
 // The largest finite f32: "no hit yet". (Infinite literals are not valid WGSL.)
 const T_FAR: f32 = 3.40282347e38;
@@ -373,7 +374,7 @@ fn no_hit(t_max: f32) -> Hit {
     return Hit(t_max, INVALID_INDEX, 0.0, 0.0, 0u);
 }
 
-// Whether the triangle test's result `h` at position `i` of instance `inst` is a closer hit
+// Whether the triangle test's result `h` at position `i` of the instance at position `inst` is a closer hit
 // than `best` (whose t is the query's t_max while it has none): nearer, or as near with a lower
 // instance, then primitive id, so that every tree form finds the same hit as the CPU.
 fn beats(h: vec3<f32>, i: u32, inst: u32, best: Hit) -> bool {
@@ -386,8 +387,14 @@ fn beats(h: vec3<f32>, i: u32, inst: u32, best: Hit) -> bool {
     if h.x != best.t {
         return false;
     }
-    return best.index == INVALID_INDEX || inst < best.instance
-        || (inst == best.instance && prim_ids[i] < prim_ids[best.index]);
+    if best.index == INVALID_INDEX {
+        return true;
+    }
+    if inst != best.instance {
+        // Instances by id, not by position.
+        return HAS_INSTANCES && instances[inst].id < instances[best.instance].id;
+    }
+    return prim_ids[i] < prim_ids[best.index];
 }
 
 // Triangle position `i` tested against the ray: its hit where it beats `best` and its cut-out
@@ -422,85 +429,21 @@ fn inst_to_world(inst: GpuInstance, p: vec3<f32>) -> vec3<f32> {
     return inst.to_world_x * p.x + inst.to_world_y * p.y + inst.to_world_z * p.z + inst.to_world_t;
 }
 
-// TwoLevel::closest_hit_skipping and any_hit_skipping: the top-level tree, near child first;
-// at an instance's leaf the ray goes into object space and through its mesh's tree
-// (`traverse_tree`, the form's), with the best hit so far as its limit. `skip` is (instance,
-// triangle position).
-fn traverse_instances(ray: Ray, t_max: f32, skip: vec2<u32>, any: bool) -> Hit {
-    var best = no_hit(t_max);
-    let r = prepare_ray(ray);
-    let root = tlas[0];
-    let slack = cull_slack_in(ray, root.aabb_min, root.aabb_max);
-    var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
-    if slab(root.aabb_min, root.aabb_max, r, limit) < 0.0 {
-        return best;
+// The instance at position `k` traced for a better hit than `best` (its t the limit): the ray
+// carried into its object space, through its mesh's tree (`traverse_tree`, the form's), leaving
+// out `skip`'s triangle where `skip` names this instance.
+fn visit_instance(k: u32, ray: Ray, best: Hit, skip: vec2<u32>, any: bool) -> Hit {
+    let inst = instances[k];
+    if inst.root == INVALID_INDEX {
+        return best; // a mesh without triangles
     }
-    var stack_node: array<u32, TRACE_STACK_SIZE>;
-    var stack_t: array<f32, TRACE_STACK_SIZE>;
-    var sp = 0u;
-    var node = root;
-    loop {
-        if node.prim_count > 0u {
-            for (var k = node.first; k < node.first + node.prim_count; k++) {
-                let inst = instances[k];
-                if inst.root == INVALID_INDEX {
-                    continue; // a mesh without triangles
-                }
-                let s = select(INVALID_INDEX, skip.y, skip.x == k);
-                let h = traverse_tree(inst.root, inst_to_object(inst, ray), best, s, any, k, inst.material);
-                if h.index != best.index || h.instance != best.instance {
-                    best = h;
-                    if any {
-                        return best;
-                    }
-                    limit = best.t * CULL_SCALE + slack;
-                }
-            }
-        } else {
-            let left = tlas[node.first];
-            let right = tlas[node.first + 1u];
-            let tl = slab(left.aabb_min, left.aabb_max, r, limit);
-            let tr = slab(right.aabb_min, right.aabb_max, r, limit);
-            if tl >= 0.0 && tr >= 0.0 {
-                if sp < TRACE_STACK_SIZE {
-                    stack_node[sp] = select(node.first, node.first + 1u, tl <= tr);
-                    stack_t[sp] = max(tl, tr);
-                    sp += 1u;
-                }
-                if tl <= tr {
-                    node = left;
-                } else {
-                    node = right;
-                }
-                continue;
-            }
-            if tl >= 0.0 {
-                node = left;
-                continue;
-            }
-            if tr >= 0.0 {
-                node = right;
-                continue;
-            }
-        }
-        var found = false;
-        while sp > 0u {
-            sp -= 1u;
-            if stack_t[sp] <= limit {
-                node = tlas[stack_node[sp]];
-                found = true;
-                break;
-            }
-        }
-        if !found {
-            break;
-        }
-    }
-    return best;
+    let s = select(INVALID_INDEX, skip.y, skip.x == k);
+    return traverse_tree(inst.root, inst_to_object(inst, ray), best, s, any, k, inst.material);
 }
 
-// The closest hit with 0 < t <= t_max, leaving out the triangle `skip` (instance, triangle
-// position; INVALID_INDEX positions: none): the scene's one tree, or its two levels.
+// The closest hit with 0 < t <= t_max, leaving out the triangle `skip` (instance position,
+// triangle position; INVALID_INDEX triangle: none): the scene's one tree, or its two levels
+// (`traverse_instances`, the form's).
 fn closest_hit(ray: Ray, t_max: f32, skip: vec2<u32>) -> Hit {
     if HAS_INSTANCES {
         return traverse_instances(ray, t_max, skip, false);

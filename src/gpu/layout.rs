@@ -213,7 +213,8 @@ pub struct GpuTriangle {
 /// its transforms as columns (x, y, z axes and translation; rays go into object space by
 /// `to_object`, hits come out by `to_world`), the root of its mesh's tree in the concatenated
 /// node buffer, its material override (`INVALID_INDEX`: the mesh's own), its first light id
-/// (`INVALID_INDEX`: none of its triangles emits), and whether it mirrors (1, else 0).
+/// (`INVALID_INDEX`: none of its triangles emits), whether it mirrors (1, else 0), and its id
+/// (the object's index: ties between instances go to the lower id).
 pub struct GpuInstance {
     pub to_object_x: Vec3,
     pub root: u32,
@@ -224,7 +225,7 @@ pub struct GpuInstance {
     pub to_object_t: Vec3,
     pub mirrors: u32,
     pub to_world_x: Vec3,
-    pub pad0: u32,
+    pub id: u32,
     pub to_world_y: Vec3,
     pub pad1: u32,
     pub to_world_z: Vec3,

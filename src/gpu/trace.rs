@@ -354,17 +354,18 @@ pub struct GpuScene {
 }
 
 /// What a two-level scene holds on the device beside its meshes' trees and triangles, the part
-/// [`GpuScene::update_instances`] rewrites each frame.
+/// [`GpuScene::update_instances`] rewrites each frame. The top-level tree itself is at the
+/// front of the node buffer, in the form traced, in a region of `tlas_nodes` nodes kept for it.
 struct TwoLevelBuffers {
-    /// [`GpuInstance`]s by instance id.
+    /// [`GpuInstance`]s in the top-level tree's leaf order (by id for the binary form).
     instances: wgpu::Buffer,
-    /// The top-level tree ([`crate::bvh::dynamic::instances::TwoLevel::top_level`]), binary.
-    tlas: wgpu::Buffer,
     /// Each light id's area density ([`crate::render::lights::Lights::pdf_area`]).
     light_pdfs: wgpu::Buffer,
     /// Each mesh's root node in the node buffer (`INVALID_INDEX` for a mesh without triangles).
     mesh_roots: Vec<u32>,
-    /// Bytes of the three buffers.
+    /// Nodes kept for the top-level tree at the front of the node buffer.
+    tlas_nodes: usize,
+    /// Bytes of the instances, the top-level tree's region and the light densities.
     bytes: usize,
 }
 
@@ -551,12 +552,14 @@ impl GpuScene {
         let (Geometry::Instanced(g), Some(two_level)) = (&scene.geometry, self.two_level.as_mut()) else {
             return Err(GpuError::Other("update_instances: not a two-level scene".into()));
         };
-        let fresh = two_level_buffers(ctx, scene, g, std::mem::take(&mut two_level.mesh_roots))?;
+        let (fresh, tlas) =
+            two_level_buffers(ctx, scene, g, std::mem::take(&mut two_level.mesh_roots), two_level.tlas_nodes, self.form)?;
+        ctx.queue.write_buffer(&self.nodes, 0, bytemuck::cast_slice(&tlas));
         let lights = gpu_lights(scene);
         self.params.light_count = lights.len() as u32;
         let light_bytes = size_of_val(lights.as_slice());
         self.lights = ctx.storage_buffer("lights", &at_least_one(lights))?;
-        let bytes = fresh.bytes + light_bytes;
+        let bytes = fresh.bytes + light_bytes + size_of_val(tlas.as_slice());
         self.two_level = Some(fresh);
         Ok(bytes)
     }
@@ -742,7 +745,10 @@ fn instanced_geometry(
     }
     let with_normals = g.mesh_normals().iter().any(|n| !n.is_empty());
     let with_uvs = !scene.textures.is_empty();
-    let (mut words, mut prim_ids, mut triangles) = (Vec::<u32>::new(), Vec::new(), Vec::new());
+    // The top-level tree's region first (its root is node 0, as a flat scene's root is), then
+    // the meshes.
+    let tlas_nodes = tlas_capacity(g.two_level.instances().len(), form);
+    let (mut words, mut prim_ids, mut triangles) = (vec![0u32; tlas_nodes * node_words], Vec::new(), Vec::new());
     let (mut normals, mut uvs, mut mesh_roots) = (Vec::new(), Vec::new(), Vec::with_capacity(meshes.len()));
     let (mut depth, mut sah, mut largest) = (0, 0.0, 0);
     for (m, mesh) in meshes.iter().enumerate() {
@@ -789,9 +795,10 @@ fn instanced_geometry(
         }
         prim_ids.extend(&tree.prim_ids);
     }
-    let tree_bytes = size_of_val(words.as_slice()) + size_of_val(prim_ids.as_slice());
-    let nodes = ctx.storage_buffer("BVH nodes", &at_least_one(words))?;
-    let two_level = two_level_buffers(ctx, scene, g, mesh_roots)?;
+    let (two_level, tlas) = two_level_buffers(ctx, scene, g, mesh_roots, tlas_nodes, form)?;
+    words[..tlas.len()].copy_from_slice(&tlas);
+    let tree_bytes = size_of_val(&words[tlas_nodes * node_words..]) + size_of_val(prim_ids.as_slice());
+    let nodes = ctx.storage_buffer("BVH nodes", &words)?;
     Ok(GeometryData {
         nodes,
         triangles,
@@ -810,27 +817,52 @@ fn too_many(what: &str) -> GpuError {
     GpuError::Other(format!("over 2^32 {what} in the meshes of a two-level scene"))
 }
 
-/// The instances of `g` as the GPU reads them (their meshes' roots `mesh_roots`), the top-level
-/// tree, and each light id's area density.
+/// Nodes kept for the top-level tree of `instances` instances in `form`: a binary tree with one
+/// instance a leaf has `2n - 1`; a wide one at most `n` (every node but a lone root has two
+/// lanes or more).
+fn tlas_capacity(instances: usize, form: GpuForm) -> usize {
+    match form {
+        GpuForm::Binary => (2 * instances).saturating_sub(1).max(1),
+        GpuForm::Wide8 => instances.max(1),
+    }
+}
+
+/// The instances of `g` as the GPU reads them (their meshes' roots `mesh_roots`, in the top-level
+/// tree's leaf order) and each light id's area density, uploaded; and the top-level tree's words
+/// in `form`, for the node buffer's first `tlas_nodes` nodes.
 fn two_level_buffers(
     ctx: &GpuContext,
     scene: &RenderScene,
     g: &crate::render::geometry::Instanced,
     mesh_roots: Vec<u32>,
-) -> Result<TwoLevelBuffers, GpuError> {
+    tlas_nodes: usize,
+    form: GpuForm,
+) -> Result<(TwoLevelBuffers, Vec<u32>), GpuError> {
+    let (tlas, order) = top_level_words(g, form)?;
+    let node_words = match form {
+        GpuForm::Binary => size_of::<BvhNode>() / 4,
+        GpuForm::Wide8 => super::wide::WIDE_NODE_WORDS,
+    };
+    if tlas.len() > tlas_nodes * node_words {
+        return Err(GpuError::Other(format!(
+            "the top-level BVH has {} nodes, more than the {tlas_nodes} kept for it",
+            tlas.len() / node_words
+        )));
+    }
     let bases = g.light_bases();
     let mesh_sizes: Vec<usize> = g.mesh_triangles().iter().map(Vec::len).collect();
-    let mut light_ids = 0usize;
-    let instances: Vec<GpuInstance> = g
-        .two_level
-        .instances()
+    let all = g.two_level.instances();
+    let light_ids = all
         .iter()
-        .enumerate()
-        .map(|(i, inst)| {
-            let base = bases.get(i).copied().unwrap_or(INVALID_INDEX);
-            if base != INVALID_INDEX {
-                light_ids = light_ids.max(base as usize + mesh_sizes[inst.mesh as usize]);
-            }
+        .zip(bases)
+        .filter(|(_, b)| **b != INVALID_INDEX)
+        .map(|(inst, &b)| b as usize + mesh_sizes[inst.mesh as usize])
+        .max()
+        .unwrap_or(0);
+    let instances: Vec<GpuInstance> = order
+        .iter()
+        .map(|&id| {
+            let (i, inst) = (id as usize, &all[id as usize]);
             let (o, w) = (&inst.object_from_world, &inst.world_from_object);
             GpuInstance {
                 to_object_x: o.matrix3.x_axis.into(),
@@ -838,10 +870,11 @@ fn two_level_buffers(
                 to_object_y: o.matrix3.y_axis.into(),
                 material: g.instance_materials()[i].unwrap_or(INVALID_INDEX),
                 to_object_z: o.matrix3.z_axis.into(),
-                light_base: base,
+                light_base: bases.get(i).copied().unwrap_or(INVALID_INDEX),
                 to_object_t: o.translation.into(),
                 mirrors: u32::from(inst.mirrors),
                 to_world_x: w.matrix3.x_axis.into(),
+                id,
                 to_world_y: w.matrix3.y_axis.into(),
                 to_world_z: w.matrix3.z_axis.into(),
                 to_world_t: w.translation.into(),
@@ -849,30 +882,67 @@ fn two_level_buffers(
             }
         })
         .collect();
-    let top = g.two_level.top_level();
-    let tlas: Vec<BvhNode> = if top.is_empty() {
-        // One leaf with an empty box: every ray misses it.
-        vec![BvhNode::leaf(Aabb::EMPTY, 0, 1)]
-    } else {
-        let bvh = top.bvh();
-        let d = depth(bvh);
-        if d > TRACE_STACK_SIZE as usize + 1 {
-            return Err(GpuError::Other(format!(
-                "the top-level BVH is {d} nodes deep, deeper than the GPU traversal stack allows ({} entries)",
-                TRACE_STACK_SIZE
-            )));
-        }
-        bvh.nodes.to_vec()
-    };
     let light_pdfs: Vec<f32> = (0..light_ids as u32).map(|id| scene.lights.pdf_area(id)).collect();
-    let bytes = size_of_val(instances.as_slice()) + size_of_val(tlas.as_slice()) + size_of_val(light_pdfs.as_slice());
-    Ok(TwoLevelBuffers {
+    let bytes = size_of_val(instances.as_slice()) + tlas_nodes * node_words * 4 + size_of_val(light_pdfs.as_slice());
+    let buffers = TwoLevelBuffers {
         instances: ctx.storage_buffer("instances", &at_least_one(instances))?,
-        tlas: ctx.storage_buffer("top-level BVH", &tlas)?,
         light_pdfs: ctx.storage_buffer("light densities", &at_least_one(light_pdfs))?,
         mesh_roots,
+        tlas_nodes,
         bytes,
-    })
+    };
+    Ok((buffers, tlas))
+}
+
+/// The top-level tree of `g` in `form` as words, and the instance id at each of its leaf
+/// positions. Binary: the host's dynamic tree laid out afresh depth-first (its free slots
+/// dropped), a leaf's `first` the instance's position, positions in id order. Wide: that tree
+/// collapsed by the wide SAH ([`super::wide::CompressedBvh`]), leaf lanes of up to three
+/// instances, positions in the wide tree's order. An empty top level is one node every ray
+/// misses.
+fn top_level_words(g: &crate::render::geometry::Instanced, form: GpuForm) -> Result<(Vec<u32>, Vec<u32>), GpuError> {
+    let top = g.two_level.top_level();
+    let n = g.two_level.instances().len() as u32;
+    if top.is_empty() {
+        let words = match form {
+            GpuForm::Binary => bytemuck::cast_slice(&[BvhNode::leaf(Aabb::EMPTY, 0, 1)]).to_vec(),
+            // No lane in use: nothing is entered.
+            GpuForm::Wide8 => vec![0; super::wide::WIDE_NODE_WORDS],
+        };
+        return Ok((words, (0..n).collect()));
+    }
+    let bvh = top.bvh();
+    let (words, order, depth) = match form {
+        GpuForm::Binary => {
+            let mut nodes = vec![bvh.nodes[0]];
+            let mut stack = vec![(0usize, 0usize, 1usize)];
+            let mut deepest = 1;
+            while let Some((src, dst, d)) = stack.pop() {
+                deepest = deepest.max(d);
+                let node = bvh.nodes[src];
+                if node.is_leaf() {
+                    // One instance a leaf (DynamicBvh), its id through prim_ids.
+                    let id = bvh.prim_ids[node.first as usize];
+                    nodes[dst] = BvhNode::leaf(node.aabb(), id, 1);
+                } else {
+                    let first = nodes.len();
+                    nodes.push(bvh.nodes[node.first as usize]);
+                    nodes.push(bvh.nodes[node.first as usize + 1]);
+                    nodes[dst].first = first as u32;
+                    stack.push((node.first as usize, first, d + 1));
+                    stack.push((node.first as usize + 1, first + 1, d + 1));
+                }
+            }
+            (bytemuck::cast_slice(&nodes).to_vec(), (0..n).collect(), deepest)
+        }
+        GpuForm::Wide8 => {
+            let wide = super::wide::CompressedBvh::new(bvh, g.two_level.instance_boxes());
+            let depth = wide.depth;
+            (wide.nodes.iter().flatten().copied().collect(), wide.prim_ids, depth)
+        }
+    };
+    check_depth(depth, form).map_err(|e| GpuError::Other(format!("the top level: {e}")))?;
+    Ok((words, order))
 }
 
 /// The scene's lights as the GPU reads them.
@@ -1022,7 +1092,7 @@ fn pipeline(ctx: &GpuContext, scene: &GpuScene, entry: &str) -> wgpu::ComputePip
 
 /// Bindings of the path tracer and the ray queries, one layout for both kernels: `(binding,
 /// read-only)`.
-const BINDINGS: [(u32, bool); 16] = [
+const BINDINGS: [(u32, bool); 15] = [
     (0, true),   // params
     (1, true),   // nodes
     (2, true),   // triangles
@@ -1037,8 +1107,7 @@ const BINDINGS: [(u32, bool); 16] = [
     (11, true),  // query rays
     (12, false), // query hits
     (13, true),  // instances
-    (14, true),  // top-level tree
-    (15, true),  // light densities
+    (14, true),  // light densities
 ];
 
 /// The layout of [`BINDINGS`]: explicit, so that a kernel that reads fewer of them (the ray
@@ -1109,8 +1178,7 @@ fn bind_group(
         whole(11, rays),
         whole(12, hits),
         whole(13, scene.two_level.as_ref().map_or(unused_read, |t| &t.instances)),
-        whole(14, scene.two_level.as_ref().map_or(unused_read, |t| &t.tlas)),
-        whole(15, scene.two_level.as_ref().map_or(unused_read, |t| &t.light_pdfs)),
+        whole(14, scene.two_level.as_ref().map_or(unused_read, |t| &t.light_pdfs)),
     ];
     ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: None,
