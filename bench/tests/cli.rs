@@ -630,11 +630,11 @@ fn gpu_animation_strategies_are_reported() {
     run_ok(bench().arg("--animated").arg(&scene).args(["--gpu", "--frames", "2", "--json"]).arg(&json));
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let rows = report["rows"].as_array().unwrap();
-    assert_eq!(rows.len(), 6, "{report}");
+    assert_eq!(rows.len(), 8, "{report}");
     let row = |strategy: &str, form: &str| {
         rows.iter().find(|r| r["strategy"] == strategy && r["form"] == form).unwrap_or_else(|| panic!("{report}"))
     };
-    for strategy in ["two-level dynamic", "two-level rebuild", "flatten"] {
+    for strategy in ["two-level dynamic", "two-level rebuild", "two-level gpu-lbvh", "flatten"] {
         for form in ["wide8", "binary"] {
             let r = row(strategy, form);
             assert!(r["update_ms"].as_f64().unwrap() >= 0.0 && r["mrays"].as_f64().unwrap() > 0.0, "{r}");

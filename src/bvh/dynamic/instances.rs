@@ -140,6 +140,13 @@ impl TwoLevel {
         stats
     }
 
+    /// Takes `bvh` (one instance a leaf, over every instance's current box, as
+    /// [`TwoLevel::instance_boxes`] gives them; built elsewhere, by the GPU's LBVH say) as the
+    /// top level, in place of the one kept.
+    pub fn replace_top_level(&mut self, bvh: &Bvh) {
+        self.tlas = DynamicBvh::from_bvh(bvh, self.instances.len());
+    }
+
     /// The closest hit with `0 < t <= t_max`; ties go to the lowest instance, then triangle id.
     pub fn closest_hit(&self, ray: &Ray, t_max: f32) -> Option<InstanceHit> {
         self.closest_hit_skipping(ray, t_max, None)

@@ -146,8 +146,10 @@ pub(crate) fn strategy_values(s: &anim_bench::StrategyReport) -> [f64; 8] {
 #[derive(serde::Serialize)]
 pub(crate) struct GpuAnimRow {
     /// `two-level dynamic` (the top level updated in place: delete, clean, reinsert),
-    /// `two-level rebuild` (the top level rebuilt by binned SAH), or `flatten` (every object's
-    /// triangles in world space under one LBVH, rebuilt and uploaded).
+    /// `two-level rebuild` (the top level rebuilt by binned SAH on the host), `two-level
+    /// gpu-lbvh` (the top level rebuilt by the GPU's LBVH over the instances' boxes, read back),
+    /// or `flatten` (every object's triangles in world space under one LBVH, rebuilt and
+    /// uploaded).
     pub strategy: String,
     /// The GPU's tree form: `binary` or `wide8`.
     pub form: String,
@@ -196,10 +198,12 @@ pub(crate) fn run_animated_gpu(args: &Args) -> Result<()> {
     eprintln!("{}: {frames} frames at {spp} spp on {}", path.display(), ctx.describe());
     let mut rows = Vec::new();
     let (mut instances, mut world) = (0, 0);
-    for strategy in ["two-level dynamic", "two-level rebuild", "flatten"] {
+    for strategy in ["two-level dynamic", "two-level rebuild", "two-level gpu-lbvh", "flatten"] {
         for form in [GpuForm::Wide8, GpuForm::Binary] {
             let how = match strategy {
                 "two-level rebuild" => TopLevelUpdate::Rebuild,
+                // The boxes brought up to date, then the tree replaced by the GPU's.
+                "two-level gpu-lbvh" => TopLevelUpdate::Refit,
                 _ => TopLevelUpdate::Dynamic(Default::default()),
             };
             let (mut updates, mut speeds, mut bytes) = (Vec::new(), Vec::new(), 0);
@@ -221,6 +225,12 @@ pub(crate) fn run_animated_gpu(args: &Args) -> Result<()> {
                     }
                     (_, Some((mut rs, mut gpu))) => {
                         rs.set_time(&scene, time, &how);
+                        if strategy == "two-level gpu-lbvh"
+                            && let arbor::render::geometry::Geometry::Instanced(g) = &mut rs.geometry
+                        {
+                            let (tree, _) = arbor::gpu::lbvh::build(ctx, g.two_level.instance_boxes())?;
+                            g.two_level.replace_top_level(&tree);
+                        }
                         gpu.update_instances(ctx, &rs)?;
                         (rs, gpu)
                     }
