@@ -500,8 +500,7 @@ impl Renderer {
                 // The top level updated in place on the host as on the CPU (delete, clean,
                 // reinsert), then the instances, the top-level tree and the lights uploaded:
                 // the meshes' trees stay on the device.
-                let stats =
-                    self.render_scene.set_time(scene, time, &TopLevelUpdate::Dynamic(DynamicConfig::default()));
+                let stats = self.render_scene.set_time(scene, time, &TopLevelUpdate::Dynamic(DynamicConfig::default()));
                 self.time = time;
                 if stats.is_none() {
                     return Ok(None);

@@ -74,9 +74,9 @@ use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{
-    BvhNode, GpuInstance, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COATED, MAT_COMPLEX_FRESNEL, MAT_CONDUCTOR,
-    MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP, TraceParams,
-    WIDE_STACK_SIZE, with_prelude,
+    BvhNode, GpuInstance, GpuLight, GpuMaterial, GpuPixel, GpuTriangle, MAT_BLACK, MAT_COATED, MAT_COMPLEX_FRESNEL,
+    MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_EMITS, MAT_TWO_SIDED, TRACE_STACK_SIZE, TRACE_WORKGROUP,
+    TraceParams, WIDE_STACK_SIZE, with_prelude,
 };
 use super::texture::{gpu_texture_channel, gpu_texture_data, gpu_texture_ref};
 use crate::bvh::build::Builder;
@@ -546,22 +546,25 @@ impl GpuScene {
 
     /// Brings a two-level scene's instances up to date with `scene` (the same scene, its
     /// objects moved by [`RenderScene::set_time`]): the instances, the top-level tree and the
-    /// lights are uploaded again; the meshes' trees and triangles stay. Returns the bytes
-    /// uploaded.
-    pub fn update_instances(&mut self, ctx: &GpuContext, scene: &RenderScene) -> Result<usize, GpuError> {
+    /// lights are uploaded again; the meshes' trees and triangles stay.
+    pub fn update_instances(&mut self, ctx: &GpuContext, scene: &RenderScene) -> Result<(), GpuError> {
         let (Geometry::Instanced(g), Some(two_level)) = (&scene.geometry, self.two_level.as_mut()) else {
             return Err(GpuError::Other("update_instances: not a two-level scene".into()));
         };
-        let (fresh, tlas) =
-            two_level_buffers(ctx, scene, g, std::mem::take(&mut two_level.mesh_roots), two_level.tlas_nodes, self.form)?;
+        let (fresh, tlas) = two_level_buffers(
+            ctx,
+            scene,
+            g,
+            std::mem::take(&mut two_level.mesh_roots),
+            two_level.tlas_nodes,
+            self.form,
+        )?;
         ctx.queue.write_buffer(&self.nodes, 0, bytemuck::cast_slice(&tlas));
         let lights = gpu_lights(scene);
         self.params.light_count = lights.len() as u32;
-        let light_bytes = size_of_val(lights.as_slice());
         self.lights = ctx.storage_buffer("lights", &at_least_one(lights))?;
-        let bytes = fresh.bytes + light_bytes + size_of_val(tlas.as_slice());
         self.two_level = Some(fresh);
-        Ok(bytes)
+        Ok(())
     }
 
     /// Bytes of a two-level scene's instances, top-level tree and light densities (0 for a
@@ -1226,7 +1229,7 @@ pub struct QueryHit {
     pub v: f32,
 }
 
-/// Traces `rays` through `scene` ([`GpuScene::for_rays`] or a render's) in one dispatch, for
+/// Traces `rays` through `scene` ([`GpuScene::for_rays`] or a flat render's) in one dispatch, for
 /// closest hits, or for any hit when `any` (then only `prim` says something: 0 for a hit,
 /// `INVALID_INDEX` for none). Returns the hits and the device's seconds for the dispatch alone
 /// (upload and read-back excluded, kernel compiled beforehand).
@@ -1236,6 +1239,9 @@ pub fn trace_rays(
     rays: &[QueryRay],
     any: bool,
 ) -> Result<(Vec<QueryHit>, f64), GpuError> {
+    if scene.two_level.is_some() {
+        return Err(GpuError::Other("ray queries take a flat scene (a hit names a primitive, not an instance)".into()));
+    }
     let count = u32::try_from(rays.len()).map_err(|_| GpuError::Other("over 2^32 rays in one query".into()))?;
     if rays.iter().any(|q| q.skip != INVALID_INDEX && scene.position_of.get(q.skip as usize).is_none()) {
         return Err(GpuError::Other("a query ray skips a primitive the scene does not have".into()));

@@ -280,7 +280,15 @@ pub(crate) fn run_animated_gpu(args: &Args) -> Result<()> {
         report.spp,
         report.adapter
     );
-    outln!("{:<18} {:>6} {:>10} {:>10} {:>10} {:>12}", "strategy", "form", "update ms", "max ms", "Mrays/s", "device MB");
+    outln!(
+        "{:<18} {:>6} {:>10} {:>10} {:>10} {:>12}",
+        "strategy",
+        "form",
+        "update ms",
+        "max ms",
+        "Mrays/s",
+        "device MB"
+    );
     for r in &report.rows {
         outln!(
             "{:<18} {:>6} {:>10.2} {:>10.2} {:>10.3} {:>12.1}",
