@@ -353,7 +353,15 @@ impl Renderer {
                 BuilderChoice::Fixed(b) => *b,
                 BuilderChoice::Auto => crate::render::auto::instanced_builder(),
             };
-            let (mut rs, report) = RenderScene::build(scene, &mesh_builder, Tracing::gpu());
+            // `lbvh` and `lbvh+prbvh` (`auto`'s choice for meshes) build the large meshes on the
+            // GPU, as they build a flat scene there.
+            let name = mesh_builder.to_string();
+            let (mut rs, report) = if name == "lbvh" || name == "lbvh+prbvh" {
+                crate::gpu::build_instanced_for(ctx, scene, name == "lbvh+prbvh", &mesh_builder)
+                    .map_err(DeviceError::Build)?
+            } else {
+                RenderScene::build(scene, &mesh_builder, Tracing::gpu())
+            };
             if time != first_frame_time(scene) {
                 rs.set_time(scene, time, &TopLevelUpdate::Dynamic(DynamicConfig::default()));
             }

@@ -56,51 +56,25 @@ pub fn build_render_scene_for(
         return Ok(None);
     }
     let prims: Vec<crate::geometry::Aabb> = triangles.iter().map(crate::geometry::Triangle::aabb).collect();
-    let (gpu, _) = lbvh::build_on_device(ctx, &prims)?;
-    let scheme = prbvh::LockScheme::best_for(ctx);
-    let config = crate::bvh::build::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
-    // The GPU builds Karras' LBVH, which leaves runs of equal Morton codes in file order: a
-    // model far from another object (inside a sky box of 10^6) lies in a few cells, and its
-    // tree would be a list. Where such runs hold more than 1/64 of the primitives (far more
-    // than ordinary meshes have, so they keep the GPU build; docs/benchmarks.md, "A model in a
-    // sky box"), the CPU's LBVH, which splits them, is built instead and optimised on the GPU
-    // all the same.
-    let (codes, ids) = gpu.read_codes(ctx)?;
-    let scrambled = crate::bvh::build::lbvh::refinable_primitives(&prims, &codes, &ids);
+    let (tree, mut label) = device_tree(ctx, &prims, optimize)?;
     let mut device_wide = None;
-    let (tree, mut label) = if scrambled > prims.len() / 64 {
-        drop(gpu);
-        let cpu = crate::bvh::build::lbvh::build(&prims);
-        let why = format!("{scrambled} triangles in runs of equal Morton codes");
-        if optimize {
-            let (tree, stats) = prbvh::optimize(ctx, &cpu, &config, scheme)?;
-            let label = format!(
-                "lbvh on the CPU ({why}), prbvh on the GPU, {} iterations, {scheme:?} locks",
-                stats.iterations.len()
-            );
-            (tree, label)
-        } else {
-            (cpu, format!("lbvh on the CPU ({why})"))
-        }
-    } else {
-        let mut label = "lbvh on the GPU".to_owned();
-        if optimize {
-            let stats = prbvh::optimize_on_device(ctx, &gpu, &config, scheme)?;
-            label = format!("lbvh+prbvh on the GPU, {} iterations, {scheme:?} locks", stats.iterations.len());
-        }
-        if form == trace::GpuForm::Wide8 {
-            // Where its working buffers do not fit the adapter's bindings, the host collapses
-            // the tree at upload instead.
-            match wide::collapse_on_device(ctx, &gpu) {
-                Ok(w) => {
-                    label += &format!(", collapsed to 8-wide on the GPU in {:.1} ms", w.seconds * 1e3);
-                    device_wide = Some(w);
+    let tree = match tree {
+        DeviceTree::Host(tree) => tree,
+        DeviceTree::OnDevice(gpu) => {
+            if form == trace::GpuForm::Wide8 {
+                // Where its working buffers do not fit the adapter's bindings, the host collapses
+                // the tree at upload instead.
+                match wide::collapse_on_device(ctx, &gpu) {
+                    Ok(w) => {
+                        label += &format!(", collapsed to 8-wide on the GPU in {:.1} ms", w.seconds * 1e3);
+                        device_wide = Some(w);
+                    }
+                    Err(e @ GpuError::BufferTooLarge { .. }) => label += &format!(", collapsed on the host ({e})"),
+                    Err(e) => return Err(e),
                 }
-                Err(e @ GpuError::BufferTooLarge { .. }) => label += &format!(", collapsed on the host ({e})"),
-                Err(e) => return Err(e),
             }
+            gpu.read(ctx)?
         }
-        (gpu.read(ctx)?, label)
     };
     // Pipeline compilation, paid once per process, is reported apart from the build.
     let compiled = ctx.compile_time().saturating_sub(compiled_before);
@@ -110,6 +84,104 @@ pub fn build_render_scene_for(
     let (rs, report) =
         RenderScene::assemble(scene, (triangles, material_of, 0.0), &tree, start + compiled, label, Tracing::gpu());
     Ok(Some((rs, report, device_wide)))
+}
+
+/// A tree [`device_tree`] made: left on the device, or the CPU's LBVH (optimised on the GPU and
+/// read back).
+enum DeviceTree {
+    OnDevice(lbvh::GpuBvh),
+    Host(crate::bvh::Bvh),
+}
+
+/// The GPU's LBVH over `prims`, then, when `optimize`, parallel reinsertion with the best locks
+/// the adapter has, with a label saying what was done. The GPU builds Karras' LBVH, which leaves
+/// runs of equal Morton codes in file order: a model far from another object (inside a sky box
+/// of 10^6) lies in a few cells, and its tree would be a list. Where such runs hold more than
+/// 1/64 of the primitives (far more than ordinary meshes have, so they keep the GPU build;
+/// docs/benchmarks.md, "A model in a sky box"), the CPU's LBVH, which splits them, is built
+/// instead and optimised on the GPU all the same.
+fn device_tree(
+    ctx: &GpuContext,
+    prims: &[crate::geometry::Aabb],
+    optimize: bool,
+) -> Result<(DeviceTree, String), GpuError> {
+    let (gpu, _) = lbvh::build_on_device(ctx, prims)?;
+    let scheme = prbvh::LockScheme::best_for(ctx);
+    let config = crate::bvh::build::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
+    let (codes, ids) = gpu.read_codes(ctx)?;
+    let scrambled = crate::bvh::build::lbvh::refinable_primitives(prims, &codes, &ids);
+    if scrambled > prims.len() / 64 {
+        drop(gpu);
+        let cpu = crate::bvh::build::lbvh::build(prims);
+        let why = format!("{scrambled} triangles in runs of equal Morton codes");
+        if !optimize {
+            return Ok((DeviceTree::Host(cpu), format!("lbvh on the CPU ({why})")));
+        }
+        let (tree, stats) = prbvh::optimize(ctx, &cpu, &config, scheme)?;
+        let label = format!(
+            "lbvh on the CPU ({why}), prbvh on the GPU, {} iterations, {scheme:?} locks",
+            stats.iterations.len()
+        );
+        return Ok((DeviceTree::Host(tree), label));
+    }
+    let mut label = "lbvh on the GPU".to_owned();
+    if optimize {
+        let stats = prbvh::optimize_on_device(ctx, &gpu, &config, scheme)?;
+        label = format!("lbvh+prbvh on the GPU, {} iterations, {scheme:?} locks", stats.iterations.len());
+    }
+    Ok((DeviceTree::OnDevice(gpu), label))
+}
+
+/// Meshes of at least this many triangles get their trees built on the GPU in a two-level
+/// scene ([`build_instanced_for`]); smaller ones on the CPU, where a mesh of a few thousand
+/// triangles builds in about a millisecond and a GPU build costs a round of dispatches and
+/// read-backs as long.
+pub const GPU_MESH_TRIANGLES: usize = 1 << 14;
+
+/// A two-level scene (see [`RenderScene::build`]) whose meshes of at least
+/// [`GPU_MESH_TRIANGLES`] triangles are built on the GPU ([`device_tree`]: the LBVH, then PRBVH
+/// when `optimize`), read back and leaf-collapsed, the others by `cpu` on the CPU; the top level
+/// over the objects as the CPU makes it. Built once: the frames move the top level only.
+pub fn build_instanced_for(
+    ctx: &GpuContext,
+    scene: &Scene,
+    optimize: bool,
+    cpu: &crate::bvh::build::Builder,
+) -> Result<(RenderScene, BuildReport), GpuError> {
+    use crate::bvh::{CollapseConfig, MeshBvh, collapse_leaves};
+    let start = std::time::Instant::now();
+    let compiled_before = ctx.compile_time();
+    let mut on_gpu = 0;
+    let mut labels = Vec::new();
+    let mut meshes = Vec::with_capacity(scene.meshes.len());
+    for m in &scene.meshes {
+        let triangles = m.mesh.triangles();
+        if triangles.len() < GPU_MESH_TRIANGLES {
+            meshes.push(cpu.build_mesh(&triangles, Tracing::gpu()));
+            continue;
+        }
+        let prims: Vec<crate::geometry::Aabb> = triangles.iter().map(crate::geometry::Triangle::aabb).collect();
+        let (tree, label) = device_tree(ctx, &prims, optimize)?;
+        let tree = match tree {
+            DeviceTree::Host(tree) => tree,
+            DeviceTree::OnDevice(gpu) => gpu.read(ctx)?,
+        };
+        meshes.push(MeshBvh::new(collapse_leaves(&tree, &CollapseConfig::default()), &triangles, Tracing::gpu()));
+        on_gpu += 1;
+        if !labels.contains(&label) {
+            labels.push(label);
+        }
+    }
+    let compiled = ctx.compile_time().saturating_sub(compiled_before);
+    let mut label = format!(
+        "two levels: {on_gpu} of {} meshes built on the GPU ({}), the rest {cpu} on the CPU",
+        scene.meshes.len(),
+        if labels.is_empty() { "none large enough".to_owned() } else { labels.join("; ") }
+    );
+    if compiled >= std::time::Duration::from_millis(1) {
+        label += &format!("; {:.2} s compiling kernels, not counted", compiled.as_secs_f64());
+    }
+    Ok(RenderScene::assemble_instanced(scene, meshes, start + compiled, label, Tracing::gpu()))
 }
 
 /// Turns off Mesa's Vulkan device-select layer where `XDG_RUNTIME_DIR` is unset (as in CI): the

@@ -101,6 +101,28 @@ impl RenderScene {
         let t = Instant::now();
         let meshes: Vec<MeshBvh> =
             scene.meshes.iter().map(|m| builder.build_mesh(&m.mesh.triangles(), tracing)).collect();
+        let objects = scene.objects.len();
+        Self::assemble_instanced(
+            scene,
+            meshes,
+            t,
+            format!("two levels: {builder} per mesh, binned-sah over {objects} objects"),
+            tracing,
+        )
+    }
+
+    /// The rest of a two-level build from each scene mesh's tree (in scene order, built here or
+    /// on the GPU: `arbor::gpu::build_instanced_for`) and traced as `tracing` says: the top level
+    /// over the objects placed at the first frame, materials, lights, camera. The report's time
+    /// runs from `start`.
+    pub fn assemble_instanced(
+        scene: &Scene,
+        meshes: Vec<MeshBvh>,
+        start: Instant,
+        builder: String,
+        tracing: Tracing,
+    ) -> (Self, BuildReport) {
+        let t = start;
         let materials: Vec<RenderMaterial> = scene.materials.iter().map(RenderMaterial::from_scene).collect();
         let mut instanced = Instanced::new(scene, &materials, meshes, first_frame_time(scene));
         let lights = instanced.lights(&materials, &scene.textures);
@@ -115,7 +137,7 @@ impl RenderScene {
             build_ms: t.elapsed().as_secs_f64() * 1e3,
             sah: g.two_level.top_level().sah_estimate(&Default::default()),
             triangles: geometry.world_triangle_count(),
-            builder: format!("two levels: {builder} per mesh, binned-sah over {} objects", scene.objects.len()),
+            builder,
         };
         (Self::with_geometry(scene, geometry, materials, lights), report)
     }
