@@ -131,8 +131,9 @@ impl BuilderChoice {
     /// `lbvh+prbvh` nearly everywhere, many times faster at 1 spp (docs/benchmarks.md,
     /// "Builder auto"). On the GPU, `lbvh+prbvh` (built there) for a flat scene, and `auto`
     /// for a two-level one (animated or instanced), whose meshes, built once, get `lbvh+prbvh`
-    /// as on the CPU; the GPU's `auto` for flat scenes, decided before the render, missed that
-    /// mark (it stayed on the LBVH where the GPU's own reinsertion would have paid).
+    /// as on the CPU. The GPU's `auto` for flat scenes now builds and optimises with the GPU's
+    /// own LBVH and PRBVH on its own timings (`gpu::trace::build_auto`); it becomes the default
+    /// once measured within that mark on a GPU (docs/design/builder-auto.md).
     pub fn default_for(device: Device, scene: &Scene) -> BuilderChoice {
         match device {
             Device::Cpu => {

@@ -325,6 +325,33 @@ fn specialized_and_general_variants_agree() {
     assert_eq!(specialized.rays, general.rays);
 }
 
+/// The GPU's `auto` decides on the GPU's own timings: a render too short to time keeps the
+/// GPU's LBVH; a long one gets the GPU's PRBVH (a lower SAH); one bounded by a 1 ms time limit
+/// does not, however many samples it asks for.
+#[test]
+fn gpu_auto_runs_the_gpus_prbvh_where_it_repays() {
+    assert!(trace::gpu_prbvh_repays(1.0, 1e-3) && !trace::gpu_prbvh_repays(0.1, 1e-2));
+    let Some(ctx) = gpu_or_skip("gpu_auto_runs_the_gpus_prbvh_where_it_repays") else { return };
+    let mut scene = Scene::load(scene_path("cornell-box.toml")).unwrap();
+    scene.camera.width = 24;
+    scene.camera.height = 16;
+    let job = |spp, time| arbor::scene::RenderSettings { spp, max_depth: 4, seed: 1, time, clamp: None };
+    let (_, short, timed) = trace::build_auto(ctx, &scene, &job(1, None), 1, GpuForm::default());
+    assert!(
+        short.builder.starts_with("auto: lbvh on the GPU") && short.builder.contains("too short"),
+        "{}",
+        short.builder
+    );
+    assert!(timed.is_none());
+    let (_, long, timed) = trace::build_auto(ctx, &scene, &job(1 << 24, None), 1, GpuForm::default());
+    assert!(long.builder.starts_with("auto: lbvh+prbvh on the GPU"), "{}", long.builder);
+    assert!(long.sah < short.sah, "PRBVH's SAH {} against the LBVH's {}", long.sah, short.sah);
+    assert_eq!(timed.map(|t| t.samples()), Some(trace::MEASURE_SPP));
+    let (_, limited, _) = trace::build_auto(ctx, &scene, &job(1 << 24, Some(1e-3)), 1, GpuForm::default());
+    assert!(limited.builder.contains("would not repay"), "{}", limited.builder);
+    assert_eq!(limited.sah, short.sah);
+}
+
 /// `auto` on the GPU times the render's own first samples and hands them over: a render that
 /// carries them on gives the film of one render from scratch, bit for bit; samples of another
 /// render (another seed, clamp or depth) are dropped, not mixed in.

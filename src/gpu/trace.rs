@@ -1538,15 +1538,17 @@ pub fn measure_speed(
     Some((second / f64::from(PASS_SPP), compiled, film))
 }
 
-/// `auto`'s build for a GPU render ([`RenderScene::build_auto_for`]): the GPU is timed by
-/// [`measure_speed`] where that costs at most a sixteenth of the render (at least 16 ×
-/// [`MEASURE_SPP`] samples over all frames); shorter renders keep the LBVH unoptimised, since
-/// no optimisation is tried blind: unrepaid optimisation can cost several times the render,
-/// while the most a skipped one could have saved is the render's trace-speed gain, a modest
-/// fraction of the render (docs/benchmarks.md, "On the GPU"). The sixteenth is of the samples,
-/// not of a time limit: the GPU's speed is not known before it is timed. The timed samples are
-/// returned with the tree, for the render's first frame to carry on ([`render_from`];
-/// `settings.clamp` is the render's firefly clamp; `form` the tree form it traces).
+/// `auto`'s build for a GPU render, on the GPU's own terms: its LBVH built on the device and
+/// timed there, its render timed on that tree ([`measure_speed`], where that costs at most a
+/// sixteenth of the render: at least 16 × [`MEASURE_SPP`] samples over all frames), and the
+/// GPU's own PRBVH run where what it is expected to save repays what it is expected to cost
+/// ([`gpu_prbvh_repays`]). Shorter renders keep the LBVH unoptimised, since no optimisation is
+/// tried blind (docs/benchmarks.md, "On the GPU"). The timed samples are returned with the
+/// tree, for the render's first frame to carry on ([`render_from`]); they are the same samples
+/// whichever tree traces them, as hits do not depend on the tree. `settings.clamp` is the
+/// render's firefly clamp; `form` the tree form it traces. Where the GPU's LBVH would leave long
+/// runs of equal Morton codes (a model in a sky box), or the device fails, the decision falls
+/// back on the CPU's `auto` with the GPU timed ([`RenderScene::build_auto_for`]).
 pub fn build_auto(
     ctx: &GpuContext,
     scene: &crate::scene::Scene,
@@ -1554,6 +1556,9 @@ pub fn build_auto(
     frames: usize,
     form: GpuForm,
 ) -> (RenderScene, crate::render::BuildReport, Option<PartialFilm>) {
+    if let Ok(Some(built)) = auto_on_device(ctx, scene, settings, frames, form) {
+        return built;
+    }
     use crate::render::AutoDevice;
     use crate::render::auto::{total_budget, total_samples};
     let mut kept = None;
@@ -1572,6 +1577,100 @@ pub fn build_auto(
     let rays = RenderScene::estimated_rays(scene, settings.spp, settings.max_depth, frames);
     let (rs, report) = RenderScene::build_auto_for(scene, rays, device);
     (rs, report, kept)
+}
+
+/// The GPU's PRBVH costs up to this many of its LBVH builds (hairball:1M on the H100: 126.2 ms
+/// against 7.1; the dragon 5.3, city:1M 15; docs/benchmarks.md, "Builds on the H100").
+pub const GPU_PRBVH_IN_LBVH_BUILDS: f64 = 18.0;
+
+/// The share of a render's time the GPU's PRBVH tree is expected to save over its LBVH: the
+/// dragon scene traced 1.25× as fast on the H100 (docs/benchmarks.md, "Rendering on the H100").
+pub const GPU_PRBVH_GAIN: f64 = 0.2;
+
+/// Whether the GPU's PRBVH repays itself on a render whose rest takes `rest_seconds` on the
+/// LBVH, the LBVH having built in `lbvh_seconds`: its expected saving must exceed its expected
+/// cost with half as much again to spare (the CPU's `auto` keeps the same margin).
+pub fn gpu_prbvh_repays(rest_seconds: f64, lbvh_seconds: f64) -> bool {
+    GPU_PRBVH_GAIN * rest_seconds > 1.5 * GPU_PRBVH_IN_LBVH_BUILDS * lbvh_seconds
+}
+
+/// [`build_auto`] on the device; `None` where the CPU's `auto` decides instead.
+fn auto_on_device(
+    ctx: &GpuContext,
+    scene: &crate::scene::Scene,
+    settings: &RenderSettings,
+    frames: usize,
+    form: GpuForm,
+) -> Result<Option<(RenderScene, crate::render::BuildReport, Option<PartialFilm>)>, GpuError> {
+    use crate::render::auto::total_samples;
+    let start = Instant::now();
+    let compiled_before = ctx.compile_time();
+    let (triangles, material_of) = scene.world_triangles();
+    if triangles.len() < 2 {
+        return Ok(None);
+    }
+    let prims: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
+    let (gpu, times) = super::lbvh::build_on_device(ctx, &prims)?;
+    let (codes, ids) = gpu.read_codes(ctx)?;
+    if crate::bvh::build::lbvh::refinable_primitives(&prims, &codes, &ids) > prims.len() / 64 {
+        return Ok(None);
+    }
+    let lbvh_seconds = times.build.as_secs_f64();
+    let samples = total_samples(settings, frames);
+    let assemble = |tree: &Bvh, label: String, excluded: std::time::Duration| {
+        let (triangles, material_of) = (triangles.clone(), material_of.clone());
+        RenderScene::assemble(
+            scene,
+            (triangles, material_of, 0.0),
+            tree,
+            start + excluded,
+            label,
+            crate::bvh::Tracing::gpu(),
+        )
+    };
+    let compiled = ctx.compile_time().saturating_sub(compiled_before);
+    let lbvh_tree = gpu.read(ctx)?;
+    if samples < 16.0 * f64::from(MEASURE_SPP) {
+        let label = format!("auto: lbvh on the GPU ({:.1} ms), a render too short to time", lbvh_seconds * 1e3);
+        let (rs, report) = assemble(&lbvh_tree, label, compiled);
+        return Ok(Some((rs, report, None)));
+    }
+    let (rs, report) = assemble(&lbvh_tree, String::new(), compiled);
+    let Some((per_sample, measure_compiled, film)) =
+        measure_speed(ctx, &rs, settings.seed, settings.max_depth, settings.clamp, form)
+    else {
+        return Ok(None);
+    };
+    let excluded = compiled + measure_compiled;
+    // A time limit bounds the render, whatever its samples.
+    let mut rest = (samples - f64::from(MEASURE_SPP)).max(0.0) * per_sample;
+    if let Some(budget) = crate::render::auto::total_budget(settings, frames) {
+        rest = rest.min(budget);
+    }
+    if !gpu_prbvh_repays(rest, lbvh_seconds) {
+        let label = format!(
+            "auto: lbvh on the GPU ({:.1} ms), for a render estimated at {rest:.2} s its PRBVH would not repay",
+            lbvh_seconds * 1e3
+        );
+        let mut report = report;
+        (report.builder, report.build_ms) = (label, start.elapsed().saturating_sub(excluded).as_secs_f64() * 1e3);
+        return Ok(Some((rs, report, Some(film))));
+    }
+    drop(rs);
+    let scheme = super::prbvh::LockScheme::best_for(ctx);
+    let config = PrbvhConfig { collapse: None, ..Default::default() };
+    let t = Instant::now();
+    let stats = super::prbvh::optimize_on_device(ctx, &gpu, &config, scheme)?;
+    let prbvh_seconds = t.elapsed().as_secs_f64();
+    let tree = gpu.read(ctx)?;
+    let label = format!(
+        "auto: lbvh+prbvh on the GPU ({:.1} + {:.1} ms, {} iterations), for a render estimated at {rest:.2} s",
+        lbvh_seconds * 1e3,
+        prbvh_seconds * 1e3,
+        stats.iterations.len()
+    );
+    let (rs, report) = assemble(&tree, label, excluded);
+    Ok(Some((rs, report, Some(film))))
 }
 
 /// The film's sums from the device's: the exact sum as it is, and `sum_sq` from the shifted
