@@ -81,6 +81,43 @@ fn wide_node_hits(node: u32, r: TraceRay, limit: f32, near: u32) -> vec4<u32> {
     return vec4<u32>(w1.x, (hits & 0xff000000u) | (e >> 24u), w1.y, hits & 0x00ffffffu);
 }
 
+// Groups of inner children still to visit (see the top of the file).
+struct WideStack {
+    groups: array<vec2<u32>, WIDE_STACK_SIZE>,
+    sp: u32,
+}
+
+// The near octant of a ray going along `dir`: a node's children are visited by their slot XOR it.
+fn near_octant(dir: vec3<f32>) -> u32 {
+    return (select(0u, 1u, dir.x < 0.0) | select(0u, 2u, dir.y < 0.0) | select(0u, 4u, dir.z < 0.0)) ^ 7u;
+}
+
+// The node of group `g`'s first child still to visit (nearest first by the octant `near`), the
+// rest of the group pushed where any remains.
+fn wide_take(g: vec2<u32>, near: u32, stack: ptr<function, WideStack>) -> u32 {
+    let bit = firstTrailingBit(g.y >> 24u);
+    let rest = vec2<u32>(g.x, g.y & ~(1u << (24u + bit)));
+    if (rest.y & 0xff000000u) != 0u && (*stack).sp < WIDE_STACK_SIZE {
+        (*stack).groups[(*stack).sp] = rest;
+        (*stack).sp += 1u;
+    }
+    let slot = bit ^ near;
+    return g.x + countOneBits(g.y & ((1u << slot) - 1u) & 0xffu);
+}
+
+// Group `g`, or where it has no child left the last one pushed; false when none is left.
+fn wide_next_group(g: ptr<function, vec2<u32>>, stack: ptr<function, WideStack>) -> bool {
+    if ((*g).y & 0xff000000u) != 0u {
+        return true;
+    }
+    if (*stack).sp == 0u {
+        return false;
+    }
+    (*stack).sp -= 1u;
+    *g = (*stack).groups[(*stack).sp];
+    return true;
+}
+
 // Closest hit (any = false) or any hit (any = true; its index is then any hit's) in the tree
 // whose root is node `root` (0 in a flat scene, a mesh's root in a two-level one), better than
 // `best_in` (its t the limit), leaving out triangle position `skip`; `inst` and
@@ -88,35 +125,23 @@ fn wide_node_hits(node: u32, r: TraceRay, limit: f32, near: u32) -> vec4<u32> {
 // flat scene).
 fn traverse_tree(root: u32, ray: Ray, best_in: Hit, skip: u32, any: bool, inst: u32, inst_material: u32) -> Hit {
     var best = best_in;
-    let t_max = best.t;
     let r = prepare_ray(ray);
     let slack = cull_slack(root, ray);
-    var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
-    let octant = select(0u, 1u, ray.dir.x < 0.0) | select(0u, 2u, ray.dir.y < 0.0) | select(0u, 4u, ray.dir.z < 0.0);
-    let near = octant ^ 7u;
-    var stack: array<vec2<u32>, WIDE_STACK_SIZE>;
-    var sp = 0u;
+    var limit = select(T_FAR, best.t * CULL_SCALE + slack, best.t < T_FAR || any);
+    let near = near_octant(ray.dir);
+    var stack: WideStack;
     // The root as the one inner child of a group based at it, in slot 0.
-    var nodes_group = vec2<u32>(root, (1u << (24u + near)) | 1u);
+    var group = vec2<u32>(root, (1u << (24u + near)) | 1u);
     loop {
-        var tris_group = vec2<u32>(0u, 0u);
-        if (nodes_group.y & 0xff000000u) != 0u {
-            let bit = firstTrailingBit(nodes_group.y >> 24u);
-            nodes_group.y &= ~(1u << (24u + bit));
-            if (nodes_group.y & 0xff000000u) != 0u && sp < WIDE_STACK_SIZE {
-                stack[sp] = nodes_group;
-                sp += 1u;
-            }
-            let slot = bit ^ near;
-            let node = nodes_group.x + countOneBits(nodes_group.y & ((1u << slot) - 1u) & 0xffu);
-            let visit = wide_node_hits(node, r, limit, near);
-            nodes_group = visit.xy;
-            tris_group = visit.zw;
+        var tris = vec2<u32>(0u, 0u);
+        if (group.y & 0xff000000u) != 0u {
+            let visit = wide_node_hits(wide_take(group, near, &stack), r, limit, near);
+            group = visit.xy;
+            tris = visit.zw;
         }
-        while tris_group.y != 0u {
-            let k = firstTrailingBit(tris_group.y);
-            tris_group.y &= tris_group.y - 1u;
-            let i = tris_group.x + k;
+        while tris.y != 0u {
+            let i = tris.x + firstTrailingBit(tris.y);
+            tris.y &= tris.y - 1u;
             if i == skip {
                 continue;
             }
@@ -129,49 +154,35 @@ fn traverse_tree(root: u32, ray: Ray, best_in: Hit, skip: u32, any: bool, inst: 
                 limit = best.t * CULL_SCALE + slack;
             }
         }
-        if (nodes_group.y & 0xff000000u) == 0u {
-            if sp == 0u {
-                break;
-            }
-            sp -= 1u;
-            nodes_group = stack[sp];
+        if !wide_next_group(&group, &stack) {
+            break;
         }
     }
     return best;
 }
 
 // TwoLevel::closest_hit_skipping and any_hit_skipping over the wide top-level tree (root node 0;
-// a leaf lane's "triangles" are instance positions): the same loop as `traverse_tree`, each hit
-// leaf's instances traced through their meshes' trees (`visit_instance`), after which the
-// culling limit shrinks to the best hit. `skip` is (instance position, triangle position).
+// a leaf lane's "triangles" are instance positions): `traverse_tree`'s walk, each hit leaf's
+// instances traced through their meshes' trees (`visit_instance`), after which the culling
+// limit shrinks to the best hit. `skip` is (instance position, triangle position).
 fn traverse_instances(ray: Ray, t_max: f32, skip: vec2<u32>, any: bool) -> Hit {
     var best = no_hit(t_max);
     let r = prepare_ray(ray);
     let slack = cull_slack(0u, ray);
     var limit = select(T_FAR, t_max * CULL_SCALE + slack, t_max < T_FAR || any);
-    let octant = select(0u, 1u, ray.dir.x < 0.0) | select(0u, 2u, ray.dir.y < 0.0) | select(0u, 4u, ray.dir.z < 0.0);
-    let near = octant ^ 7u;
-    var stack: array<vec2<u32>, WIDE_STACK_SIZE>;
-    var sp = 0u;
-    var nodes_group = vec2<u32>(0u, (1u << (24u + near)) | 1u);
+    let near = near_octant(ray.dir);
+    var stack: WideStack;
+    var group = vec2<u32>(0u, (1u << (24u + near)) | 1u);
     loop {
-        var leaves_group = vec2<u32>(0u, 0u);
-        if (nodes_group.y & 0xff000000u) != 0u {
-            let bit = firstTrailingBit(nodes_group.y >> 24u);
-            nodes_group.y &= ~(1u << (24u + bit));
-            if (nodes_group.y & 0xff000000u) != 0u && sp < WIDE_STACK_SIZE {
-                stack[sp] = nodes_group;
-                sp += 1u;
-            }
-            let slot = bit ^ near;
-            let node = nodes_group.x + countOneBits(nodes_group.y & ((1u << slot) - 1u) & 0xffu);
-            let visit = wide_node_hits(node, r, limit, near);
-            nodes_group = visit.xy;
-            leaves_group = visit.zw;
+        var leaves = vec2<u32>(0u, 0u);
+        if (group.y & 0xff000000u) != 0u {
+            let visit = wide_node_hits(wide_take(group, near, &stack), r, limit, near);
+            group = visit.xy;
+            leaves = visit.zw;
         }
-        while leaves_group.y != 0u {
-            let k = leaves_group.x + firstTrailingBit(leaves_group.y);
-            leaves_group.y &= leaves_group.y - 1u;
+        while leaves.y != 0u {
+            let k = leaves.x + firstTrailingBit(leaves.y);
+            leaves.y &= leaves.y - 1u;
             let h = visit_instance(k, ray, best, skip, any);
             if h.index != best.index || h.instance != best.instance {
                 best = h;
@@ -181,12 +192,8 @@ fn traverse_instances(ray: Ray, t_max: f32, skip: vec2<u32>, any: bool) -> Hit {
                 limit = best.t * CULL_SCALE + slack;
             }
         }
-        if (nodes_group.y & 0xff000000u) == 0u {
-            if sp == 0u {
-                break;
-            }
-            sp -= 1u;
-            nodes_group = stack[sp];
+        if !wide_next_group(&group, &stack) {
+            break;
         }
     }
     return best;
