@@ -415,18 +415,21 @@ fn try_triangle(i: u32, inst: u32, inst_material: u32, r: TraceRay, best: Hit) -
 
 // ---- two levels: the top-level tree over instances ----
 
+// The linear part of an affine map given by its columns x, y, z applied to `v`, as glam's
+// Affine3A: the axes scaled and summed in order (the translation, where wanted, added last).
+fn linear(x: vec3<f32>, y: vec3<f32>, z: vec3<f32>, v: vec3<f32>) -> vec3<f32> {
+    return x * v.x + y * v.y + z * v.z;
+}
+
+// The ray in the instance's object space; its direction is not renormalised, so t is the same
+// in both spaces.
 fn inst_to_object(inst: GpuInstance, ray: Ray) -> Ray {
-    let o = ray.origin;
-    let d = ray.dir;
-    // As glam's Affine3A: the axes scaled and summed in order, then the translation. The
-    // direction is not renormalised, so t is the same in both spaces.
-    let origin = inst.to_object_x * o.x + inst.to_object_y * o.y + inst.to_object_z * o.z + inst.to_object_t;
-    let dir = inst.to_object_x * d.x + inst.to_object_y * d.y + inst.to_object_z * d.z;
-    return Ray(origin, dir);
+    let origin = linear(inst.to_object_x, inst.to_object_y, inst.to_object_z, ray.origin) + inst.to_object_t;
+    return Ray(origin, linear(inst.to_object_x, inst.to_object_y, inst.to_object_z, ray.dir));
 }
 
 fn inst_to_world(inst: GpuInstance, p: vec3<f32>) -> vec3<f32> {
-    return inst.to_world_x * p.x + inst.to_world_y * p.y + inst.to_world_z * p.z + inst.to_world_t;
+    return linear(inst.to_world_x, inst.to_world_y, inst.to_world_z, p) + inst.to_world_t;
 }
 
 // The instance at position `k` traced for a better hit than `best` (its t the limit): the ray
@@ -802,10 +805,9 @@ fn agrees(wi_ng: f32, wo_ng: f32, wi_n: f32, wo_n: f32) -> bool {
     return ((wi_ng > 0.0) == (wo_ng > 0.0)) == ((wi_n > 0.0) == (wo_n > 0.0)) && wi_ng != 0.0;
 }
 
-// The inverse transpose of instance `inst`'s placement applied to the object-space normal
-// `n`, normalised (as Geometry::intersect_from places a mesh's vertex normals).
-fn inst_normal(inst: u32, n: vec3<f32>) -> vec3<f32> {
-    let m = instances[inst];
+// The inverse transpose of instance `m`'s placement applied to the object-space normal `n`,
+// normalised (as Geometry::intersect_from places a mesh's vertex normals).
+fn inst_normal(m: GpuInstance, n: vec3<f32>) -> vec3<f32> {
     return normalize_or_zero(vec3<f32>(dot(m.to_object_x, n), dot(m.to_object_y, n), dot(m.to_object_z, n)));
 }
 
@@ -819,9 +821,10 @@ fn shading_normal(index: u32, inst: u32, u: f32, v: f32, ng: vec3<f32>) -> vec3<
     var c1 = vec3<f32>(normals[b + 3u], normals[b + 4u], normals[b + 5u]);
     var c2 = vec3<f32>(normals[b + 6u], normals[b + 7u], normals[b + 8u]);
     if HAS_INSTANCES {
-        a = inst_normal(inst, a);
-        c1 = inst_normal(inst, c1);
-        c2 = inst_normal(inst, c2);
+        let m = instances[inst];
+        a = inst_normal(m, a);
+        c1 = inst_normal(m, c1);
+        c2 = inst_normal(m, c2);
     }
     let zero = vec3<f32>(0.0);
     if all(a == zero) || all(c1 == zero) || all(c2 == zero) {

@@ -108,9 +108,7 @@ fn device_tree(
     let (gpu, _) = lbvh::build_on_device(ctx, prims)?;
     let scheme = prbvh::LockScheme::best_for(ctx);
     let config = crate::bvh::build::prbvh::PrbvhConfig { collapse: None, ..Default::default() };
-    let (codes, ids) = gpu.read_codes(ctx)?;
-    let scrambled = crate::bvh::build::lbvh::refinable_primitives(prims, &codes, &ids);
-    if scrambled > prims.len() / 64 {
+    if let Some(scrambled) = equal_code_runs(ctx, &gpu, prims)? {
         drop(gpu);
         let cpu = crate::bvh::build::lbvh::build(prims);
         let why = format!("{scrambled} triangles in runs of equal Morton codes");
@@ -130,6 +128,18 @@ fn device_tree(
         label = format!("lbvh+prbvh on the GPU, {} iterations, {scheme:?} locks", stats.iterations.len());
     }
     Ok((DeviceTree::OnDevice(gpu), label))
+}
+
+/// The primitives in runs of equal Morton codes in the GPU's LBVH `gpu` over `prims`, where
+/// they are more than 1/64 of them (see [`device_tree`]); `None` where the GPU's tree serves.
+fn equal_code_runs(
+    ctx: &GpuContext,
+    gpu: &lbvh::GpuBvh,
+    prims: &[crate::geometry::Aabb],
+) -> Result<Option<usize>, GpuError> {
+    let (codes, ids) = gpu.read_codes(ctx)?;
+    let scrambled = crate::bvh::build::lbvh::refinable_primitives(prims, &codes, &ids);
+    Ok((scrambled > prims.len() / 64).then_some(scrambled))
 }
 
 /// Meshes of at least this many triangles get their trees built on the GPU in a two-level

@@ -125,6 +125,14 @@ impl GpuForm {
         }
     }
 
+    /// Words of one node of its tree.
+    fn node_words(self) -> usize {
+        match self {
+            GpuForm::Binary => size_of::<BvhNode>() / 4,
+            GpuForm::Wide8 => super::wide::WIDE_NODE_WORDS,
+        }
+    }
+
     /// The WGSL file of its traversal.
     fn shader_file(self) -> &'static str {
         match self {
@@ -733,10 +741,7 @@ fn instanced_geometry(
     form: GpuForm,
 ) -> Result<GeometryData, GpuError> {
     let meshes = g.two_level.meshes();
-    let node_words = match form {
-        GpuForm::Binary => size_of::<BvhNode>() / 4,
-        GpuForm::Wide8 => super::wide::WIDE_NODE_WORDS,
-    };
+    let node_words = form.node_words();
     let has_alpha = |m: u32| scene.materials.get(m as usize).is_some_and(|m| m.alpha.is_some());
     // A mesh whose triangles some object overrides with a masked material: its triangles are
     // tested for cut-outs (with the override, where the instance has one).
@@ -842,10 +847,7 @@ fn two_level_buffers(
     form: GpuForm,
 ) -> Result<(TwoLevelBuffers, Vec<u32>), GpuError> {
     let (tlas, order) = top_level_words(g, form)?;
-    let node_words = match form {
-        GpuForm::Binary => size_of::<BvhNode>() / 4,
-        GpuForm::Wide8 => super::wide::WIDE_NODE_WORDS,
-    };
+    let node_words = form.node_words();
     if tlas.len() > tlas_nodes * node_words {
         return Err(GpuError::Other(format!(
             "the top-level BVH has {} nodes, more than the {tlas_nodes} kept for it",
@@ -1611,8 +1613,7 @@ fn auto_on_device(
     }
     let prims: Vec<Aabb> = triangles.par_iter().map(Triangle::aabb).collect();
     let (gpu, times) = super::lbvh::build_on_device(ctx, &prims)?;
-    let (codes, ids) = gpu.read_codes(ctx)?;
-    if crate::bvh::build::lbvh::refinable_primitives(&prims, &codes, &ids) > prims.len() / 64 {
+    if super::equal_code_runs(ctx, &gpu, &prims)?.is_some() {
         return Ok(None);
     }
     let lbvh_seconds = times.build.as_secs_f64();
